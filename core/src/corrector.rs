@@ -1,0 +1,405 @@
+//! The online corrector (SPEC section 3): a sliding window of corrected positions, lane matching,
+//! trimmed ICP, and the accumulated correction `map_from_odom`.
+//!
+//! One corrector serves one odometry source. Positions are metres in the source's planar frame
+//! (`odom`) on the way in and in the lane map's plane (`map`) on the way out.
+
+use std::sync::Arc;
+
+use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
+use crate::lane_map::{Candidate, LaneMap};
+use crate::matching::{match_window, Correspondence, MatchParams};
+use crate::params::Params;
+use crate::se2::Se2;
+
+/// Why a matching attempt did not produce an accepted correction.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RejectReason {
+    /// Fewer than `eta |W|` window poses found a lane.
+    TooFewMatches,
+    /// The trimmed ICP residual was at least epsilon.
+    ResidualTooLarge,
+}
+
+/// What happened on one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Status {
+    /// The window is still shorter than `M_min` poses or `L_min` metres: no matching ran.
+    WarmingUp {
+        /// Poses in the window.
+        window_len: usize,
+    },
+    /// A correction was computed and applied.
+    Accepted {
+        /// Mean residual of the kept pairs (metres).
+        residual_m: f64,
+        /// `|C| / |W|`.
+        match_ratio: f64,
+        /// Poses in the window.
+        window_len: usize,
+    },
+    /// Matching ran but the correction was refused; the oldest window pose was dropped.
+    Rejected {
+        /// Why.
+        reason: RejectReason,
+        /// Mean residual (metres); infinite when there were too few matches.
+        residual_m: f64,
+        /// `|C| / |W|`.
+        match_ratio: f64,
+        /// Poses in the window after the drop.
+        window_len: usize,
+    },
+    /// A rejection pushed the failure count past `E_max`: the window was cut to `M_min - 1`.
+    Reset {
+        /// Why the last attempt failed.
+        reason: RejectReason,
+        /// Mean residual (metres); infinite when there were too few matches.
+        residual_m: f64,
+        /// `|C| / |W|`.
+        match_ratio: f64,
+        /// Poses in the window after the cut.
+        window_len: usize,
+    },
+    /// The input pose was not finite: it was not added and nothing changed.
+    InvalidInput,
+}
+
+impl Status {
+    /// A short lowercase name: `warming_up`, `accepted`, `rejected`, `reset`, `invalid_input`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Status::WarmingUp { .. } => "warming_up",
+            Status::Accepted { .. } => "accepted",
+            Status::Rejected { .. } => "rejected",
+            Status::Reset { .. } => "reset",
+            Status::InvalidInput => "invalid_input",
+        }
+    }
+
+    /// True when matching ran on this step (the reference figures' "attempts").
+    pub fn attempted(&self) -> bool {
+        matches!(
+            self,
+            Status::Accepted { .. } | Status::Rejected { .. } | Status::Reset { .. }
+        )
+    }
+}
+
+/// The result of one step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    /// The corrected position (metres, map plane).
+    pub position_in_map: [f64; 2],
+    /// The correction after this step; apply it to the raw pose for the corrected pose.
+    pub map_from_odom: Se2,
+    /// What happened.
+    pub status: Status,
+}
+
+/// The window of corrected positions, oldest first, kept contiguous for matching.
+/// Dropping from the front moves a start offset; the buffer is compacted when the dead prefix
+/// outgrows the live part, so every operation is amortised O(1).
+#[derive(Clone, Debug, Default)]
+struct Window {
+    buf: Vec<[f64; 2]>,
+    start: usize,
+}
+
+impl Window {
+    fn as_slice(&self) -> &[[f64; 2]] {
+        &self.buf[self.start..]
+    }
+
+    fn as_mut_slice(&mut self) -> &mut [[f64; 2]] {
+        &mut self.buf[self.start..]
+    }
+
+    fn len(&self) -> usize {
+        self.buf.len() - self.start
+    }
+
+    fn push(&mut self, p: [f64; 2]) {
+        if self.start > 0 && self.start >= self.len() {
+            self.buf.drain(..self.start);
+            self.start = 0;
+        }
+        self.buf.push(p);
+    }
+
+    fn drop_oldest(&mut self, count: usize) {
+        self.start += count.min(self.len());
+    }
+
+    fn path_length(&self) -> f64 {
+        self.as_slice()
+            .windows(2)
+            .map(|w| {
+                let dx = w[1][0] - w[0][0];
+                let dy = w[1][1] - w[0][1];
+                (dx * dx + dy * dy).sqrt()
+            })
+            .sum()
+    }
+}
+
+/// One odometry source's corrector.
+pub struct Corrector {
+    map: Arc<LaneMap>,
+    params: Params,
+    map_from_odom: Se2,
+    window: Window,
+    failures: u32,
+    candidates: Vec<Candidate>,
+    correspondences: Vec<Correspondence>,
+    icp: IcpScratch,
+}
+
+impl Corrector {
+    /// A corrector on a shared lane map. `params` must pass [`Params::validate`].
+    pub fn new(map: Arc<LaneMap>, params: Params) -> Self {
+        Corrector {
+            map,
+            params,
+            map_from_odom: Se2::IDENTITY,
+            window: Window::default(),
+            failures: 0,
+            candidates: Vec::new(),
+            correspondences: Vec::new(),
+            icp: IcpScratch::default(),
+        }
+    }
+
+    /// The parameters in use.
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+
+    /// The current correction.
+    pub fn map_from_odom(&self) -> Se2 {
+        self.map_from_odom
+    }
+
+    /// Processes the next odometry position (metres, planar odometry frame).
+    pub fn push(&mut self, position_in_odom: [f64; 2]) -> Step {
+        if !(position_in_odom[0].is_finite() && position_in_odom[1].is_finite()) {
+            return Step {
+                position_in_map: [f64::NAN, f64::NAN],
+                map_from_odom: self.map_from_odom,
+                status: Status::InvalidInput,
+            };
+        }
+        let p = &self.params;
+        self.window.push(self.map_from_odom.apply(position_in_odom));
+        if self.window.len() > p.max_window {
+            self.window.drop_oldest(1);
+        }
+        let window_len = self.window.len();
+        if window_len < p.min_window || self.window.path_length() < p.min_path_length_m {
+            return self.step(Status::WarmingUp { window_len });
+        }
+        let match_params = MatchParams {
+            neighbours: p.neighbours,
+            min_direction_cos: p.min_direction_cos,
+        };
+        match_window(
+            &self.map,
+            self.window.as_slice(),
+            &match_params,
+            &mut self.candidates,
+            &mut self.correspondences,
+        );
+        let matched = self.correspondences.len();
+        let match_ratio = matched as f64 / window_len as f64;
+        let (reason, residual_m) =
+            if (matched as f64) < p.min_match_ratio * window_len as f64 || matched < 2 {
+                (RejectReason::TooFewMatches, f64::INFINITY)
+            } else {
+                let icp_params = IcpParams {
+                    trim_ratio: p.trim_ratio,
+                    max_iterations: p.icp_max_iterations,
+                    tolerance_m: p.icp_tolerance_m,
+                };
+                let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);
+                if fit.residual_m < p.max_residual_m {
+                    let correction = fit.transform;
+                    self.map_from_odom = correction * self.map_from_odom;
+                    for x in self.window.as_mut_slice() {
+                        *x = correction.apply(*x);
+                    }
+                    self.failures = 0;
+                    return self.step(Status::Accepted {
+                        residual_m: fit.residual_m,
+                        match_ratio,
+                        window_len,
+                    });
+                }
+                (RejectReason::ResidualTooLarge, fit.residual_m)
+            };
+        self.window.drop_oldest(1);
+        self.failures += 1;
+        if self.failures > p.max_failures {
+            let keep = p.min_window - 1;
+            self.window
+                .drop_oldest(self.window.len().saturating_sub(keep));
+            self.failures = 0;
+            return self.step(Status::Reset {
+                reason,
+                residual_m,
+                match_ratio,
+                window_len: self.window.len(),
+            });
+        }
+        let window_len = self.window.len();
+        self.step(Status::Rejected {
+            reason,
+            residual_m,
+            match_ratio,
+            window_len,
+        })
+    }
+
+    fn step(&self, status: Status) -> Step {
+        Step {
+            position_in_map: self.window.as_slice()[self.window.len() - 1],
+            map_from_odom: self.map_from_odom,
+            status,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lane_map::Lane;
+
+    /// A long straight eastbound lane along y = 0 and a northbound one along x = 300, so that
+    /// an L-shaped drive constrains both axes.
+    fn l_shaped_map() -> Arc<LaneMap> {
+        let east: Vec<[f64; 2]> = (0..=100).map(|i| [i as f64 * 3.0, 0.0]).collect();
+        let north: Vec<[f64; 2]> = (1..=100).map(|i| [300.0, i as f64 * 3.0]).collect();
+        Arc::new(
+            LaneMap::new(&[
+                Lane {
+                    id: 1,
+                    points: east,
+                },
+                Lane {
+                    id: 2,
+                    points: north,
+                },
+            ])
+            .unwrap(),
+        )
+    }
+
+    fn small_params() -> Params {
+        let mut p = crate::params::Preset::KissIcp.params();
+        p.min_window = 20;
+        p.max_window = 200;
+        p.max_failures = 3;
+        p
+    }
+
+    fn l_drive(offset: [f64; 2]) -> Vec<[f64; 2]> {
+        let mut v: Vec<[f64; 2]> = (0..150).map(|i| [i as f64 * 2.0, 0.0]).collect();
+        v.extend((1..150).map(|i| [300.0, i as f64 * 2.0]));
+        v.into_iter()
+            .map(|p| [p[0] + offset[0], p[1] + offset[1]])
+            .collect()
+    }
+
+    #[test]
+    fn warms_up_then_accepts_and_removes_an_offset() {
+        let mut c = Corrector::new(l_shaped_map(), small_params());
+        let steps: Vec<Step> = l_drive([0.0, 1.0]).into_iter().map(|p| c.push(p)).collect();
+        assert!(matches!(
+            steps[0].status,
+            Status::WarmingUp { window_len: 1 }
+        ));
+        assert!(matches!(
+            steps[18].status,
+            Status::WarmingUp { window_len: 19 }
+        ));
+        assert!(matches!(
+            steps[19].status,
+            Status::Accepted { window_len: 20, .. }
+        ));
+        let last = steps.last().unwrap();
+        assert!(matches!(last.status, Status::Accepted { .. }));
+        let [x, y] = last.map_from_odom.translation();
+        assert!(x.abs() < 1e-6 && (y + 1.0).abs() < 1e-6, "{x} {y}");
+    }
+
+    #[test]
+    fn rejection_drops_the_oldest_pose_and_counts_failures() {
+        // Driving west on an eastbound-only map: nothing matches.
+        let mut c = Corrector::new(l_shaped_map(), small_params());
+        let drive: Vec<[f64; 2]> = (0..40).map(|i| [250.0 - i as f64 * 2.0, 0.0]).collect();
+        let mut statuses = Vec::new();
+        let mut failures = Vec::new();
+        for p in drive {
+            statuses.push(c.push(p).status);
+            failures.push(c.failures);
+        }
+        let rejected = |s: &Status| {
+            matches!(
+                s,
+                Status::Rejected {
+                    reason: RejectReason::TooFewMatches,
+                    window_len: 19,
+                    ..
+                }
+            )
+        };
+        // Pose 20 fills the window; each rejection drops the oldest pose (20 -> 19) and counts.
+        assert!(matches!(statuses[18], Status::WarmingUp { .. }));
+        assert!(rejected(&statuses[19]) && failures[19] == 1);
+        assert!(rejected(&statuses[20]) && failures[20] == 2);
+        assert!(rejected(&statuses[21]) && failures[21] == 3);
+        // The fourth failure (E = 4 > E_max = 3) resets and clears the count.
+        assert!(matches!(statuses[22], Status::Reset { .. }) && failures[22] == 0);
+        assert!(rejected(&statuses[23]) && failures[23] == 1);
+        assert_eq!(c.map_from_odom(), Se2::IDENTITY);
+    }
+
+    #[test]
+    fn reset_cuts_a_long_window_to_min_window_minus_one() {
+        // Accepted steps grow the window past M_min; a U-turn then makes every step fail.
+        let mut c = Corrector::new(l_shaped_map(), small_params());
+        let mut drive: Vec<[f64; 2]> = (0..100).map(|i| [i as f64 * 2.0, 0.0]).collect();
+        drive.extend((1..150).map(|i| [198.0 - i as f64 * 1.0, 0.0]));
+        let mut previous = None;
+        for p in drive {
+            let step = c.push(p);
+            if let Status::Reset { window_len, .. } = step.status {
+                let Some(Status::Rejected {
+                    window_len: before, ..
+                }) = previous
+                else {
+                    panic!("a reset follows rejections, got {previous:?}");
+                };
+                assert!(
+                    before > 19,
+                    "the window was longer than M_min - 1: {before}"
+                );
+                assert_eq!(window_len, 19);
+                assert_eq!(c.window.len(), 19);
+                assert_eq!(c.window.as_slice()[18], step.position_in_map, "newest kept");
+                return;
+            }
+            previous = Some(step.status);
+        }
+        panic!("no reset happened");
+    }
+
+    #[test]
+    fn non_finite_input_changes_nothing() {
+        let mut c = Corrector::new(l_shaped_map(), small_params());
+        c.push([0.0, 0.0]);
+        let s = c.push([f64::NAN, 1.0]);
+        assert_eq!(s.status, Status::InvalidInput);
+        assert_eq!(c.window.len(), 1);
+        let s = c.push([f64::INFINITY, 1.0]);
+        assert_eq!(s.status, Status::InvalidInput);
+    }
+}

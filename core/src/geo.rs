@@ -1,0 +1,233 @@
+//! WGS84 to metric plane projections, and anchors that place an odometry frame in that plane.
+//!
+//! The map plane is East-North (x east, y north, metres) at an origin latitude/longitude.
+
+use std::f64::consts::PI;
+use std::str::FromStr;
+
+use crate::se2::Se2;
+
+/// WGS84 semi-major axis (metres).
+pub const WGS84_A: f64 = 6_378_137.0;
+/// WGS84 flattening.
+pub const WGS84_F: f64 = 1.0 / 298.257_223_563;
+
+/// How geographic coordinates become plane coordinates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Projection {
+    /// The local tangent plane (East-North-Up) of the WGS84 ellipsoid at the origin: true scale
+    /// and true north at the origin. Right for real metric odometry.
+    #[default]
+    Tangent,
+    /// KITTI's spherical formula: `E = (lon - lon0) pi/180 R cos(lat0)`,
+    /// `N = (lat - lat0) pi/180 R`, `R = 6378137 m`. KITTI's ground truth and
+    /// `kitti/georef.csv` were computed with it, so maps compared with them must use it.
+    Kitti,
+}
+
+impl Projection {
+    /// The name used in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Projection::Tangent => "tangent",
+            Projection::Kitti => "kitti",
+        }
+    }
+}
+
+impl FromStr for Projection {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "tangent" => Ok(Projection::Tangent),
+            "kitti" => Ok(Projection::Kitti),
+            other => Err(format!(
+                "unknown projection '{other}' (expected tangent or kitti)"
+            )),
+        }
+    }
+}
+
+fn ecef(lat_deg: f64, lon_deg: f64) -> [f64; 3] {
+    let e2 = WGS84_F * (2.0 - WGS84_F);
+    let (sl, cl) = (lat_deg * PI / 180.0).sin_cos();
+    let (so, co) = (lon_deg * PI / 180.0).sin_cos();
+    let n = WGS84_A / (1.0 - e2 * sl * sl).sqrt();
+    [n * cl * co, n * cl * so, n * (1.0 - e2) * sl]
+}
+
+/// A projection fixed at an origin: maps latitude/longitude (degrees) to East/North (metres).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapPlane {
+    /// The projection.
+    pub projection: Projection,
+    /// Origin latitude (degrees, WGS84).
+    pub origin_lat: f64,
+    /// Origin longitude (degrees, WGS84).
+    pub origin_lon: f64,
+}
+
+impl MapPlane {
+    /// A plane at the given origin (degrees).
+    pub fn new(projection: Projection, origin_lat: f64, origin_lon: f64) -> Self {
+        MapPlane {
+            projection,
+            origin_lat,
+            origin_lon,
+        }
+    }
+
+    /// `[east, north]` in metres of a WGS84 point (degrees).
+    pub fn project(&self, lat: f64, lon: f64) -> [f64; 2] {
+        match self.projection {
+            Projection::Kitti => {
+                let r = WGS84_A;
+                [
+                    (lon - self.origin_lon) * PI / 180.0 * r * (self.origin_lat * PI / 180.0).cos(),
+                    (lat - self.origin_lat) * PI / 180.0 * r,
+                ]
+            }
+            Projection::Tangent => {
+                let p = ecef(lat, lon);
+                let o = ecef(self.origin_lat, self.origin_lon);
+                let d = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
+                let (sl, cl) = (self.origin_lat * PI / 180.0).sin_cos();
+                let (so, co) = (self.origin_lon * PI / 180.0).sin_cos();
+                [
+                    -so * d[0] + co * d[1],
+                    -sl * co * d[0] - sl * so * d[1] + cl * d[2],
+                ]
+            }
+        }
+    }
+
+    /// The WGS84 point `(lat, lon)` in degrees of a plane point (inverse of [`Self::project`],
+    /// on the ellipsoid surface for the tangent plane).
+    pub fn unproject(&self, en: [f64; 2]) -> (f64, f64) {
+        match self.projection {
+            Projection::Kitti => {
+                let r = WGS84_A;
+                let lat = self.origin_lat + en[1] / r * 180.0 / PI;
+                let lon = self.origin_lon
+                    + en[0] / (r * (self.origin_lat * PI / 180.0).cos()) * 180.0 / PI;
+                (lat, lon)
+            }
+            Projection::Tangent => {
+                // Newton iterations on the forward projection: converges to sub-millimetre in a
+                // few steps because the projection is nearly linear near the origin.
+                let (mut lat, mut lon) = (self.origin_lat, self.origin_lon);
+                for _ in 0..6 {
+                    let [e, n] = self.project(lat, lon);
+                    let h = 1e-6;
+                    let [e_lat, n_lat] = self.project(lat + h, lon);
+                    let [e_lon, n_lon] = self.project(lat, lon + h);
+                    let (a, b, c, d) = (
+                        (e_lat - e) / h,
+                        (e_lon - e) / h,
+                        (n_lat - n) / h,
+                        (n_lon - n) / h,
+                    );
+                    let det = a * d - b * c;
+                    let (re, rn) = (en[0] - e, en[1] - n);
+                    lat += (d * re - b * rn) / det;
+                    lon += (-c * re + a * rn) / det;
+                }
+                (lat, lon)
+            }
+        }
+    }
+}
+
+/// Places a source's planar odometry frame in the map plane: the plane's origin (degrees) and
+/// the pose of the odometry frame in it, `[E, N] = R(yaw) [u, v] + [east, north]`, yaw counter-
+/// clockwise from East (the semantics of `kitti/georef.csv`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Anchor {
+    /// Origin latitude of the map plane (degrees).
+    pub lat: f64,
+    /// Origin longitude of the map plane (degrees).
+    pub lon: f64,
+    /// Yaw of the odometry frame's x axis, counter-clockwise from East (degrees).
+    pub yaw_deg: f64,
+    /// East offset of the odometry origin (metres).
+    pub east_m: f64,
+    /// North offset of the odometry origin (metres).
+    pub north_m: f64,
+}
+
+impl Anchor {
+    /// `plane_from_odom`: maps planar odometry coordinates into the East-North plane.
+    pub fn plane_from_odom(&self) -> Se2 {
+        Se2::new(self.yaw_deg * PI / 180.0, self.east_m, self.north_m)
+    }
+}
+
+impl FromStr for Anchor {
+    type Err = String;
+
+    /// Parses `LAT,LON,YAW_DEG[,EAST_M,NORTH_M]`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let values: Vec<f64> = s
+            .split(',')
+            .map(|v| v.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|e| format!("anchor '{s}': {e}"))?;
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(format!("anchor '{s}': values must be finite"));
+        }
+        match values[..] {
+            [lat, lon, yaw_deg] => Ok(Anchor {
+                lat,
+                lon,
+                yaw_deg,
+                east_m: 0.0,
+                north_m: 0.0,
+            }),
+            [lat, lon, yaw_deg, east_m, north_m] => Ok(Anchor {
+                lat,
+                lon,
+                yaw_deg,
+                east_m,
+                north_m,
+            }),
+            _ => Err(format!(
+                "anchor '{s}': expected LAT,LON,YAW_DEG or LAT,LON,YAW_DEG,EAST_M,NORTH_M"
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tangent_plane_has_true_scale() {
+        // One arc-minute of latitude at 49 N is about 1853 m on the ellipsoid.
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let [e, n] = plane.project(49.0 + 1.0 / 60.0, 8.4);
+        assert!(e.abs() < 1e-3 && (n - 1853.2).abs() < 0.5, "{e} {n}");
+        let (lat, lon) = plane.unproject(plane.project(49.01, 8.43));
+        assert!((lat - 49.01).abs() < 1e-9 && (lon - 8.43).abs() < 1e-9);
+    }
+
+    #[test]
+    fn kitti_projection_is_the_spherical_formula() {
+        let plane = MapPlane::new(Projection::Kitti, 49.0, 8.0);
+        let [e, n] = plane.project(49.001, 8.001);
+        let r = WGS84_A;
+        assert!((n - 0.001 * PI / 180.0 * r).abs() < 1e-9);
+        assert!((e - 0.001 * PI / 180.0 * r * (49.0 * PI / 180.0).cos()).abs() < 1e-9);
+        let (lat, lon) = plane.unproject([e, n]);
+        assert!((lat - 49.001).abs() < 1e-12 && (lon - 8.001).abs() < 1e-12);
+    }
+
+    #[test]
+    fn anchors_parse() {
+        let a: Anchor = "48.98,8.39,59.5,0.8,0.3".parse().unwrap();
+        assert_eq!(a.north_m, 0.3);
+        assert!("48.98,8.39".parse::<Anchor>().is_err());
+        assert!("48.98,nan,1".parse::<Anchor>().is_err());
+    }
+}

@@ -1,0 +1,109 @@
+//! Lane polylines from CSV (`lane_id,x,y`; the rows of one lane contiguous and in driving order;
+//! metres, already in the plane the corrector works in). The points are used as given: no
+//! resampling, so point indices match the file's row order.
+
+use std::path::{Path, PathBuf};
+
+use crate::lane_map::Lane;
+
+/// A lane CSV that could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum LaneCsvError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// A row is malformed.
+    #[error("{path}:{line}: {reason}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The 1-based line number.
+        line: usize,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Parses lane CSV text; `path` only names the source in errors. A header line starting with
+/// a non-numeric field is skipped.
+pub fn parse(text: &str, path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
+    let mut lanes: Vec<Lane> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for (k, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || (k == 0 && line.starts_with(|c: char| c.is_ascii_alphabetic())) {
+            continue;
+        }
+        let error = |reason: String| LaneCsvError::Parse {
+            path: path.to_path_buf(),
+            line: k + 1,
+            reason,
+        };
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let [id, x, y] = fields[..] else {
+            return Err(error(format!(
+                "expected 3 fields (lane_id,x,y), found {}",
+                fields.len()
+            )));
+        };
+        let id: u64 = id
+            .parse()
+            .map_err(|_| error(format!("lane id '{id}' is not an integer")))?;
+        let coord = |s: &str| -> Result<f64, LaneCsvError> {
+            match s.parse::<f64>() {
+                Ok(v) if v.is_finite() => Ok(v),
+                _ => Err(error(format!("'{s}' is not a finite number"))),
+            }
+        };
+        let p = [coord(x)?, coord(y)?];
+        match lanes.last_mut() {
+            Some(lane) if lane.id == id => lane.points.push(p),
+            _ => {
+                if !seen.insert(id) {
+                    return Err(error(format!(
+                        "lane {id} continues after other lanes: its rows must be contiguous"
+                    )));
+                }
+                lanes.push(Lane {
+                    id,
+                    points: vec![p],
+                });
+            }
+        }
+    }
+    Ok(lanes)
+}
+
+/// Reads a lane CSV file.
+pub fn read(path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
+    let text = std::fs::read_to_string(path).map_err(|source| LaneCsvError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse(&text, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_contiguous_lanes() {
+        let lanes = parse("lane_id,x,y\n4,0,0\n4,3,0\n9,1,1\n", Path::new("l.csv")).unwrap();
+        assert_eq!(lanes.len(), 2);
+        assert_eq!(lanes[0].points, vec![[0.0, 0.0], [3.0, 0.0]]);
+    }
+
+    #[test]
+    fn refuses_split_lanes_and_bad_numbers() {
+        let e = parse("4,0,0\n5,0,0\n4,1,1\n", Path::new("l.csv")).unwrap_err();
+        assert!(e.to_string().starts_with("l.csv:3:"), "{e}");
+        let e = parse("4,0,nan\n", Path::new("l.csv")).unwrap_err();
+        assert!(e.to_string().contains("finite"), "{e}");
+    }
+}

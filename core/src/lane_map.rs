@@ -1,0 +1,340 @@
+//! The lane map: lane centerlines as flat arrays of points and segments, indexed by a 2D KD-tree.
+//!
+//! All coordinates are metres in one planar frame (the frame the map was built in). Every lane is
+//! a polyline in its direction of travel. Point `j` of a lane owns the candidate segment that
+//! starts at it, `(j, j + 1)`; a lane's last point owns the segment that ends at it; a lane with
+//! fewer than two points owns no segment (its points are still in the tree, as the paper's
+//! pipeline keeps them).
+
+use std::num::NonZeroUsize;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+
+/// A lane centerline in its direction of travel (metres, map plane).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lane {
+    /// An identifier kept from the source (OSM way id with a lane suffix, Lanelet2 id, CSV id).
+    pub id: u64,
+    /// The centerline points in driving order.
+    pub points: Vec<[f64; 2]>,
+}
+
+/// Marks a point that owns no segment.
+pub const NO_SEGMENT: u32 = u32::MAX;
+
+/// What can go wrong when building a lane map.
+#[derive(Debug, thiserror::Error)]
+pub enum LaneMapError {
+    /// The map has no lane points at all.
+    #[error("the lane map is empty: no lane has any point")]
+    Empty,
+    /// A lane point is NaN or infinite.
+    #[error("lane {lane_id} has a non-finite point ({x}, {y})")]
+    NonFinite {
+        /// The lane's identifier.
+        lane_id: u64,
+        /// x in metres.
+        x: f64,
+        /// y in metres.
+        y: f64,
+    },
+    /// More points than a `u32` index can address.
+    #[error("the lane map has {0} points; at most {max} are supported", max = u32::MAX - 1)]
+    TooManyPoints(usize),
+    /// The KD-tree could not be built.
+    #[error("building the KD-tree failed: {0}")]
+    KdTree(String),
+}
+
+/// A lane map ready for matching: flat, index-addressed arrays plus a KD-tree over the points.
+pub struct LaneMap {
+    points: Vec<[f64; 2]>,
+    segment_start: Vec<u32>,
+    directions: Vec<[f64; 2]>,
+    lane_offsets: Vec<u32>,
+    lane_ids: Vec<u64>,
+    tree: ImmutableKdTree<f64, 2>,
+}
+
+impl std::fmt::Debug for LaneMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LaneMap")
+            .field("lanes", &self.lane_ids.len())
+            .field("points", &self.points.len())
+            .finish()
+    }
+}
+
+/// Drops every point closer than `spacing_m` to the previously kept point (the first point is
+/// always kept). Metres.
+pub fn resample(points: &[[f64; 2]], spacing_m: f64) -> Vec<[f64; 2]> {
+    let mut kept: Vec<[f64; 2]> = Vec::with_capacity(points.len());
+    for &p in points {
+        match kept.last() {
+            Some(&last) if distance(last, p) < spacing_m => {}
+            _ => kept.push(p),
+        }
+    }
+    kept
+}
+
+#[inline]
+fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    let dx = b[0] - a[0];
+    let dy = b[1] - a[1];
+    (dx * dx + dy * dy).sqrt()
+}
+
+/// One KD-tree candidate: squared distance (m^2) and point index.
+pub type Candidate = (f64, u32);
+
+impl LaneMap {
+    /// Builds a lane map from lanes whose points are already spaced as wanted (see [`resample`]).
+    /// Lanes with no points are skipped; the order of lanes and points fixes the point indices.
+    pub fn new(lanes: &[Lane]) -> Result<Self, LaneMapError> {
+        let total: usize = lanes.iter().map(|l| l.points.len()).sum();
+        if total == 0 {
+            return Err(LaneMapError::Empty);
+        }
+        if total >= NO_SEGMENT as usize {
+            return Err(LaneMapError::TooManyPoints(total));
+        }
+        let mut points = Vec::with_capacity(total);
+        let mut segment_start = Vec::with_capacity(total);
+        let mut directions = Vec::with_capacity(total);
+        let mut lane_offsets = vec![0u32];
+        let mut lane_ids = Vec::new();
+        for lane in lanes.iter().filter(|l| !l.points.is_empty()) {
+            if let Some(p) = lane
+                .points
+                .iter()
+                .find(|p| !(p[0].is_finite() && p[1].is_finite()))
+            {
+                return Err(LaneMapError::NonFinite {
+                    lane_id: lane.id,
+                    x: p[0],
+                    y: p[1],
+                });
+            }
+            let first = points.len();
+            let n = lane.points.len();
+            for j in 0..n {
+                let start = if n < 2 {
+                    None
+                } else if j + 1 < n {
+                    Some(j)
+                } else {
+                    Some(j - 1)
+                };
+                let (seg, dir) = match start {
+                    Some(s) => {
+                        let a = lane.points[s];
+                        let b = lane.points[s + 1];
+                        let len = distance(a, b);
+                        if len > 0.0 {
+                            (
+                                (first + s) as u32,
+                                [(b[0] - a[0]) / len, (b[1] - a[1]) / len],
+                            )
+                        } else {
+                            (NO_SEGMENT, [0.0, 0.0])
+                        }
+                    }
+                    None => (NO_SEGMENT, [0.0, 0.0]),
+                };
+                segment_start.push(seg);
+                directions.push(dir);
+            }
+            points.extend_from_slice(&lane.points);
+            lane_offsets.push(points.len() as u32);
+            lane_ids.push(lane.id);
+        }
+        let tree = ImmutableKdTree::new_from_slice(&points)
+            .map_err(|e| LaneMapError::KdTree(format!("{e:?}")))?;
+        Ok(LaneMap {
+            points,
+            segment_start,
+            directions,
+            lane_offsets,
+            lane_ids,
+            tree,
+        })
+    }
+
+    /// Number of lane points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when the map has no points (never, for a built map).
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// All lane points (metres, map plane), lane after lane.
+    pub fn points(&self) -> &[[f64; 2]] {
+        &self.points
+    }
+
+    /// Number of lanes.
+    pub fn lane_count(&self) -> usize {
+        self.lane_ids.len()
+    }
+
+    /// The lanes as `(id, points)`, in map order.
+    pub fn lanes(&self) -> impl Iterator<Item = (u64, &[[f64; 2]])> + '_ {
+        self.lane_ids.iter().enumerate().map(|(k, &id)| {
+            let range = self.lane_offsets[k] as usize..self.lane_offsets[k + 1] as usize;
+            (id, &self.points[range])
+        })
+    }
+
+    /// The candidate segment of point `j`: `(a, b, unit direction)`, or `None` when the point
+    /// owns no segment.
+    #[inline]
+    pub fn segment_of(&self, j: u32) -> Option<([f64; 2], [f64; 2], [f64; 2])> {
+        let s = self.segment_start[j as usize];
+        if s == NO_SEGMENT {
+            return None;
+        }
+        let s = s as usize;
+        Some((
+            self.points[s],
+            self.points[s + 1],
+            self.directions[j as usize],
+        ))
+    }
+
+    #[inline]
+    fn squared_distance(&self, p: [f64; 2], j: u32) -> f64 {
+        let q = self.points[j as usize];
+        let dx = q[0] - p[0];
+        let dy = q[1] - p[1];
+        dx * dx + dy * dy
+    }
+
+    /// The `n` nearest points to `p` (all of them if the map has fewer), ordered by increasing
+    /// distance and, for equal distances, by point index. `out` is cleared first.
+    ///
+    /// The KD-tree breaks ties arbitrarily, so when the `n`-th distance is shared by points the
+    /// tree left out, the whole tie group at that distance is fetched and cut by index.
+    pub fn nearest(&self, p: [f64; 2], n: usize, out: &mut Vec<Candidate>) {
+        out.clear();
+        let Some(n) = NonZeroUsize::new(n.min(self.points.len())) else {
+            return;
+        };
+        let found = self
+            .tree
+            .query(&p)
+            .nearest_n::<SquaredEuclidean<f64>>(n)
+            .execute();
+        out.extend(
+            found
+                .iter()
+                .map(|r| (self.squared_distance(p, r.item), r.item)),
+        );
+        out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        if n.get() == self.points.len() {
+            return;
+        }
+        let last = out[out.len() - 1].0;
+        let tie_start = out.partition_point(|c| c.0 < last);
+        let kiddo_radius = found.iter().map(|r| r.distance).fold(0.0, f64::max);
+        let mut ties: Vec<Candidate> = self
+            .tree
+            .query(&p)
+            .within::<SquaredEuclidean<f64>>(kiddo_radius)
+            .execute()
+            .iter()
+            .map(|r| (self.squared_distance(p, r.item), r.item))
+            .filter(|c| c.0 == last)
+            .collect();
+        ties.sort_unstable_by_key(|c| c.1);
+        out.truncate(tie_start);
+        let room = n.get() - tie_start;
+        out.extend(ties.into_iter().take(room));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn brute_force(points: &[[f64; 2]], p: [f64; 2], n: usize) -> Vec<Candidate> {
+        let mut all: Vec<Candidate> = points
+            .iter()
+            .enumerate()
+            .map(|(j, q)| {
+                let dx = q[0] - p[0];
+                let dy = q[1] - p[1];
+                (dx * dx + dy * dy, j as u32)
+            })
+            .collect();
+        all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        all.truncate(n);
+        all
+    }
+
+    #[test]
+    fn resample_drops_close_points() {
+        let pts = [[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [4.0, 0.0], [6.5, 0.0]];
+        assert_eq!(
+            resample(&pts, 3.0),
+            vec![[0.0, 0.0], [3.0, 0.0], [6.5, 0.0]]
+        );
+    }
+
+    #[test]
+    fn segments_follow_lanes() {
+        let lanes = vec![
+            Lane {
+                id: 7,
+                points: vec![[0.0, 0.0], [3.0, 0.0], [3.0, 4.0]],
+            },
+            Lane {
+                id: 8,
+                points: vec![[9.0, 9.0]],
+            },
+        ];
+        let map = LaneMap::new(&lanes).unwrap();
+        assert_eq!(map.len(), 4);
+        assert_eq!(map.segment_of(0).unwrap().2, [1.0, 0.0]);
+        // The last point of a lane uses the segment ending at it.
+        let (a, b, d) = map.segment_of(2).unwrap();
+        assert_eq!((a, b, d), ([3.0, 0.0], [3.0, 4.0], [0.0, 1.0]));
+        assert!(map.segment_of(3).is_none());
+    }
+
+    #[test]
+    fn non_finite_points_are_refused() {
+        let lanes = vec![Lane {
+            id: 3,
+            points: vec![[0.0, f64::NAN]],
+        }];
+        assert!(matches!(
+            LaneMap::new(&lanes),
+            Err(LaneMapError::NonFinite { lane_id: 3, .. })
+        ));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 200, rng_seed: proptest::test_runner::RngSeed::Fixed(7), ..ProptestConfig::default() })]
+        /// Candidates equal brute force, ties included: points sit on a coarse grid so that
+        /// equal distances and duplicate points are common.
+        #[test]
+        fn nearest_equals_brute_force(
+            raw in prop::collection::vec((0i32..12, 0i32..12), 1..300),
+            q in (0i32..24, 0i32..24),
+            n in 1usize..40,
+        ) {
+            let points: Vec<[f64; 2]> = raw.iter().map(|&(x, y)| [x as f64, y as f64]).collect();
+            let lanes = vec![Lane { id: 1, points: points.clone() }];
+            let map = LaneMap::new(&lanes).unwrap();
+            let p = [q.0 as f64 * 0.5, q.1 as f64 * 0.5];
+            let mut got = Vec::new();
+            map.nearest(p, n, &mut got);
+            prop_assert_eq!(got, brute_force(&points, p, n));
+        }
+    }
+}

@@ -1,0 +1,154 @@
+//! Accuracy metrics in the plane, without alignment (evo's APE with `--project_to_plane xy`).
+
+use crate::pose::{planar_heading, Pose3};
+use crate::se2::wrap_angle;
+
+/// Absolute pose error of an estimate against ground truth, both planar (`flu`) and paired.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ape2d {
+    /// Mean of `|t_xy - t_xy_gt|` (metres).
+    pub mean_m: f64,
+    /// Root mean square of the same (metres).
+    pub rmse_m: f64,
+    /// RMS of the error component perpendicular to the ground-truth heading (metres).
+    pub lateral_rmse_m: f64,
+    /// Mean absolute heading error (degrees).
+    pub heading_mean_deg: f64,
+    /// Largest position error (metres).
+    pub max_m: f64,
+    /// Pairs compared.
+    pub poses: usize,
+}
+
+/// Metrics that could not be computed.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum MetricsError {
+    /// The two trajectories have different lengths (index pairing needs equal lengths).
+    #[error(
+        "ground truth has {gt} poses and the estimate {est}: index pairing needs the same count"
+    )]
+    LengthMismatch {
+        /// Ground-truth poses.
+        gt: usize,
+        /// Estimated poses.
+        est: usize,
+    },
+    /// Nothing to compare.
+    #[error("no pose pairs to compare")]
+    Empty,
+}
+
+/// Position errors (metres) of paired planar poses, one per pair.
+pub fn position_errors(gt: &[Pose3], est: &[Pose3]) -> Vec<f64> {
+    gt.iter()
+        .zip(est)
+        .map(|(g, e)| {
+            let dx = e[0][3] - g[0][3];
+            let dy = e[1][3] - g[1][3];
+            (dx * dx + dy * dy).sqrt()
+        })
+        .collect()
+}
+
+/// APE-2D of paired planar poses (`gt[i]` with `est[i]`).
+pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
+    if gt.len() != est.len() {
+        return Err(MetricsError::LengthMismatch {
+            gt: gt.len(),
+            est: est.len(),
+        });
+    }
+    if gt.is_empty() {
+        return Err(MetricsError::Empty);
+    }
+    let n = gt.len() as f64;
+    let (mut sum, mut sq, mut lat_sq, mut heading, mut max) = (0.0, 0.0, 0.0, 0.0, 0.0f64);
+    for (g, e) in gt.iter().zip(est) {
+        let dx = e[0][3] - g[0][3];
+        let dy = e[1][3] - g[1][3];
+        let d2 = dx * dx + dy * dy;
+        let d = d2.sqrt();
+        sum += d;
+        sq += d2;
+        max = max.max(d);
+        let h = planar_heading(g);
+        let lateral = -h.sin() * dx + h.cos() * dy;
+        lat_sq += lateral * lateral;
+        heading += wrap_angle(planar_heading(e) - h).abs();
+    }
+    Ok(Ape2d {
+        mean_m: sum / n,
+        rmse_m: (sq / n).sqrt(),
+        lateral_rmse_m: (lat_sq / n).sqrt(),
+        heading_mean_deg: (heading / n).to_degrees(),
+        max_m: max,
+        poses: gt.len(),
+    })
+}
+
+/// Pairs two timestamped trajectories: for each estimate stamp, the ground-truth pose with the
+/// nearest stamp if it is within `max_dt` seconds (each ground-truth pose used at most once, as
+/// evo's association does). Both stamp lists must be sorted. Returns `(gt index, est index)`.
+pub fn associate_by_time(
+    gt_stamps: &[f64],
+    est_stamps: &[f64],
+    max_dt: f64,
+) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    let mut used = vec![false; gt_stamps.len()];
+    for (j, &t) in est_stamps.iter().enumerate() {
+        let k = gt_stamps.partition_point(|&g| g < t);
+        let best = [k.checked_sub(1), (k < gt_stamps.len()).then_some(k)]
+            .into_iter()
+            .flatten()
+            .filter(|&i| !used[i])
+            .min_by(|&a, &b| {
+                (gt_stamps[a] - t)
+                    .abs()
+                    .total_cmp(&(gt_stamps[b] - t).abs())
+            });
+        if let Some(i) = best.filter(|&i| (gt_stamps[i] - t).abs() <= max_dt) {
+            used[i] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pose::POSE_IDENTITY;
+
+    fn at(x: f64, y: f64, yaw: f64) -> Pose3 {
+        let (s, c) = yaw.sin_cos();
+        [[c, -s, 0.0, x], [s, c, 0.0, y], [0.0, 0.0, 1.0, 5.0]]
+    }
+
+    #[test]
+    fn lateral_error_is_perpendicular_to_the_gt_heading() {
+        // Heading east: a 3 m error along x is longitudinal, 4 m along y lateral.
+        let gt = [at(0.0, 0.0, 0.0), at(10.0, 0.0, 0.0)];
+        let est = [at(3.0, 0.0, 0.0), at(10.0, 4.0, 0.1)];
+        let m = ape_2d(&gt, &est).unwrap();
+        assert!((m.mean_m - 3.5).abs() < 1e-12);
+        assert!((m.rmse_m - (12.5f64).sqrt()).abs() < 1e-12);
+        assert!((m.lateral_rmse_m - (8.0f64).sqrt()).abs() < 1e-12);
+        assert!((m.heading_mean_deg - 0.05f64.to_degrees()).abs() < 1e-9);
+        assert_eq!(m.max_m, 4.0);
+    }
+
+    #[test]
+    fn mismatched_lengths_are_an_error() {
+        assert_eq!(
+            ape_2d(&[POSE_IDENTITY], &[]),
+            Err(MetricsError::LengthMismatch { gt: 1, est: 0 })
+        );
+    }
+
+    #[test]
+    fn association_pairs_nearest_stamps_once() {
+        let pairs = associate_by_time(&[0.0, 0.1, 0.2, 0.3], &[0.09, 0.11, 0.31, 0.5], 0.02);
+        assert_eq!(pairs, vec![(1, 0), (3, 2)]);
+    }
+}
