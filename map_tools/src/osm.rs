@@ -1,0 +1,338 @@
+//! Streaming reader for OpenStreetMap XML (`.osm`, API 0.6): nodes, ways and relations with
+//! their tags. Lanelet2 maps are OSM XML too and are read by the same code.
+
+use std::collections::HashMap;
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+
+use quick_xml::events::{BytesStart, Event};
+use quick_xml::{Reader, XmlVersion};
+
+/// OSM tags of one element, in file order.
+pub type Tags = Vec<(String, String)>;
+
+/// Looks up a tag's value.
+pub fn tag<'a>(tags: &'a Tags, key: &str) -> Option<&'a str> {
+    tags.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+}
+
+/// An OSM way: an ordered list of node references with tags.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Way {
+    /// OSM id.
+    pub id: i64,
+    /// Node ids in order.
+    pub nodes: Vec<i64>,
+    /// Tags.
+    pub tags: Tags,
+}
+
+/// One member of a relation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Member {
+    /// `node`, `way` or `relation`.
+    pub kind: String,
+    /// The member's id.
+    pub id: i64,
+    /// Its role (`left`, `right`, `centerline`, ...).
+    pub role: String,
+}
+
+/// An OSM relation.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Relation {
+    /// OSM id.
+    pub id: i64,
+    /// Members in order.
+    pub members: Vec<Member>,
+    /// Tags.
+    pub tags: Tags,
+}
+
+/// The elements of one OSM file. Node positions are WGS84 degrees.
+#[derive(Clone, Debug, Default)]
+pub struct OsmData {
+    /// Node id to `(lat, lon)` in degrees.
+    pub nodes: HashMap<i64, (f64, f64)>,
+    /// Ways in file order.
+    pub ways: Vec<Way>,
+    /// Relations in file order.
+    pub relations: Vec<Relation>,
+}
+
+/// An OSM file that could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum OsmError {
+    /// The file could not be opened or read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The XML is malformed.
+    #[error("{path}: malformed XML at byte {position}: {message}")]
+    Xml {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset of the error.
+        position: u64,
+        /// The parser's message.
+        message: String,
+    },
+    /// An element lacks a required attribute or has a bad value.
+    #[error("{path}: at byte {position}: <{element}> has {problem}")]
+    BadElement {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset.
+        position: u64,
+        /// The element name.
+        element: String,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The document is XML but not OSM (no `<osm>` root).
+    #[error("{path}: not an OSM XML file (root element is <{root}>, expected <osm>)")]
+    NotOsm {
+        /// The file.
+        path: PathBuf,
+        /// The root element found.
+        root: String,
+    },
+}
+
+enum Open {
+    None,
+    Way(Way),
+    Relation(Relation),
+    Node,
+}
+
+struct ElementReader<'a> {
+    path: &'a Path,
+    position: u64,
+}
+
+impl ElementReader<'_> {
+    fn attrs(&self, e: &BytesStart<'_>) -> Result<HashMap<String, String>, OsmError> {
+        let element = e.name().as_ref().to_string();
+        let mut out = HashMap::new();
+        for a in e.attributes() {
+            let a =
+                a.map_err(|err| self.bad(&element, format!("a malformed attribute ({err})")))?;
+            let key = a.key.as_ref().to_string();
+            let value = a
+                .normalized_value(XmlVersion::Implicit1_0)
+                .map_err(|err| {
+                    self.bad(&element, format!("a malformed value for '{key}' ({err})"))
+                })?
+                .into_owned();
+            out.insert(key, value);
+        }
+        Ok(out)
+    }
+
+    fn bad(&self, element: &str, problem: String) -> OsmError {
+        OsmError::BadElement {
+            path: self.path.to_path_buf(),
+            position: self.position,
+            element: element.to_string(),
+            problem,
+        }
+    }
+
+    fn get<T: std::str::FromStr>(
+        &self,
+        attrs: &HashMap<String, String>,
+        element: &str,
+        key: &str,
+    ) -> Result<T, OsmError> {
+        let raw = attrs
+            .get(key)
+            .ok_or_else(|| self.bad(element, format!("no '{key}' attribute")))?;
+        raw.parse()
+            .map_err(|_| self.bad(element, format!("a bad '{key}' value '{raw}'")))
+    }
+}
+
+/// Reads OSM XML from any buffered reader; `path` names the source in errors.
+pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> {
+    let mut reader = Reader::from_reader(input);
+    let mut buf = Vec::new();
+    let mut data = OsmData::default();
+    let mut open = Open::None;
+    let mut saw_root = false;
+    loop {
+        let position = reader.buffer_position();
+        let er = ElementReader { path, position };
+        let event = reader
+            .read_event_into(&mut buf)
+            .map_err(|e| OsmError::Xml {
+                path: path.to_path_buf(),
+                position: reader.error_position(),
+                message: e.to_string(),
+            })?;
+        let (e, is_empty) = match &event {
+            Event::Start(e) => (e, false),
+            Event::Empty(e) => (e, true),
+            Event::End(e) => {
+                match e.name().as_ref() {
+                    "way" | "relation" | "node" => match std::mem::replace(&mut open, Open::None) {
+                        Open::Way(w) => data.ways.push(w),
+                        Open::Relation(r) => data.relations.push(r),
+                        Open::Node | Open::None => {}
+                    },
+                    _ => {}
+                }
+                buf.clear();
+                continue;
+            }
+            Event::Eof => break,
+            _ => {
+                buf.clear();
+                continue;
+            }
+        };
+        let name = e.name().as_ref().to_string();
+        if !saw_root {
+            if name != "osm" {
+                return Err(OsmError::NotOsm {
+                    path: path.to_path_buf(),
+                    root: name,
+                });
+            }
+            saw_root = true;
+            buf.clear();
+            continue;
+        }
+        match name.as_str() {
+            "node" => {
+                let a = er.attrs(e)?;
+                let id: i64 = er.get(&a, "node", "id")?;
+                let lat: f64 = er.get(&a, "node", "lat")?;
+                let lon: f64 = er.get(&a, "node", "lon")?;
+                if !(lat.is_finite() && lon.is_finite() && lat.abs() <= 90.0 && lon.abs() <= 180.0)
+                {
+                    return Err(er.bad("node", format!("coordinates out of range ({lat}, {lon})")));
+                }
+                data.nodes.insert(id, (lat, lon));
+                if !is_empty {
+                    open = Open::Node;
+                }
+            }
+            "way" => {
+                let a = er.attrs(e)?;
+                let way = Way {
+                    id: er.get(&a, "way", "id")?,
+                    ..Way::default()
+                };
+                if is_empty {
+                    data.ways.push(way);
+                } else {
+                    open = Open::Way(way);
+                }
+            }
+            "relation" => {
+                let a = er.attrs(e)?;
+                let rel = Relation {
+                    id: er.get(&a, "relation", "id")?,
+                    ..Relation::default()
+                };
+                if is_empty {
+                    data.relations.push(rel);
+                } else {
+                    open = Open::Relation(rel);
+                }
+            }
+            "nd" => {
+                if let Open::Way(w) = &mut open {
+                    let a = er.attrs(e)?;
+                    w.nodes.push(er.get(&a, "nd", "ref")?);
+                }
+            }
+            "member" => {
+                if let Open::Relation(r) = &mut open {
+                    let a = er.attrs(e)?;
+                    r.members.push(Member {
+                        kind: er.get(&a, "member", "type")?,
+                        id: er.get(&a, "member", "ref")?,
+                        role: a.get("role").cloned().unwrap_or_default(),
+                    });
+                }
+            }
+            "tag" => {
+                let a = er.attrs(e)?;
+                let k: String = er.get(&a, "tag", "k")?;
+                let v: String = er.get(&a, "tag", "v")?;
+                match &mut open {
+                    Open::Way(w) => w.tags.push((k, v)),
+                    Open::Relation(r) => r.tags.push((k, v)),
+                    Open::Node | Open::None => {}
+                }
+            }
+            _ => {}
+        }
+        buf.clear();
+    }
+    if !saw_root {
+        return Err(OsmError::NotOsm {
+            path: path.to_path_buf(),
+            root: "(none)".to_string(),
+        });
+    }
+    Ok(data)
+}
+
+/// Reads an OSM XML file.
+pub fn read_xml_file(path: &Path) -> Result<OsmData, OsmError> {
+    let file = std::fs::File::open(path).map_err(|source| OsmError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read_xml(std::io::BufReader::new(file), path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SMALL: &str = r#"<?xml version="1.0"?>
+<osm version="0.6">
+  <node id="1" lat="49.0" lon="8.4"/>
+  <node id="2" lat="49.001" lon="8.4"><tag k="ele" v="1"/></node>
+  <way id="10"><nd ref="1"/><nd ref="2"/><tag k="highway" v="residential"/><tag k="name" v="A &amp; B"/></way>
+  <relation id="5"><member type="way" ref="10" role="left"/><tag k="type" v="lanelet"/></relation>
+</osm>"#;
+
+    #[test]
+    fn reads_nodes_ways_relations_and_tags() {
+        let d = read_xml(SMALL.as_bytes(), Path::new("s.osm")).unwrap();
+        assert_eq!(d.nodes.len(), 2);
+        assert_eq!(d.ways[0].nodes, vec![1, 2]);
+        assert_eq!(tag(&d.ways[0].tags, "name"), Some("A & B"));
+        assert_eq!(d.relations[0].members[0].role, "left");
+        assert_eq!(tag(&d.relations[0].tags, "type"), Some("lanelet"));
+    }
+
+    #[test]
+    fn refuses_non_osm_and_broken_xml() {
+        let e = read_xml("this is not xml at all".as_bytes(), Path::new("t.osm")).unwrap_err();
+        assert!(matches!(e, OsmError::NotOsm { .. }), "{e}");
+        let e = read_xml("<html><body/></html>".as_bytes(), Path::new("t.osm")).unwrap_err();
+        assert!(e.to_string().contains("expected <osm>"), "{e}");
+        let e = read_xml(
+            r#"<osm><node id="1" lat="x" lon="8"/></osm>"#.as_bytes(),
+            Path::new("t.osm"),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("bad 'lat'"), "{e}");
+        let e = read_xml(
+            "<osm><way id=\"1\"><nd ref=\"2\"/></osm>".as_bytes(),
+            Path::new("t.osm"),
+        )
+        .unwrap_err();
+        assert!(matches!(e, OsmError::Xml { .. }), "{e}");
+    }
+}

@@ -1,0 +1,401 @@
+//! Lanes derived from raw OSM ways and their tags (SPEC section 1, item 2).
+//!
+//! Each drivable way yields one centerline per lane: the way line offset sideways to the lane's
+//! centre and pointing in the lane's direction of travel. Coordinates are metres in the map plane.
+
+use lanealign_core::geo::MapPlane;
+use lanealign_core::lane_map::{resample, Lane};
+
+use crate::osm::{tag, OsmData, Tags, Way};
+
+/// Which side of the road traffic keeps to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Traffic {
+    /// Right-hand traffic (continental Europe, the Americas).
+    #[default]
+    Right,
+    /// Left-hand traffic (UK, Japan, ...).
+    Left,
+}
+
+impl std::str::FromStr for Traffic {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "right" => Ok(Traffic::Right),
+            "left" => Ok(Traffic::Left),
+            other => Err(format!(
+                "unknown traffic side '{other}' (expected right or left)"
+            )),
+        }
+    }
+}
+
+/// The `highway` classes lanes are derived from by default.
+pub const DEFAULT_CLASSES: [&str; 13] = [
+    "motorway",
+    "trunk",
+    "primary",
+    "secondary",
+    "tertiary",
+    "unclassified",
+    "residential",
+    "living_street",
+    "motorway_link",
+    "trunk_link",
+    "primary_link",
+    "secondary_link",
+    "tertiary_link",
+];
+
+/// How lanes are derived.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaneOptions {
+    /// The `highway` values to use (see [`DEFAULT_CLASSES`]; add `service` to include it).
+    pub classes: Vec<String>,
+    /// Traffic side.
+    pub traffic: Traffic,
+    /// Minimum spacing of the resampled centerline points (metres).
+    pub spacing_m: f64,
+}
+
+impl Default for LaneOptions {
+    fn default() -> Self {
+        LaneOptions {
+            classes: DEFAULT_CLASSES.iter().map(|s| s.to_string()).collect(),
+            traffic: Traffic::Right,
+            spacing_m: 3.0,
+        }
+    }
+}
+
+/// What lane derivation did with the input, for a person to check.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DeriveReport {
+    /// Drivable ways turned into lanes.
+    pub ways_used: usize,
+    /// Drivable ways skipped because fewer than two of their nodes exist in the file.
+    pub ways_without_geometry: usize,
+    /// References to nodes that the file does not contain (skipped).
+    pub missing_node_refs: usize,
+    /// Lanes produced.
+    pub lanes: usize,
+}
+
+/// The default lane width (metres) of a highway class, used when `width` is absent.
+pub fn default_lane_width(class: &str) -> f64 {
+    match class.trim_end_matches("_link") {
+        "motorway" | "trunk" => 3.5,
+        "primary" => 3.25,
+        "secondary" | "tertiary" => 3.0,
+        "living_street" | "service" => 2.5,
+        _ => 2.75,
+    }
+}
+
+/// Lanes of a way in each direction, and whether a single lane is shared by both.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LaneCounts {
+    /// Lanes in the way's direction.
+    pub forward: u32,
+    /// Lanes against the way's direction.
+    pub backward: u32,
+    /// One lane used both ways (`lanes=1` on a two-way road).
+    pub shared: bool,
+}
+
+fn count(tags: &Tags, key: &str) -> Option<u32> {
+    tag(tags, key)
+        .and_then(|v| v.split(';').next())
+        .and_then(|v| v.trim().parse::<u32>().ok())
+        .filter(|&n| (1..=16).contains(&n))
+}
+
+/// Lane counts from `lanes`, `lanes:forward`, `lanes:backward` and `oneway` (with the implied
+/// oneway of motorways and roundabouts). A `oneway=-1` way counts its lanes as forward; the
+/// caller reverses its geometry.
+pub fn lane_counts(class: &str, tags: &Tags) -> LaneCounts {
+    let oneway = match tag(tags, "oneway") {
+        Some("yes" | "true" | "1" | "-1" | "reverse") => true,
+        Some("no" | "false" | "0") => false,
+        _ => {
+            class == "motorway"
+                || class == "motorway_link"
+                || matches!(tag(tags, "junction"), Some("roundabout" | "circular"))
+        }
+    };
+    let lanes = count(tags, "lanes");
+    if oneway {
+        let forward = count(tags, "lanes:forward")
+            .or(lanes)
+            .unwrap_or(if class == "motorway" { 2 } else { 1 });
+        return LaneCounts {
+            forward,
+            backward: 0,
+            shared: false,
+        };
+    }
+    let (fw, bw) = (count(tags, "lanes:forward"), count(tags, "lanes:backward"));
+    let (forward, backward) = match (fw, bw, lanes) {
+        (Some(f), Some(b), _) => (f, b),
+        (Some(f), None, Some(n)) if n > f => (f, n - f),
+        (None, Some(b), Some(n)) if n > b => (n - b, b),
+        (Some(f), None, _) => (f, 1),
+        (None, Some(b), _) => (1, b),
+        (None, None, Some(1)) => {
+            return LaneCounts {
+                forward: 1,
+                backward: 1,
+                shared: true,
+            }
+        }
+        (None, None, Some(n)) => (n - n / 2, n / 2),
+        (None, None, None) => (1, 1),
+    };
+    LaneCounts {
+        forward,
+        backward,
+        shared: false,
+    }
+}
+
+/// The lane width (metres) of a way: `width` divided by the lane count when plausible, else the
+/// class default.
+pub fn lane_width(class: &str, tags: &Tags, lanes: u32) -> f64 {
+    tag(tags, "width")
+        .and_then(|v| v.trim().trim_end_matches('m').trim().parse::<f64>().ok())
+        .map(|w| w / lanes.max(1) as f64)
+        .filter(|w| (2.0..=5.0).contains(w))
+        .unwrap_or_else(|| default_lane_width(class))
+}
+
+/// The polyline shifted sideways by `offset_m` (positive to the left of its direction), with
+/// mitred corners (the mitre limited to twice the offset on sharp turns).
+pub fn offset_polyline(points: &[[f64; 2]], offset_m: f64) -> Vec<[f64; 2]> {
+    if offset_m == 0.0 || points.len() < 2 {
+        return points.to_vec();
+    }
+    let normals: Vec<[f64; 2]> = points
+        .windows(2)
+        .map(|w| {
+            let (dx, dy) = (w[1][0] - w[0][0], w[1][1] - w[0][1]);
+            let len = (dx * dx + dy * dy).sqrt();
+            [-dy / len, dx / len]
+        })
+        .collect();
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let before = normals[i.saturating_sub(1)];
+            let after = normals[i.min(normals.len() - 1)];
+            let sum = [before[0] + after[0], before[1] + after[1]];
+            let len = (sum[0] * sum[0] + sum[1] * sum[1]).sqrt();
+            let n = if len > 1e-9 {
+                [sum[0] / len, sum[1] / len]
+            } else {
+                after
+            };
+            let cos_half = (n[0] * after[0] + n[1] * after[1]).max(0.5);
+            let d = offset_m / cos_half;
+            [p[0] + n[0] * d, p[1] + n[1] * d]
+        })
+        .collect()
+}
+
+/// The projected way line (metres), without repeated points; `None` if it has fewer than two
+/// distinct points. Counts missing node references into `report`.
+fn way_line(
+    osm: &OsmData,
+    way: &Way,
+    plane: &MapPlane,
+    report: &mut DeriveReport,
+) -> Option<Vec<[f64; 2]>> {
+    let mut line: Vec<[f64; 2]> = Vec::with_capacity(way.nodes.len());
+    for id in &way.nodes {
+        match osm.nodes.get(id) {
+            Some(&(lat, lon)) => {
+                let p = plane.project(lat, lon);
+                if line.last() != Some(&p) {
+                    line.push(p);
+                }
+            }
+            None => report.missing_node_refs += 1,
+        }
+    }
+    (line.len() >= 2).then_some(line)
+}
+
+/// Derives lane centerlines from the drivable ways of `osm`, projected with `plane`.
+/// Lane ids are `way_id * 32 + lane number` (lane numbers from the left edge of the road).
+pub fn derive_lanes(
+    osm: &OsmData,
+    plane: &MapPlane,
+    opts: &LaneOptions,
+) -> (Vec<Lane>, DeriveReport) {
+    let mut report = DeriveReport::default();
+    let mut lanes = Vec::new();
+    for way in &osm.ways {
+        let Some(class) = tag(&way.tags, "highway") else {
+            continue;
+        };
+        if !opts.classes.iter().any(|c| c == class) || tag(&way.tags, "area") == Some("yes") {
+            continue;
+        }
+        let Some(mut line) = way_line(osm, way, plane, &mut report) else {
+            report.ways_without_geometry += 1;
+            continue;
+        };
+        if matches!(tag(&way.tags, "oneway"), Some("-1" | "reverse")) {
+            line.reverse();
+        }
+        report.ways_used += 1;
+        let counts = lane_counts(class, &way.tags);
+        let id = |k: u32| (way.id.unsigned_abs() << 5) | u64::from(k & 31);
+        if counts.shared {
+            let forward = resample(&line, opts.spacing_m);
+            let mut reversed = line.clone();
+            reversed.reverse();
+            lanes.push(Lane {
+                id: id(0),
+                points: forward,
+            });
+            lanes.push(Lane {
+                id: id(1),
+                points: resample(&reversed, opts.spacing_m),
+            });
+            continue;
+        }
+        let total = counts.forward + counts.backward;
+        let width = lane_width(class, &way.tags, total);
+        // Lanes numbered from the road's left edge (in the way's direction). Right-hand
+        // traffic puts the backward lanes on the left, left-hand traffic the forward ones.
+        for k in 0..total {
+            let forward = match opts.traffic {
+                Traffic::Right => k >= counts.backward,
+                Traffic::Left => k < counts.forward,
+            };
+            let offset = (total as f64 / 2.0 - k as f64 - 0.5) * width;
+            let mut centre = offset_polyline(&line, offset);
+            if !forward {
+                centre.reverse();
+            }
+            lanes.push(Lane {
+                id: id(k),
+                points: resample(&centre, opts.spacing_m),
+            });
+        }
+    }
+    report.lanes = lanes.len();
+    (lanes, report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::osm::read_xml;
+    use lanealign_core::geo::Projection;
+    use std::path::Path;
+
+    fn tags(pairs: &[(&str, &str)]) -> Tags {
+        pairs
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn lane_counts_follow_the_tags() {
+        let c = |class: &str, t: &[(&str, &str)]| {
+            let l = lane_counts(class, &tags(t));
+            (l.forward, l.backward, l.shared)
+        };
+        assert_eq!(c("residential", &[]), (1, 1, false));
+        assert_eq!(c("residential", &[("lanes", "1")]), (1, 1, true));
+        assert_eq!(c("primary", &[("lanes", "4")]), (2, 2, false));
+        assert_eq!(
+            c("primary", &[("lanes", "3"), ("lanes:forward", "2")]),
+            (2, 1, false)
+        );
+        assert_eq!(
+            c("primary", &[("oneway", "yes"), ("lanes", "3")]),
+            (3, 0, false)
+        );
+        assert_eq!(c("motorway", &[]), (2, 0, false));
+        assert_eq!(c("tertiary", &[("junction", "roundabout")]), (1, 0, false));
+        assert_eq!(c("secondary", &[("oneway", "-1")]), (1, 0, false));
+        assert_eq!(
+            c("motorway", &[("oneway", "no"), ("lanes", "4")]),
+            (2, 2, false)
+        );
+    }
+
+    fn straight_way(extra: &str) -> OsmData {
+        let xml = format!(
+            r#"<osm><node id="1" lat="49.0" lon="8.4"/><node id="2" lat="49.0" lon="8.401"/>
+               <node id="3" lat="49.0" lon="8.402"/>
+               <way id="7"><nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="99"/>
+               <tag k="highway" v="primary"/>{extra}</way>
+               <way id="8"><nd ref="1"/><tag k="highway" v="primary"/></way></osm>"#
+        );
+        read_xml(xml.as_bytes(), Path::new("w.osm")).unwrap()
+    }
+
+    #[test]
+    fn two_way_lanes_sit_right_of_the_way_in_their_direction() {
+        let osm = straight_way(r#"<tag k="lanes" v="2"/><tag k="width" v="7"/>"#);
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let (lanes, report) = derive_lanes(&osm, &plane, &LaneOptions::default());
+        assert_eq!(report.ways_used, 1);
+        assert_eq!(report.ways_without_geometry, 1, "way 8 has one node");
+        assert_eq!(report.missing_node_refs, 1, "node 99 is missing");
+        assert_eq!(lanes.len(), 2);
+        // The way runs east. Lane 0 is the westbound lane on the north side (y = +1.75 m).
+        let (west, east) = (&lanes[0].points, &lanes[1].points);
+        assert!(west[0][0] > west[west.len() - 1][0]);
+        assert!((west[0][1] - 1.75).abs() < 0.01, "{:?}", west[0]);
+        assert!(east[0][0] < east[east.len() - 1][0]);
+        assert!((east[0][1] + 1.75).abs() < 0.01, "{:?}", east[0]);
+        // Resampled at 3 m or more.
+        assert!(east.windows(2).all(|w| (w[1][0] - w[0][0]).abs() >= 3.0));
+    }
+
+    #[test]
+    fn shared_single_lane_runs_both_ways_on_the_way_line() {
+        let osm = straight_way(r#"<tag k="lanes" v="1"/>"#);
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let (lanes, _) = derive_lanes(&osm, &plane, &LaneOptions::default());
+        assert_eq!(lanes.len(), 2);
+        assert!(lanes
+            .iter()
+            .all(|l| l.points.iter().all(|p| p[1].abs() < 0.01)));
+        assert!(lanes[0].points[0][0] < lanes[1].points[0][0]);
+    }
+
+    #[test]
+    fn left_hand_traffic_mirrors_the_sides() {
+        let osm = straight_way("");
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let opts = LaneOptions {
+            traffic: Traffic::Left,
+            ..LaneOptions::default()
+        };
+        let (lanes, _) = derive_lanes(&osm, &plane, &opts);
+        // The eastbound lane is now on the north (left) side.
+        let east = lanes
+            .iter()
+            .find(|l| l.points[0][0] < l.points[1][0])
+            .unwrap();
+        assert!(east.points[0][1] > 0.0);
+    }
+
+    #[test]
+    fn offset_keeps_distance_around_a_corner() {
+        let line = [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]];
+        let off = offset_polyline(&line, -2.0);
+        assert_eq!(off[0], [0.0, -2.0]);
+        assert!((off[1][0] - 12.0).abs() < 1e-9 && (off[1][1] + 2.0).abs() < 1e-9);
+        assert_eq!(off[2], [12.0, 10.0]);
+    }
+}
