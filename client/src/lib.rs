@@ -1,0 +1,4 @@
+//! lanealign client side: the command-line tools' building blocks (map loading, offline
+//! correction, evaluation).
+
+pub mod maps;

@@ -1,0 +1,255 @@
+//! `lanealign`: correct a recorded odometry run against lanes, and evaluate trajectories.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use clap::{Args, Parser, Subcommand};
+use lanealign_client::maps::MapSource;
+use lanealign_core::corrector::Status;
+use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::metrics::{ape_2d, associate_by_time};
+use lanealign_core::offline::{correct, CorrectedPose};
+use lanealign_core::params::{Params, Preset};
+use lanealign_core::pose::AxisConvention;
+use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_map::osm_lanes::{LaneOptions, Traffic};
+
+#[derive(Parser)]
+#[command(
+    name = "lanealign",
+    version,
+    about = "Odometry drift correction against OpenStreetMap lanes"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Correct a recorded trajectory offline.
+    Correct(CorrectArgs),
+    /// APE-2D of an estimate against ground truth (no alignment).
+    Eval(EvalArgs),
+}
+
+#[derive(Args)]
+struct MapArgs {
+    /// Raw OSM XML to derive lanes from (needs --anchor).
+    #[arg(long, conflicts_with = "lanes", required_unless_present = "lanes")]
+    osm: Option<PathBuf>,
+    /// Lane polylines (`lane_id,x,y`) already in the source's planar odometry frame.
+    #[arg(long)]
+    lanes: Option<PathBuf>,
+    /// Where the odometry frame lies: LAT,LON,YAW_DEG[,EAST_M,NORTH_M] (yaw from East, CCW).
+    #[arg(long, allow_hyphen_values = true)]
+    anchor: Option<Anchor>,
+    /// The projection the anchor was measured in: tangent (true scale) or kitti (spherical).
+    #[arg(long, default_value = "tangent")]
+    projection: Projection,
+    /// Traffic side for lanes derived from OSM: right or left.
+    #[arg(long, default_value = "right")]
+    traffic: Traffic,
+    /// Minimum spacing of derived lane points (metres).
+    #[arg(long, default_value_t = 3.0)]
+    spacing: f64,
+}
+
+impl MapArgs {
+    fn source(&self) -> anyhow::Result<MapSource> {
+        if let Some(path) = &self.lanes {
+            return Ok(MapSource::LanesCsv(path.clone()));
+        }
+        let Some(path) = &self.osm else {
+            bail!("give --osm or --lanes")
+        };
+        let Some(anchor) = self.anchor else {
+            bail!("--osm needs --anchor LAT,LON,YAW_DEG[,EAST_M,NORTH_M]")
+        };
+        if !(self.spacing.is_finite() && self.spacing > 0.0) {
+            bail!("--spacing must be a positive number of metres");
+        }
+        Ok(MapSource::Osm {
+            path: path.clone(),
+            anchor,
+            projection: self.projection,
+            options: LaneOptions {
+                traffic: self.traffic,
+                spacing_m: self.spacing,
+                ..LaneOptions::default()
+            },
+        })
+    }
+}
+
+#[derive(Args)]
+struct CorrectArgs {
+    #[command(flatten)]
+    map: MapArgs,
+    /// Parameter preset: liodom, basalt, kiss-icp or orb-slam3.
+    #[arg(long)]
+    preset: Preset,
+    /// Override a parameter: --set key=value (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Axis convention of the poses: flu or kitti-camera.
+    #[arg(long, default_value = "flu")]
+    frame: AxisConvention,
+    /// File format: kitti or tum.
+    #[arg(long, default_value = "kitti")]
+    format: Format,
+    /// The odometry trajectory to correct.
+    input: PathBuf,
+    /// Where to write the corrected trajectory (same format and convention).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Also write a CSV of what happened at each pose.
+    #[arg(long)]
+    status: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct EvalArgs {
+    /// Ground-truth trajectory.
+    #[arg(long)]
+    gt: PathBuf,
+    /// Estimated trajectory.
+    #[arg(long)]
+    est: PathBuf,
+    /// Axis convention of both files: flu or kitti-camera.
+    #[arg(long, default_value = "flu")]
+    frame: AxisConvention,
+    /// File format of both: kitti (paired by index) or tum (paired by timestamp).
+    #[arg(long, default_value = "kitti")]
+    format: Format,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn write_status(path: &Path, run: &[CorrectedPose]) -> anyhow::Result<()> {
+    let mut out = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    );
+    writeln!(out, "index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw")?;
+    for (i, c) in run.iter().enumerate() {
+        let (reason, e, ratio, len) = match c.status {
+            Status::WarmingUp { window_len } => ("", f64::NAN, f64::NAN, window_len),
+            Status::Accepted {
+                residual_m,
+                match_ratio,
+                window_len,
+            } => ("", residual_m, match_ratio, window_len),
+            Status::Rejected {
+                reason,
+                residual_m,
+                match_ratio,
+                window_len,
+            }
+            | Status::Reset {
+                reason,
+                residual_m,
+                match_ratio,
+                window_len,
+            } => (reason_name(reason), residual_m, match_ratio, window_len),
+            Status::InvalidInput => ("", f64::NAN, f64::NAN, 0),
+        };
+        let [x, y] = c.map_from_odom.translation();
+        writeln!(
+            out,
+            "{i},{},{reason},{e},{ratio},{len},{x},{y},{}",
+            c.status.name(),
+            c.map_from_odom.yaw()
+        )?;
+    }
+    out.flush()?;
+    Ok(())
+}
+
+fn reason_name(r: lanealign_core::corrector::RejectReason) -> &'static str {
+    match r {
+        lanealign_core::corrector::RejectReason::TooFewMatches => "too_few_matches",
+        lanealign_core::corrector::RejectReason::ResidualTooLarge => "residual_too_large",
+    }
+}
+
+fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
+    let mut params: Params = args.preset.params();
+    for pair in &args.overrides {
+        params.set_pair(pair)?;
+    }
+    let input = trajectory::read(&args.input, args.format)?;
+    if input.poses.is_empty() {
+        bail!("{}: no poses", args.input.display());
+    }
+    let map = args.map.source()?.load()?;
+    let run = correct(map, params, args.frame, &input.poses);
+    let output = Trajectory {
+        stamps: input.stamps.clone(),
+        poses: run.iter().map(|c| c.pose).collect(),
+    };
+    trajectory::write(&args.output, &output, args.format)?;
+    if let Some(path) = &args.status {
+        write_status(path, &run)?;
+    }
+    let (attempts, accepted, resets) = lanealign_core::offline::counts(&run);
+    eprintln!(
+        "{} poses: {attempts} match attempts, {accepted} accepted, {resets} resets",
+        run.len()
+    );
+    Ok(())
+}
+
+fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
+    let gt = trajectory::read(&args.gt, args.format)?;
+    let est = trajectory::read(&args.est, args.format)?;
+    let planar = |t: &Trajectory, idx: &[usize]| -> Vec<_> {
+        idx.iter()
+            .map(|&i| args.frame.to_planar(&t.poses[i]))
+            .collect()
+    };
+    let (g, e) = match (&gt.stamps, &est.stamps) {
+        (Some(ts_gt), Some(ts_est)) => {
+            let pairs = associate_by_time(ts_gt, ts_est, 0.01);
+            let gi: Vec<usize> = pairs.iter().map(|p| p.0).collect();
+            let ei: Vec<usize> = pairs.iter().map(|p| p.1).collect();
+            (planar(&gt, &gi), planar(&est, &ei))
+        }
+        _ => {
+            let all_g: Vec<usize> = (0..gt.poses.len()).collect();
+            let all_e: Vec<usize> = (0..est.poses.len()).collect();
+            (planar(&gt, &all_g), planar(&est, &all_e))
+        }
+    };
+    let m = ape_2d(&g, &e)?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "ape2d_mean_m": m.mean_m,
+                "rmse_m": m.rmse_m,
+                "lateral_rmse_m": m.lateral_rmse_m,
+                "heading_mean_deg": m.heading_mean_deg,
+                "max_m": m.max_m,
+                "poses": m.poses,
+            })
+        );
+    } else {
+        println!("APE-2D mean      {:.6} m", m.mean_m);
+        println!("RMSE             {:.6} m", m.rmse_m);
+        println!("lateral RMSE     {:.6} m", m.lateral_rmse_m);
+        println!("heading mean     {:.6} deg", m.heading_mean_deg);
+        println!("max              {:.6} m", m.max_m);
+        println!("poses            {}", m.poses);
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match &cli.command {
+        Command::Correct(args) => run_correct(args),
+        Command::Eval(args) => run_eval(args),
+    }
+}
