@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use anyhow::{bail, Context};
 use lanealign_client::maps::osm_lanes_in_odom;
+use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::LaneMap;
@@ -75,7 +76,7 @@ fn run(
         &data.join(format!("odometry/{odometry}/{seq}.txt")),
         Format::Kitti,
     )?;
-    let result = correct(map, preset.params(), cam, &odom.poses);
+    let result = correct(map, preset.params(), MatchMode::Fast, cam, &odom.poses);
     let planar = |poses: Vec<&[[f64; 4]; 3]>| {
         poses
             .into_iter()

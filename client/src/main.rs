@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use clap::{Args, Parser, Subcommand};
 use lanealign_client::maps::MapSource;
-use lanealign_core::corrector::Status;
+use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, associate_by_time};
 use lanealign_core::offline::{correct, CorrectedPose};
@@ -99,6 +99,9 @@ struct CorrectArgs {
     /// File format: kitti or tum.
     #[arg(long, default_value = "kitti")]
     format: Format,
+    /// Lane matching: fast (exact, incremental) or reference (SPEC section 2 literally).
+    #[arg(long, default_value = "fast")]
+    match_mode: MatchMode,
     /// The odometry trajectory to correct.
     input: PathBuf,
     /// Where to write the corrected trajectory (same format and convention).
@@ -184,7 +187,7 @@ fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
         bail!("{}: no poses", args.input.display());
     }
     let map = args.map.source()?.load()?;
-    let run = correct(map, params, args.frame, &input.poses);
+    let run = correct(map, params, args.match_mode, args.frame, &input.poses);
     let output = Trajectory {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),

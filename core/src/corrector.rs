@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
 use crate::lane_map::{Candidate, LaneMap};
+use crate::match_cache::MatchCache;
 use crate::matching::{match_window, Correspondence, MatchParams};
 use crate::params::Params;
 use crate::se2::Se2;
@@ -130,16 +131,50 @@ impl Window {
         self.start += count.min(self.len());
     }
 
-    fn path_length(&self) -> f64 {
-        self.as_slice()
-            .windows(2)
-            .map(|w| {
-                let dx = w[1][0] - w[0][0];
-                let dy = w[1][1] - w[0][1];
-                (dx * dx + dy * dy).sqrt()
-            })
-            .sum()
+    /// True when the path length of the window (metres) is at least `min_m`. Sums from the
+    /// oldest pose and stops once the bound is reached: partial sums of non-negative terms only
+    /// grow, so the answer equals comparing the full sum.
+    fn path_at_least(&self, min_m: f64) -> bool {
+        let mut length = 0.0;
+        for w in self.as_slice().windows(2) {
+            let dx = w[1][0] - w[0][0];
+            let dy = w[1][1] - w[0][1];
+            length += (dx * dx + dy * dy).sqrt();
+            if length >= min_m {
+                return true;
+            }
+        }
+        length >= min_m
     }
+}
+
+/// How the window is matched to the lanes. Both give identical correspondences.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum MatchMode {
+    /// SPEC section 2 literally: every window pose, every step, `N` nearest from the KD-tree.
+    Reference,
+    /// Exact incremental matching with per-pose candidate caches (see [`crate::match_cache`]).
+    #[default]
+    Fast,
+}
+
+impl std::str::FromStr for MatchMode {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "reference" => Ok(MatchMode::Reference),
+            "fast" => Ok(MatchMode::Fast),
+            other => Err(format!(
+                "unknown match mode '{other}' (expected fast or reference)"
+            )),
+        }
+    }
+}
+
+enum Matcher {
+    Reference(Vec<Candidate>),
+    Fast(MatchCache),
 }
 
 /// One odometry source's corrector.
@@ -149,21 +184,30 @@ pub struct Corrector {
     map_from_odom: Se2,
     window: Window,
     failures: u32,
-    candidates: Vec<Candidate>,
+    matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
 }
 
 impl Corrector {
-    /// A corrector on a shared lane map. `params` must pass [`Params::validate`].
+    /// A corrector on a shared lane map, in the default (fast) match mode. `params` must pass
+    /// [`Params::validate`].
     pub fn new(map: Arc<LaneMap>, params: Params) -> Self {
+        Self::with_mode(map, params, MatchMode::default())
+    }
+
+    /// A corrector with an explicit match mode.
+    pub fn with_mode(map: Arc<LaneMap>, params: Params, mode: MatchMode) -> Self {
         Corrector {
             map,
             params,
             map_from_odom: Se2::IDENTITY,
             window: Window::default(),
             failures: 0,
-            candidates: Vec::new(),
+            matcher: match mode {
+                MatchMode::Reference => Matcher::Reference(Vec::new()),
+                MatchMode::Fast => Matcher::Fast(MatchCache::default()),
+            },
             correspondences: Vec::new(),
             icp: IcpScratch::default(),
         }
@@ -188,26 +232,37 @@ impl Corrector {
                 status: Status::InvalidInput,
             };
         }
-        let p = &self.params;
+        let p = self.params;
         self.window.push(self.map_from_odom.apply(position_in_odom));
+        if let Matcher::Fast(cache) = &mut self.matcher {
+            cache.push();
+        }
         if self.window.len() > p.max_window {
-            self.window.drop_oldest(1);
+            self.drop_oldest(1);
         }
         let window_len = self.window.len();
-        if window_len < p.min_window || self.window.path_length() < p.min_path_length_m {
+        if window_len < p.min_window || !self.window.path_at_least(p.min_path_length_m) {
             return self.step(Status::WarmingUp { window_len });
         }
         let match_params = MatchParams {
             neighbours: p.neighbours,
             min_direction_cos: p.min_direction_cos,
         };
-        match_window(
-            &self.map,
-            self.window.as_slice(),
-            &match_params,
-            &mut self.candidates,
-            &mut self.correspondences,
-        );
+        match &mut self.matcher {
+            Matcher::Reference(candidates) => match_window(
+                &self.map,
+                self.window.as_slice(),
+                &match_params,
+                candidates,
+                &mut self.correspondences,
+            ),
+            Matcher::Fast(cache) => cache.match_window(
+                &self.map,
+                self.window.as_slice(),
+                &match_params,
+                &mut self.correspondences,
+            ),
+        }
         let matched = self.correspondences.len();
         let match_ratio = matched as f64 / window_len as f64;
         let (reason, residual_m) =
@@ -235,12 +290,11 @@ impl Corrector {
                 }
                 (RejectReason::ResidualTooLarge, fit.residual_m)
             };
-        self.window.drop_oldest(1);
+        self.drop_oldest(1);
         self.failures += 1;
         if self.failures > p.max_failures {
             let keep = p.min_window - 1;
-            self.window
-                .drop_oldest(self.window.len().saturating_sub(keep));
+            self.drop_oldest(self.window.len().saturating_sub(keep));
             self.failures = 0;
             return self.step(Status::Reset {
                 reason,
@@ -256,6 +310,13 @@ impl Corrector {
             match_ratio,
             window_len,
         })
+    }
+
+    fn drop_oldest(&mut self, count: usize) {
+        self.window.drop_oldest(count);
+        if let Matcher::Fast(cache) = &mut self.matcher {
+            cache.drop_oldest(count);
+        }
     }
 
     fn step(&self, status: Status) -> Step {

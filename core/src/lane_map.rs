@@ -205,8 +205,14 @@ impl LaneMap {
         ))
     }
 
+    /// The KD-tree over [`Self::points`]; item `j` is point `j`.
+    pub fn kd_tree(&self) -> &ImmutableKdTree<f64, 2> {
+        &self.tree
+    }
+
+    /// Squared distance (m^2) from `p` to point `j`, computed the one way every matcher uses.
     #[inline]
-    fn squared_distance(&self, p: [f64; 2], j: u32) -> f64 {
+    pub fn squared_distance(&self, p: [f64; 2], j: u32) -> f64 {
         let q = self.points[j as usize];
         let dx = q[0] - p[0];
         let dy = q[1] - p[1];

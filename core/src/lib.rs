@@ -28,6 +28,7 @@ pub mod geo;
 pub mod icp;
 pub mod lane_csv;
 pub mod lane_map;
+pub mod match_cache;
 pub mod matching;
 pub mod metrics;
 pub mod offline;

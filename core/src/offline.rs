@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use crate::corrector::{Corrector, Status};
+use crate::corrector::{Corrector, MatchMode, Status};
 use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::{apply_planar_correction, planar_position, AxisConvention, Pose3};
@@ -25,10 +25,11 @@ pub struct CorrectedPose {
 pub fn correct(
     map: Arc<LaneMap>,
     params: Params,
+    mode: MatchMode,
     convention: AxisConvention,
     poses: &[Pose3],
 ) -> Vec<CorrectedPose> {
-    let mut corrector = Corrector::new(map, params);
+    let mut corrector = Corrector::with_mode(map, params, mode);
     poses
         .iter()
         .map(|pose| {

@@ -1,0 +1,69 @@
+//! The fast matcher changes the work, never the answer: both match modes give the same status
+//! sequence and the same corrected poses on real sequences.
+
+use std::sync::Arc;
+
+use lanealign_core::corrector::{MatchMode, Status};
+use lanealign_core::lane_csv;
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::offline::correct;
+use lanealign_core::params::Preset;
+use lanealign_core::pose::{planar_heading, AxisConvention};
+use lanealign_core::se2::wrap_angle;
+use lanealign_core::trajectory::{read, Format};
+use lanealign_tests::shared_data;
+
+#[test]
+fn fast_and_reference_modes_agree_on_real_sequences() {
+    let Some(data) = shared_data() else { return };
+    let cam = AxisConvention::KittiCamera;
+    for seq in ["04", "06", "07"] {
+        let lanes = lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv"))).unwrap();
+        let map = Arc::new(LaneMap::new(&lanes).unwrap());
+        for (odometry, preset) in [("lidar", Preset::KissIcp), ("stereo_vo", Preset::Basalt)] {
+            let odom = read(
+                &data.join(format!("odometry/{odometry}/{seq}.txt")),
+                Format::Kitti,
+            )
+            .unwrap();
+            let fast = correct(
+                map.clone(),
+                preset.params(),
+                MatchMode::Fast,
+                cam,
+                &odom.poses,
+            );
+            let reference = correct(
+                map.clone(),
+                preset.params(),
+                MatchMode::Reference,
+                cam,
+                &odom.poses,
+            );
+            let accepted = fast
+                .iter()
+                .filter(|c| matches!(c.status, Status::Accepted { .. }))
+                .count();
+            assert!(
+                accepted > 50,
+                "{odometry} {seq}: the comparison must exercise corrections"
+            );
+            for (i, (f, r)) in fast.iter().zip(&reference).enumerate() {
+                assert_eq!(
+                    f.status,
+                    r.status,
+                    "{odometry} {} {seq}: status differs at pose {i}",
+                    preset.name()
+                );
+                let (pf, pr) = (cam.to_planar(&f.pose), cam.to_planar(&r.pose));
+                for axis in 0..3 {
+                    assert!(
+                        (pf[axis][3] - pr[axis][3]).abs() <= 1e-9,
+                        "{odometry} {seq} pose {i}"
+                    );
+                }
+                assert!(wrap_angle(planar_heading(&pf) - planar_heading(&pr)).abs() <= 1e-12);
+            }
+        }
+    }
+}
