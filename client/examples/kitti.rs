@@ -1,40 +1,46 @@
-//! Corrects the real KITTI odometry runs of `../shared/data` against lanes derived from
-//! OpenStreetMap and prints raw vs corrected APE-2D per sequence and the mean.
+//! Corrects the real KITTI odometry runs of `../shared/data` and prints, per sequence, the raw
+//! APE-2D, lanealign on lanes it derives from OpenStreetMap, lanealign on the paper pipeline's
+//! reference lanes, and the reference implementation's figure (`reference/results.csv`).
 //!
-//! `cargo run --release -p lanealign-client --example kitti [-- --data DIR] [-- --lanes reference]`
+//! `cargo run --release -p lanealign-client --example kitti [-- --data DIR] [-- --all-presets]`
 //!
-//! Runs `lidar` with the kiss-icp preset and `stereo_vo` with orb-slam3 (as the paper pairs
-//! them), on two threads.
+//! By default it runs `lidar` with kiss-icp and `stereo_vo` with orb-slam3 (as the paper pairs
+//! them); `--all-presets` adds liodom and basalt (the four pairs of `results.csv`).
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 use anyhow::{bail, Context};
 use lanealign_client::maps::osm_lanes_in_odom;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_csv;
-use lanealign_core::lane_map::LaneMap;
+use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::metrics::{ape_2d, Ape2d};
 use lanealign_core::offline::{correct, counts};
 use lanealign_core::params::Preset;
-use lanealign_core::pose::AxisConvention;
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
 
 const SEQUENCES: [&str; 10] = ["00", "01", "02", "04", "05", "06", "07", "08", "09", "10"];
-const RUNS: [(&str, Preset); 2] = [("lidar", Preset::KissIcp), ("stereo_vo", Preset::OrbSlam3)];
 
-struct Row {
+struct Job {
     odometry: &'static str,
     preset: Preset,
     seq: &'static str,
-    raw: Ape2d,
-    corrected: Ape2d,
-    counts: (usize, usize, usize),
 }
 
-fn anchors(data: &Path) -> anyhow::Result<Vec<(String, Anchor)>> {
+struct Row {
+    raw: Ape2d,
+    osm: Ape2d,
+    osm_counts: (usize, usize, usize),
+    reference_lanes: Ape2d,
+}
+
+fn anchors(data: &Path) -> anyhow::Result<HashMap<String, Anchor>> {
     let text = std::fs::read_to_string(data.join("kitti/georef.csv"))?;
     text.lines()
         .skip(1)
@@ -51,135 +57,160 @@ fn anchors(data: &Path) -> anyhow::Result<Vec<(String, Anchor)>> {
         .collect()
 }
 
-fn run(
-    data: &Path,
-    reference_lanes: bool,
-    odometry: &'static str,
+/// `(odometry, preset, seq) -> ape2d_mean_m` of the reference implementation.
+fn reference_results(data: &Path) -> anyhow::Result<HashMap<(String, String, String), f64>> {
+    let text = std::fs::read_to_string(data.join("reference/results.csv"))?;
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let ape: f64 = f.get(5).context("results.csv: short line")?.parse()?;
+            Ok(((f[0].to_string(), f[1].to_string(), f[2].to_string()), ape))
+        })
+        .collect()
+}
+
+fn corrected(
+    lanes: &[Lane],
     preset: Preset,
-    seq: &'static str,
-    anchor: Anchor,
-) -> anyhow::Result<Row> {
+    odom: &[Pose3],
+    gt: &[Pose3],
+) -> anyhow::Result<(Ape2d, (usize, usize, usize))> {
     let cam = AxisConvention::KittiCamera;
-    let lanes = if reference_lanes {
-        lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv")))?
-    } else {
-        osm_lanes_in_odom(
-            &data.join(format!("osm/kitti_{seq}.osm")),
-            &anchor,
-            Projection::Kitti,
-            &LaneOptions::default(),
-        )?
-    };
-    let map = Arc::new(LaneMap::new(&lanes)?);
+    let run = correct(
+        Arc::new(LaneMap::new(lanes)?),
+        preset.params(),
+        MatchMode::Fast,
+        cam,
+        odom,
+    );
+    let est: Vec<Pose3> = run.iter().map(|c| cam.to_planar(&c.pose)).collect();
+    Ok((ape_2d(gt, &est)?, counts(&run)))
+}
+
+fn run(data: &Path, job: &Job, anchor: &Anchor) -> anyhow::Result<Row> {
+    let cam = AxisConvention::KittiCamera;
+    let seq = job.seq;
     let gt = read(&data.join(format!("kitti/poses/{seq}.txt")), Format::Kitti)?;
+    let gt: Vec<Pose3> = gt.poses.iter().map(|p| cam.to_planar(p)).collect();
     let odom = read(
-        &data.join(format!("odometry/{odometry}/{seq}.txt")),
+        &data.join(format!("odometry/{}/{seq}.txt", job.odometry)),
         Format::Kitti,
     )?;
-    let result = correct(map, preset.params(), MatchMode::Fast, cam, &odom.poses);
-    let planar = |poses: Vec<&[[f64; 4]; 3]>| {
-        poses
-            .into_iter()
-            .map(|p| cam.to_planar(p))
-            .collect::<Vec<_>>()
-    };
-    let gt_p = planar(gt.poses.iter().collect());
+    let raw: Vec<Pose3> = odom.poses.iter().map(|p| cam.to_planar(p)).collect();
+    let osm_lanes = osm_lanes_in_odom(
+        &data.join(format!("osm/kitti_{seq}.osm")),
+        anchor,
+        Projection::Kitti,
+        &LaneOptions::default(),
+    )?;
+    let (osm, osm_counts) = corrected(&osm_lanes, job.preset, &odom.poses, &gt)?;
+    let ref_lanes = lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv")))?;
+    let (reference_lanes, _) = corrected(&ref_lanes, job.preset, &odom.poses, &gt)?;
     Ok(Row {
-        odometry,
-        preset,
-        seq,
-        raw: ape_2d(&gt_p, &planar(odom.poses.iter().collect()))?,
-        corrected: ape_2d(&gt_p, &planar(result.iter().map(|c| &c.pose).collect()))?,
-        counts: counts(&result),
+        raw: ape_2d(&gt, &raw)?,
+        osm,
+        osm_counts,
+        reference_lanes,
     })
 }
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let flag = |name: &str| {
-        args.iter()
-            .position(|a| a == name)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
-    let data = flag("--data")
+    let data = args
+        .iter()
+        .position(|a| a == "--data")
+        .and_then(|i| args.get(i + 1))
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
-    let reference_lanes = flag("--lanes").as_deref() == Some("reference");
     if !data.join("kitti/georef.csv").is_file() {
         bail!("no KITTI data at {} (pass --data DIR)", data.display());
     }
+    let mut pairs = vec![("lidar", Preset::KissIcp), ("stereo_vo", Preset::OrbSlam3)];
+    if args.iter().any(|a| a == "--all-presets") {
+        pairs.extend([("lidar", Preset::Liodom), ("stereo_vo", Preset::Basalt)]);
+    }
     let anchors = anchors(&data).context("reading georef.csv")?;
-    let jobs: Vec<(&'static str, Preset, &'static str, Anchor)> = RUNS
+    let reference = reference_results(&data).context("reading reference/results.csv")?;
+    let jobs: Vec<Job> = pairs
         .iter()
-        .flat_map(|&(o, p)| {
-            let anchors = &anchors;
-            SEQUENCES.iter().filter_map(move |&s| {
-                anchors
-                    .iter()
-                    .find(|(a, _)| a == s)
-                    .map(|(_, a)| (o, p, s, *a))
+        .flat_map(|&(odometry, preset)| {
+            SEQUENCES.iter().map(move |&seq| Job {
+                odometry,
+                preset,
+                seq,
             })
         })
         .collect();
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let rows = std::sync::Mutex::new(Vec::new());
+    let next = AtomicUsize::new(0);
+    let rows = Mutex::new(Vec::new());
     std::thread::scope(|scope| {
         for _ in 0..2 {
             scope.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(&(o, p, s, a)) = jobs.get(i) else {
-                    break;
-                };
-                let row = run(&data, reference_lanes, o, p, s, a);
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(job) = jobs.get(i) else { break };
+                let row = anchors
+                    .get(job.seq)
+                    .with_context(|| format!("no anchor for sequence {}", job.seq))
+                    .and_then(|a| run(&data, job, a));
                 rows.lock().expect("no worker panics").push((i, row));
             });
         }
     });
     let mut rows = rows.into_inner().expect("no worker panics");
     rows.sort_by_key(|r| r.0);
-    println!(
-        "lanes: {}",
-        if reference_lanes {
-            "reference (paper pipeline)"
-        } else {
-            "derived from OSM by lanealign"
-        }
-    );
-    println!("| odometry | preset | seq | raw APE-2D (m) | corrected (m) | RMSE | lateral RMSE | heading (deg) | max (m) | attempts | accepted | resets |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
-    let mut sums: Vec<(&str, f64, f64, usize)> = Vec::new();
-    for (_, row) in rows {
-        let r = row?;
+    println!("Mean APE-2D in metres (no alignment). OSM: lanealign's lanes from OpenStreetMap; reference lanes: the paper pipeline's (OSM -> CommonRoad -> Lanelet2); reference impl.: reference/results.csv.\n");
+    println!("| odometry | preset | seq | raw | lanealign, OSM lanes | lanealign, reference lanes | reference impl., reference lanes | OSM: max err | OSM: attempts / accepted / resets |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let mut sums: Vec<(String, [f64; 4], usize)> = Vec::new();
+    for (i, row) in rows {
+        let job = &jobs[i];
+        let r = row.with_context(|| format!("{} {}", job.odometry, job.seq))?;
+        let reference_ape = reference
+            .get(&(
+                job.odometry.to_string(),
+                job.preset.name().to_string(),
+                job.seq.to_string(),
+            ))
+            .copied()
+            .unwrap_or(f64::NAN);
+        let (a, b, c) = r.osm_counts;
         println!(
-            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} |",
-            r.odometry,
-            r.preset.name(),
-            r.seq,
+            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {a} / {b} / {c} |",
+            job.odometry,
+            job.preset.name(),
+            job.seq,
             r.raw.mean_m,
-            r.corrected.mean_m,
-            r.corrected.rmse_m,
-            r.corrected.lateral_rmse_m,
-            r.corrected.heading_mean_deg,
-            r.corrected.max_m,
-            r.counts.0,
-            r.counts.1,
-            r.counts.2
+            r.osm.mean_m,
+            r.reference_lanes.mean_m,
+            reference_ape,
+            r.osm.max_m
         );
-        match sums.iter_mut().find(|s| s.0 == r.odometry) {
+        let key = format!("{} | {}", job.odometry, job.preset.name());
+        let values = [
+            r.raw.mean_m,
+            r.osm.mean_m,
+            r.reference_lanes.mean_m,
+            reference_ape,
+        ];
+        match sums.iter_mut().find(|s| s.0 == key) {
             Some(s) => {
-                s.1 += r.raw.mean_m;
-                s.2 += r.corrected.mean_m;
-                s.3 += 1;
+                for (acc, v) in s.1.iter_mut().zip(values) {
+                    *acc += v;
+                }
+                s.2 += 1;
             }
-            None => sums.push((r.odometry, r.raw.mean_m, r.corrected.mean_m, 1)),
+            None => sums.push((key, values, 1)),
         }
     }
-    for (o, raw, corr, n) in sums {
+    for (key, v, n) in sums {
+        let n = n as f64;
         println!(
-            "| {o} | mean of {n} | | {:.3} | {:.3} | | | | | | | |",
-            raw / n as f64,
-            corr / n as f64
+            "| {key} | **mean** | {:.3} | **{:.3}** | {:.3} | {:.3} | | |",
+            v[0] / n,
+            v[1] / n,
+            v[2] / n,
+            v[3] / n
         );
     }
     Ok(())

@@ -1,0 +1,222 @@
+//! The `lanealign` command line: evaluation against evo, and bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn lanealign(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lanealign"))
+        .args(args)
+        .output()
+        .expect("run lanealign")
+}
+
+fn data() -> Option<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+    if dir.join("kitti/poses/00.txt").is_file() {
+        Some(dir)
+    } else {
+        eprintln!("SKIPPED: no shared data at {}", dir.display());
+        None
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// `evo_ape kitti GT EST --project_to_plane xy` (evo 1.x, no alignment) on KITTI 00, the lidar
+/// odometry against ground truth, both rotated from the camera frame into the planar frame:
+/// mean 4.008812199526548, rmse 4.968945055378295, max 14.595055131424358.
+#[test]
+fn eval_equals_evo_on_kitti_00() {
+    let Some(d) = data() else { return };
+    let out = lanealign(&[
+        "eval",
+        "--gt",
+        s(&d.join("kitti/poses/00.txt")),
+        "--est",
+        s(&d.join("odometry/lidar/00.txt")),
+        "--frame",
+        "kitti-camera",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    let get = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        (get("ape2d_mean_m") - 4.008812199526548).abs() < 1e-6,
+        "{v}"
+    );
+    assert!((get("rmse_m") - 4.968945055378295).abs() < 1e-6, "{v}");
+    assert_eq!(v["poses"].as_u64(), Some(4541));
+    for key in ["lateral_rmse_m", "heading_mean_deg"] {
+        assert!(get(key).is_finite(), "{key} in {v}");
+    }
+}
+
+const LANES: &str = "lane_id,x,y\n1,0,0\n1,3,0\n1,6,0\n1,9,0\n1,12,0\n";
+
+#[test]
+fn bad_pose_lines_name_file_and_line_and_fail() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = dir.path().join("lanes.csv");
+    std::fs::write(&lanes, LANES).unwrap();
+    let good = "1 0 0 0 0 1 0 0 0 0 1 0\n";
+    let cases = [
+        (
+            "short.txt",
+            format!("{good}1 0 0 0 0 1 0\n"),
+            ":2:",
+            "expected 12 numbers",
+        ),
+        (
+            "word.txt",
+            format!("{good}{good}1 0 0 zero 0 1 0 0 0 0 1 0\n"),
+            ":3:",
+            "not a number",
+        ),
+        (
+            "nan.txt",
+            format!("1 0 0 NaN 0 1 0 0 0 0 1 0\n"),
+            ":1:",
+            "not finite",
+        ),
+        (
+            "inf.txt",
+            format!("{good}1 0 0 inf 0 1 0 0 0 0 1 0\n"),
+            ":2:",
+            "not finite",
+        ),
+    ];
+    for (name, text, line, what) in cases {
+        let input = dir.path().join(name);
+        std::fs::write(&input, text).unwrap();
+        let output = dir.path().join("out.txt");
+        let out = lanealign(&[
+            "correct",
+            "--lanes",
+            s(&lanes),
+            "--preset",
+            "kiss-icp",
+            s(&input),
+            "-o",
+            s(&output),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{name} must fail");
+        assert!(
+            err.contains(&format!("{name}{line}")) && err.contains(what),
+            "{name}: {err}"
+        );
+        assert!(!output.exists(), "no output for bad input");
+    }
+}
+
+#[test]
+fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let poses = dir.path().join("poses.txt");
+    let line = |x: f64| format!("1 0 0 {x} 0 1 0 0 0 0 1 0\n");
+    std::fs::write(&poses, (0..20).map(|i| line(i as f64)).collect::<String>()).unwrap();
+    let anchor = "49.0,8.4,0";
+    let not_xml = dir.path().join("not.osm");
+    std::fs::write(&not_xml, "PK\u{3}\u{4} this is a zip, not OSM").unwrap();
+    let out = lanealign(&[
+        "correct",
+        "--osm",
+        s(&not_xml),
+        "--anchor",
+        anchor,
+        "--preset",
+        "kiss-icp",
+        s(&poses),
+        "-o",
+        s(&dir.path().join("o.txt")),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("not.osm") && err.contains("not an OSM XML file"),
+        "{err}"
+    );
+
+    let missing = dir.path().join("missing.osm");
+    std::fs::write(
+        &missing,
+        r#"<osm><node id="1" lat="49.0" lon="8.4"/><node id="2" lat="49.0" lon="8.401"/>
+        <way id="3"><nd ref="1"/><nd ref="2"/><nd ref="404"/><tag k="highway" v="primary"/></way></osm>"#,
+    )
+    .unwrap();
+    let out = lanealign(&[
+        "correct",
+        "--osm",
+        s(&missing),
+        "--anchor",
+        anchor,
+        "--preset",
+        "kiss-icp",
+        s(&poses),
+        "-o",
+        s(&dir.path().join("o.txt")),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("1 node references missing"), "{err}");
+}
+
+#[test]
+fn correct_writes_every_pose_and_a_status_row_each() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = dir.path().join("lanes.csv");
+    let lane: String = (0..100)
+        .map(|i| format!("1,{},0\n", i as f64 * 3.0))
+        .collect();
+    std::fs::write(&lanes, format!("lane_id,x,y\n{lane}")).unwrap();
+    // TUM input drifted 0.8 m left of the lane.
+    let tum: String = (0..200)
+        .map(|i| format!("{} {} 0.8 0 0 0 0 1\n", i as f64 * 0.1, i as f64 * 1.2))
+        .collect();
+    let input = dir.path().join("in.tum");
+    std::fs::write(&input, tum).unwrap();
+    let output = dir.path().join("out.tum");
+    let status = dir.path().join("status.csv");
+    let out = lanealign(&[
+        "correct",
+        "--lanes",
+        s(&lanes),
+        "--preset",
+        "kiss-icp",
+        "--format",
+        "tum",
+        "--set",
+        "min_window=20",
+        s(&input),
+        "-o",
+        s(&output),
+        "--status",
+        s(&status),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let corrected = std::fs::read_to_string(&output).unwrap();
+    assert_eq!(corrected.lines().count(), 200);
+    let last: Vec<f64> = corrected
+        .lines()
+        .last()
+        .unwrap()
+        .split(' ')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert!(last[2].abs() < 1e-6, "the drift is removed: {last:?}");
+    let rows = std::fs::read_to_string(&status).unwrap();
+    assert_eq!(rows.lines().count(), 201);
+    assert!(rows.lines().nth(19).unwrap().contains(",warming_up,"));
+    assert!(rows.lines().last().unwrap().contains(",accepted,"));
+}
