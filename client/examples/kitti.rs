@@ -13,6 +13,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::{bail, Context};
+use lanealign_client::kitti::{anchors, default_data_dir, SEQUENCES};
 use lanealign_client::maps::osm_lanes_in_odom;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
@@ -25,8 +26,6 @@ use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
 
-const SEQUENCES: [&str; 10] = ["00", "01", "02", "04", "05", "06", "07", "08", "09", "10"];
-
 struct Job {
     odometry: &'static str,
     preset: Preset,
@@ -38,23 +37,6 @@ struct Row {
     osm: Ape2d,
     osm_counts: (usize, usize, usize),
     reference_lanes: Ape2d,
-}
-
-fn anchors(data: &Path) -> anyhow::Result<HashMap<String, Anchor>> {
-    let text = std::fs::read_to_string(data.join("kitti/georef.csv"))?;
-    text.lines()
-        .skip(1)
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            if f.len() < 7 {
-                bail!("georef.csv: bad line '{l}'");
-            }
-            let anchor: Anchor = format!("{},{},{},{},{}", f[1], f[2], f[4], f[5], f[6])
-                .parse()
-                .map_err(anyhow::Error::msg)?;
-            Ok((f[0].to_string(), anchor))
-        })
-        .collect()
 }
 
 /// `(odometry, preset, seq) -> ape2d_mean_m` of the reference implementation.
@@ -122,7 +104,7 @@ fn main() -> anyhow::Result<()> {
         .position(|a| a == "--data")
         .and_then(|i| args.get(i + 1))
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
+        .unwrap_or_else(default_data_dir);
     if !data.join("kitti/georef.csv").is_file() {
         bail!("no KITTI data at {} (pass --data DIR)", data.display());
     }

@@ -81,7 +81,7 @@ fn bad_pose_lines_name_file_and_line_and_fail() {
         ),
         (
             "nan.txt",
-            format!("1 0 0 NaN 0 1 0 0 0 0 1 0\n"),
+            "1 0 0 NaN 0 1 0 0 0 0 1 0\n".to_string(),
             ":1:",
             "not finite",
         ),

@@ -5,6 +5,7 @@
 //! (`odom`) on the way in and in the lane map's plane (`map`) on the way out.
 
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
 use crate::lane_map::{Candidate, LaneMap};
@@ -86,6 +87,17 @@ impl Status {
     }
 }
 
+/// Where the time of one step went (monotonic clock).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StepTiming {
+    /// Lane matching of the window.
+    pub matching: Duration,
+    /// Trimmed ICP.
+    pub icp: Duration,
+    /// The whole step, bookkeeping included.
+    pub total: Duration,
+}
+
 /// The result of one step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Step {
@@ -95,6 +107,8 @@ pub struct Step {
     pub map_from_odom: Se2,
     /// What happened.
     pub status: Status,
+    /// Where the time went.
+    pub timing: StepTiming,
 }
 
 /// The window of corrected positions, oldest first, kept contiguous for matching.
@@ -225,11 +239,21 @@ impl Corrector {
 
     /// Processes the next odometry position (metres, planar odometry frame).
     pub fn push(&mut self, position_in_odom: [f64; 2]) -> Step {
+        let start = Instant::now();
+        let mut timing = StepTiming::default();
+        let mut step = self.advance(position_in_odom, &mut timing);
+        timing.total = start.elapsed();
+        step.timing = timing;
+        step
+    }
+
+    fn advance(&mut self, position_in_odom: [f64; 2], timing: &mut StepTiming) -> Step {
         if !(position_in_odom[0].is_finite() && position_in_odom[1].is_finite()) {
             return Step {
                 position_in_map: [f64::NAN, f64::NAN],
                 map_from_odom: self.map_from_odom,
                 status: Status::InvalidInput,
+                timing: StepTiming::default(),
             };
         }
         let p = self.params;
@@ -248,6 +272,7 @@ impl Corrector {
             neighbours: p.neighbours,
             min_direction_cos: p.min_direction_cos,
         };
+        let matching_start = Instant::now();
         match &mut self.matcher {
             Matcher::Reference(candidates) => match_window(
                 &self.map,
@@ -263,6 +288,7 @@ impl Corrector {
                 &mut self.correspondences,
             ),
         }
+        timing.matching = matching_start.elapsed();
         let matched = self.correspondences.len();
         let match_ratio = matched as f64 / window_len as f64;
         let (reason, residual_m) =
@@ -274,7 +300,9 @@ impl Corrector {
                     max_iterations: p.icp_max_iterations,
                     tolerance_m: p.icp_tolerance_m,
                 };
+                let icp_start = Instant::now();
                 let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);
+                timing.icp = icp_start.elapsed();
                 if fit.residual_m < p.max_residual_m {
                     let correction = fit.transform;
                     self.map_from_odom = correction * self.map_from_odom;
@@ -324,6 +352,7 @@ impl Corrector {
             position_in_map: self.window.as_slice()[self.window.len() - 1],
             map_from_odom: self.map_from_odom,
             status,
+            timing: StepTiming::default(),
         }
     }
 }

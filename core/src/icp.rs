@@ -34,7 +34,8 @@ pub struct IcpResult {
 pub struct IcpScratch {
     sources: Vec<[f64; 2]>,
     targets: Vec<[f64; 2]>,
-    keyed: Vec<(f64, u32)>,
+    residuals: Vec<f64>,
+    sorted: Vec<f64>,
     kept: Vec<u32>,
 }
 
@@ -85,6 +86,28 @@ fn residual(a: [f64; 2], b: [f64; 2]) -> f64 {
     (dx * dx + dy * dy).sqrt()
 }
 
+/// The indices of the `k` smallest residuals, in index order, ties at the cut going to the lowest
+/// indices: the set a stable sort by residual would keep. Linear time.
+fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut Vec<u32>) {
+    kept.clear();
+    if k >= residuals.len() {
+        kept.extend(0..residuals.len() as u32);
+        return;
+    }
+    sorted.clear();
+    sorted.extend_from_slice(residuals);
+    let (below, &mut cut, _) = sorted.select_nth_unstable_by(k - 1, f64::total_cmp);
+    let mut ties_kept = k - below.iter().filter(|&&r| r < cut).count();
+    for (i, &r) in residuals.iter().enumerate() {
+        if r < cut {
+            kept.push(i as u32);
+        } else if r == cut && ties_kept > 0 {
+            kept.push(i as u32);
+            ties_kept -= 1;
+        }
+    }
+}
+
 /// Runs trimmed ICP on fixed pairs. Needs at least two pairs (the caller checks the match ratio
 /// first); with fewer it returns the identity and an infinite residual.
 pub fn trimmed_icp(
@@ -101,45 +124,41 @@ pub fn trimmed_icp(
         };
     }
     let k = kept_count(n, params.trim_ratio);
-    scratch.sources.clear();
-    scratch.sources.extend(pairs.iter().map(|c| c.source));
-    scratch.targets.clear();
-    scratch.targets.extend(pairs.iter().map(|c| c.target));
-    let targets = &scratch.targets;
+    let IcpScratch {
+        sources,
+        targets,
+        residuals,
+        sorted,
+        kept,
+    } = scratch;
+    sources.clear();
+    sources.extend(pairs.iter().map(|c| c.source));
+    targets.clear();
+    targets.extend(pairs.iter().map(|c| c.target));
+    residuals.clear();
+    residuals.extend(
+        sources
+            .iter()
+            .zip(targets.iter())
+            .map(|(&s, &q)| residual(s, q)),
+    );
     let mut transform = Se2::IDENTITY;
     let mut previous = f64::INFINITY;
     let mut residual_m = f64::INFINITY;
     let mut iterations = 0;
     while iterations < params.max_iterations {
         iterations += 1;
-        scratch.keyed.clear();
-        scratch.keyed.extend(
-            scratch
-                .sources
-                .iter()
-                .zip(targets)
-                .enumerate()
-                .map(|(i, (&s, &q))| (residual(s, q), i as u32)),
-        );
-        // The k smallest residuals, ties by index (what a stable sort would keep), in linear time.
-        let by_residual = |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-        if k < n {
-            scratch.keyed.select_nth_unstable_by(k - 1, by_residual);
-        }
-        scratch.kept.clear();
-        scratch.kept.extend(scratch.keyed[..k].iter().map(|e| e.1));
-        scratch.kept.sort_unstable();
-        let step = fit_rigid(&scratch.sources, targets, &scratch.kept);
-        for s in scratch.sources.iter_mut() {
+        keep_smallest(residuals, k, sorted, kept);
+        let step = fit_rigid(sources, targets, kept);
+        for (s, (r, &q)) in sources
+            .iter_mut()
+            .zip(residuals.iter_mut().zip(targets.iter()))
+        {
             *s = step.apply(*s);
+            *r = residual(*s, q);
         }
         transform = step * transform;
-        residual_m = scratch
-            .kept
-            .iter()
-            .map(|&i| residual(scratch.sources[i as usize], targets[i as usize]))
-            .sum::<f64>()
-            / k as f64;
+        residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
         if (previous - residual_m).abs() < params.tolerance_m {
             break;
         }
@@ -209,6 +228,20 @@ mod tests {
         let t = fit_rigid(&src, &dst, &[0, 1, 2, 3, 4]);
         let (c, s) = t.rotation();
         assert!((c * c + s * s - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn keeps_the_smallest_with_ties_to_the_lowest_index() {
+        let (mut sorted, mut kept) = (Vec::new(), Vec::new());
+        keep_smallest(
+            &[3.0, 1.0, 2.0, 1.0, 2.0, 2.0, 0.5],
+            4,
+            &mut sorted,
+            &mut kept,
+        );
+        assert_eq!(kept, vec![1, 2, 3, 6]);
+        keep_smallest(&[1.0, 1.0, 1.0], 2, &mut sorted, &mut kept);
+        assert_eq!(kept, vec![0, 1]);
     }
 
     #[test]

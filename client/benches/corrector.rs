@@ -1,0 +1,197 @@
+//! Per-pose cost of the corrector on real KITTI runs, fast vs reference matching, one table.
+//!
+//! `cargo bench -p lanealign-client --bench corrector [-- OPTIONS]`
+//!
+//! - `--sequences 00,02,08` (default), `--presets all` (default) or a comma list;
+//! - `--reference-poses K`: run the reference mode on the first K poses only (default: all; the
+//!   reference mode needs 5-30 ms per pose); identity and speed-up are then over those K poses;
+//! - `--long-run N`: instead, correct N poses in fast mode by looping KITTI 00 (lidar, kiss-icp)
+//!   and print resident memory every N/10 poses, to show it stays flat.
+//!
+//! Single thread. Times are wall-clock per `Corrector::push`, in microseconds.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use lanealign_client::kitti::{anchors, default_data_dir};
+use lanealign_client::maps::osm_lanes_in_odom;
+use lanealign_core::corrector::{Corrector, MatchMode, Status, Step};
+use lanealign_core::geo::Projection;
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::Preset;
+use lanealign_core::pose::{planar_position, AxisConvention};
+use lanealign_core::trajectory::{read, Format};
+use lanealign_map::osm_lanes::LaneOptions;
+
+struct Stats {
+    mean: f64,
+    p50: f64,
+    p99: f64,
+    max: f64,
+}
+
+fn stats(mut us: Vec<f64>) -> Stats {
+    us.sort_by(f64::total_cmp);
+    let q = |f: f64| us[((us.len() - 1) as f64 * f).round() as usize];
+    Stats {
+        mean: us.iter().sum::<f64>() / us.len() as f64,
+        p50: q(0.5),
+        p99: q(0.99),
+        max: us[us.len() - 1],
+    }
+}
+
+fn run(
+    map: &Arc<LaneMap>,
+    preset: Preset,
+    mode: MatchMode,
+    positions: &[[f64; 2]],
+) -> (Vec<Step>, Vec<f64>) {
+    let mut c = Corrector::with_mode(map.clone(), preset.params(), mode);
+    let mut steps = Vec::with_capacity(positions.len());
+    let mut us = Vec::with_capacity(positions.len());
+    for &p in positions {
+        let t = Instant::now();
+        let step = c.push(p);
+        us.push(t.elapsed().as_secs_f64() * 1e6);
+        steps.push(step);
+    }
+    (steps, us)
+}
+
+fn identical(a: &[Step], b: &[Step]) -> bool {
+    a.iter().zip(b).all(|(x, y)| {
+        x.status == y.status
+            && x.position_in_map == y.position_in_map
+            && x.map_from_odom == y.map_from_odom
+    })
+}
+
+fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>, Vec<[f64; 2]>)> {
+    let anchors = anchors(data)?;
+    let anchor = anchors
+        .get(seq)
+        .with_context(|| format!("no anchor for {seq}"))?;
+    let lanes = osm_lanes_in_odom(
+        &data.join(format!("osm/kitti_{seq}.osm")),
+        anchor,
+        Projection::Kitti,
+        &LaneOptions::default(),
+    )?;
+    let odom = read(
+        &data.join(format!("odometry/{odometry}/{seq}.txt")),
+        Format::Kitti,
+    )?;
+    let cam = AxisConvention::KittiCamera;
+    let positions = odom
+        .poses
+        .iter()
+        .map(|p| planar_position(&cam.to_planar(p)))
+        .collect();
+    Ok((Arc::new(LaneMap::new(&lanes)?), positions))
+}
+
+fn resident_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/statm")
+        .ok()
+        .and_then(|s| {
+            s.split_whitespace()
+                .nth(1)
+                .and_then(|v| v.parse::<u64>().ok())
+        })
+        .map_or(0, |pages| pages * 4)
+}
+
+fn long_run(data: &Path, total: usize) -> anyhow::Result<()> {
+    let (map, positions) = load(data, "lidar", "00")?;
+    let mut c = Corrector::new(map, Preset::KissIcp.params());
+    println!("Long run: KITTI 00 lidar, kiss-icp, fast mode, looped to {total} poses");
+    println!(
+        "| poses | resident memory (KiB) | mean us/pose since last row | accepted since last row |"
+    );
+    println!("|---|---|---|---|");
+    let (mut t, mut accepted) = (Instant::now(), 0usize);
+    for i in 0..total {
+        let step = c.push(positions[i % positions.len()]);
+        accepted += matches!(step.status, Status::Accepted { .. }) as usize;
+        if (i + 1) % (total / 10).max(1) == 0 {
+            let n = (total / 10).max(1) as f64;
+            println!(
+                "| {} | {} | {:.1} | {accepted} |",
+                i + 1,
+                resident_kib(),
+                t.elapsed().as_secs_f64() * 1e6 / n
+            );
+            t = Instant::now();
+            accepted = 0;
+        }
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let opt = |name: &str| {
+        args.iter()
+            .position(|a| a == name)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
+    let data = default_data_dir();
+    if !data.join("kitti/georef.csv").is_file() {
+        println!("SKIPPED: no KITTI data at {}", data.display());
+        return Ok(());
+    }
+    if let Some(n) = opt("--long-run") {
+        return long_run(&data, n.parse()?);
+    }
+    let sequences: Vec<String> = opt("--sequences")
+        .unwrap_or_else(|| "00,02,08".into())
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let presets: Vec<Preset> = match opt("--presets").as_deref() {
+        None | Some("all") => Preset::ALL.to_vec(),
+        Some(list) => list.split(',').map(str::parse).collect::<Result<_, _>>()?,
+    };
+    let reference_poses: Option<usize> = opt("--reference-poses").map(|v| v.parse()).transpose()?;
+    println!("Per-pose time of Corrector::push in microseconds, single thread, lanes from OSM.");
+    println!("| odometry | seq | preset | poses | fast mean | fast p50 | fast p99 | fast max | fast: matching / ICP mean | ref. poses | ref. mean | ref. p99 | speed-up (mean, same poses) | identical |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for odometry in ["lidar", "stereo_vo"] {
+        for seq in &sequences {
+            let (map, positions) = load(&data, odometry, seq)?;
+            for &preset in &presets {
+                let (fast_steps, fast_us) = run(&map, preset, MatchMode::Fast, &positions);
+                let k = reference_poses
+                    .unwrap_or(positions.len())
+                    .min(positions.len());
+                let (ref_steps, ref_us) = run(&map, preset, MatchMode::Reference, &positions[..k]);
+                let f = stats(fast_us.clone());
+                let n = fast_steps.len() as f64;
+                let matching = fast_steps
+                    .iter()
+                    .map(|s| s.timing.matching.as_secs_f64())
+                    .sum::<f64>()
+                    * 1e6
+                    / n;
+                let icp = fast_steps
+                    .iter()
+                    .map(|s| s.timing.icp.as_secs_f64())
+                    .sum::<f64>()
+                    * 1e6
+                    / n;
+                let r = stats(ref_us);
+                let fast_prefix = stats(fast_us[..k].to_vec());
+                println!(
+                    "| {odometry} | {seq} | {} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {matching:.1} / {icp:.1} | {k} | {:.0} | {:.0} | {:.0}x | {} |",
+                    preset.name(), positions.len(), f.mean, f.p50, f.p99, f.max, r.mean, r.p99,
+                    r.mean / fast_prefix.mean, if identical(&fast_steps[..k], &ref_steps) { "yes" } else { "NO" }
+                );
+            }
+        }
+    }
+    Ok(())
+}

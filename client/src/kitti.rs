@@ -1,0 +1,38 @@
+//! The KITTI evaluation data of `../shared/data`: sequences and their anchors.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use lanealign_core::geo::Anchor;
+
+/// The KITTI odometry sequences with ground truth in the shared data (03 has no OSM extract).
+pub const SEQUENCES: [&str; 10] = ["00", "01", "02", "04", "05", "06", "07", "08", "09", "10"];
+
+/// `../shared/data` as seen from the workspace root.
+pub fn default_data_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
+}
+
+/// Each sequence's anchor from `kitti/georef.csv`
+/// (`seq,origin_lat,origin_lon,origin_alt,yaw_deg,east_m,north_m,fit_rmse_m`).
+pub fn anchors(data: &Path) -> anyhow::Result<HashMap<String, Anchor>> {
+    let path = data.join("kitti/georef.csv");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            let f: Vec<&str> = l.split(',').collect();
+            if f.len() < 7 {
+                bail!("{}:{}: expected 8 fields", path.display(), i + 1);
+            }
+            let anchor: Anchor = format!("{},{},{},{},{}", f[1], f[2], f[4], f[5], f[6])
+                .parse()
+                .map_err(|e| anyhow::anyhow!("{}:{}: {e}", path.display(), i + 1))?;
+            Ok((f[0].to_string(), anchor))
+        })
+        .collect()
+}
