@@ -188,7 +188,7 @@ impl std::str::FromStr for MatchMode {
 
 enum Matcher {
     Reference(Vec<Candidate>),
-    Fast(MatchCache),
+    Fast(Box<MatchCache>),
 }
 
 /// One odometry source's corrector.
@@ -220,7 +220,7 @@ impl Corrector {
             failures: 0,
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
-                MatchMode::Fast => Matcher::Fast(MatchCache::default()),
+                MatchMode::Fast => Matcher::Fast(Box::default()),
             },
             correspondences: Vec::new(),
             icp: IcpScratch::default(),

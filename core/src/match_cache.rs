@@ -19,7 +19,7 @@
 
 use std::collections::VecDeque;
 
-use kiddo::SquaredEuclidean;
+use kiddo::{Eytzinger, QueryScratch, SquaredEuclidean};
 
 use crate::lane_map::LaneMap;
 use crate::matching::{trajectory_direction, try_candidate, Correspondence, MatchParams};
@@ -93,12 +93,19 @@ fn dot(u: [f64; 2], v: [f64; 2]) -> f64 {
     u[0] * v[0] + u[1] * v[1]
 }
 
+/// The KD-tree's traversal stack, kept between queries so that they do not allocate.
+type TreeScratch = QueryScratch<Eytzinger, f64, 2>;
+
 /// Per-window-pose caches, kept aligned with the corrector's window.
-#[derive(Debug, Default)]
+#[derive(Default)]
 pub struct MatchCache {
     poses: VecDeque<PoseCache>,
     spare: Vec<PoseCache>,
     keys: Vec<Key>,
+    tree_scratch: TreeScratch,
+    /// The most points any wide set has held: every pose's buffer is given this capacity when
+    /// it joins the window, so that steady-state rebuilds never grow a buffer.
+    widest: usize,
 }
 
 /// What the wide set told.
@@ -111,11 +118,20 @@ enum Decision {
     Unknown,
 }
 
+impl std::fmt::Debug for MatchCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MatchCache")
+            .field("poses", &self.poses.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl MatchCache {
     /// A new pose was appended to the window.
     pub fn push(&mut self) {
         let mut c = self.spare.pop().unwrap_or_default();
         c.wide.points.clear();
+        c.wide.points.reserve(self.widest);
         c.wide.radius = f64::NEG_INFINITY;
         c.proof = None;
         c.last = None;
@@ -150,7 +166,9 @@ impl MatchCache {
             {
                 last.answer
             } else {
-                let answer = match_one(map, cache, &mut self.keys, x, dir, params);
+                let scratch = (&mut self.keys, &mut self.tree_scratch);
+                let answer = match_one(map, cache, scratch, x, dir, params);
+                self.widest = self.widest.max(cache.wide.points.len());
                 cache.last = Some(LastMatch {
                     position: x,
                     direction: dir,
@@ -172,7 +190,7 @@ impl MatchCache {
 fn match_one(
     map: &LaneMap,
     cache: &mut PoseCache,
-    keys: &mut Vec<Key>,
+    (keys, tree_scratch): (&mut Vec<Key>, &mut TreeScratch),
     x: [f64; 2],
     dir: [f64; 2],
     params: &MatchParams,
@@ -207,7 +225,7 @@ fn match_one(
             }
             return answer.map(|a| a.1);
         }
-        rebuild(map, &mut cache.wide, x, radius);
+        rebuild(map, &mut cache.wide, tree_scratch, x, radius);
         radius *= 2.0;
     }
 }
@@ -280,7 +298,13 @@ fn reliable_radius(map: &LaneMap, set: &CandidateSet, x: [f64; 2]) -> f64 {
 
 /// Fills `set` with every lane point within `radius` metres of `x`, without allocating once the
 /// set's buffer has grown.
-fn rebuild(map: &LaneMap, set: &mut CandidateSet, x: [f64; 2], radius: f64) {
+fn rebuild(
+    map: &LaneMap,
+    set: &mut CandidateSet,
+    scratch: &mut TreeScratch,
+    x: [f64; 2],
+    radius: f64,
+) {
     set.anchor = x;
     set.points.clear();
     let points = &mut set.points;
@@ -288,6 +312,7 @@ fn rebuild(map: &LaneMap, set: &mut CandidateSet, x: [f64; 2], radius: f64) {
         .query(&x)
         .within::<SquaredEuclidean<f64>>(radius * radius)
         .unsorted()
+        .with_scratch(scratch)
         .visit(|r| points.push(r.item));
     set.radius = if set.points.len() == map.len() {
         f64::INFINITY
