@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use lanealign_client::kitti::{anchors, default_data_dir};
-use lanealign_client::maps::osm_lanes_in_odom;
+use lanealign_client::maps::MapSource;
 use lanealign_core::corrector::{Corrector, MatchMode, Status, Step};
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
@@ -74,12 +74,13 @@ fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>,
     let anchor = anchors
         .get(seq)
         .with_context(|| format!("no anchor for {seq}"))?;
-    let lanes = osm_lanes_in_odom(
-        &data.join(format!("osm/kitti_{seq}.osm")),
-        anchor,
-        Projection::Kitti,
-        &LaneOptions::default(),
-    )?;
+    let (map, plane_from_odom) = MapSource::Osm {
+        path: data.join(format!("osm/kitti_{seq}.osm")),
+        anchor: *anchor,
+        projection: Projection::Kitti,
+        options: LaneOptions::default(),
+    }
+    .load()?;
     let odom = read(
         &data.join(format!("odometry/{odometry}/{seq}.txt")),
         Format::Kitti,
@@ -88,9 +89,9 @@ fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>,
     let positions = odom
         .poses
         .iter()
-        .map(|p| planar_position(&cam.to_planar(p)))
+        .map(|p| plane_from_odom.apply(planar_position(&cam.to_planar(p))))
         .collect();
-    Ok((Arc::new(LaneMap::new(&lanes)?), positions))
+    Ok((map, positions))
 }
 
 fn resident_kib() -> u64 {

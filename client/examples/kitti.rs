@@ -10,17 +10,15 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 
 use anyhow::{bail, Context};
 use lanealign_client::kitti::{anchors, default_data_dir, SEQUENCES};
-use lanealign_client::maps::osm_lanes_in_odom;
+use lanealign_client::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::lane_csv;
-use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::metrics::{ape_2d, Ape2d};
-use lanealign_core::offline::{correct, counts};
+use lanealign_core::offline::{correct, counts, Source};
 use lanealign_core::params::Preset;
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{read, Format};
@@ -53,19 +51,18 @@ fn reference_results(data: &Path) -> anyhow::Result<HashMap<(String, String, Str
 }
 
 fn corrected(
-    lanes: &[Lane],
+    map_source: MapSource,
     preset: Preset,
     odom: &[Pose3],
     gt: &[Pose3],
 ) -> anyhow::Result<(Ape2d, (usize, usize, usize))> {
     let cam = AxisConvention::KittiCamera;
-    let run = correct(
-        Arc::new(LaneMap::new(lanes)?),
-        preset.params(),
-        MatchMode::Fast,
-        cam,
-        odom,
-    );
+    let (map, plane_from_odom) = map_source.load()?;
+    let source = Source {
+        convention: cam,
+        plane_from_odom,
+    };
+    let run = correct(map, preset.params(), MatchMode::Fast, source, odom);
     let est: Vec<Pose3> = run.iter().map(|c| cam.to_planar(&c.pose)).collect();
     Ok((ape_2d(gt, &est)?, counts(&run)))
 }
@@ -80,15 +77,15 @@ fn run(data: &Path, job: &Job, anchor: &Anchor) -> anyhow::Result<Row> {
         Format::Kitti,
     )?;
     let raw: Vec<Pose3> = odom.poses.iter().map(|p| cam.to_planar(p)).collect();
-    let osm_lanes = osm_lanes_in_odom(
-        &data.join(format!("osm/kitti_{seq}.osm")),
-        anchor,
-        Projection::Kitti,
-        &LaneOptions::default(),
-    )?;
-    let (osm, osm_counts) = corrected(&osm_lanes, job.preset, &odom.poses, &gt)?;
-    let ref_lanes = lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv")))?;
-    let (reference_lanes, _) = corrected(&ref_lanes, job.preset, &odom.poses, &gt)?;
+    let osm_map = MapSource::Osm {
+        path: data.join(format!("osm/kitti_{seq}.osm")),
+        anchor: *anchor,
+        projection: Projection::Kitti,
+        options: LaneOptions::default(),
+    };
+    let (osm, osm_counts) = corrected(osm_map, job.preset, &odom.poses, &gt)?;
+    let reference_map = MapSource::LanesCsv(data.join(format!("reference/lanes/lanes_{seq}.csv")));
+    let (reference_lanes, _) = corrected(reference_map, job.preset, &odom.poses, &gt)?;
     Ok(Row {
         raw: ape_2d(&gt, &raw)?,
         osm,

@@ -9,7 +9,7 @@ use lanealign_client::maps::MapSource;
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, associate_by_time};
-use lanealign_core::offline::{correct, CorrectedPose};
+use lanealign_core::offline::{correct, CorrectedPose, Source};
 use lanealign_core::params::{Params, Preset};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::trajectory::{self, Format, Trajectory};
@@ -36,9 +36,12 @@ enum Command {
 
 #[derive(Args)]
 struct MapArgs {
-    /// Raw OSM XML to derive lanes from (needs --anchor).
-    #[arg(long, conflicts_with = "lanes", required_unless_present = "lanes")]
+    /// Raw OSM or Lanelet2 road data (.osm, .osm.pbf) to derive lanes from (needs --anchor).
+    #[arg(long, conflicts_with_all = ["lanes", "map"], required_unless_present_any = ["lanes", "map"])]
     osm: Option<PathBuf>,
+    /// A lane tile compiled by `lanealign-map compile` (needs --anchor).
+    #[arg(long, conflicts_with = "lanes")]
+    map: Option<PathBuf>,
     /// Lane polylines (`lane_id,x,y`) already in the source's planar odometry frame.
     #[arg(long)]
     lanes: Option<PathBuf>,
@@ -186,8 +189,12 @@ fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
     if input.poses.is_empty() {
         bail!("{}: no poses", args.input.display());
     }
-    let map = args.map.source()?.load()?;
-    let run = correct(map, params, args.match_mode, args.frame, &input.poses);
+    let (map, plane_from_odom) = args.map.source()?.load()?;
+    let source = Source {
+        convention: args.frame,
+        plane_from_odom,
+    };
+    let run = correct(map, params, args.match_mode, source, &input.poses);
     let output = Trajectory {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),

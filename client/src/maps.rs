@@ -1,21 +1,23 @@
-//! Where a corrector's lane map comes from, and how it is placed in the source's frame.
+//! Where a corrector's lane map comes from, and how a source is placed on it.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use lanealign_core::geo::{Anchor, MapPlane, Projection};
+use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_csv;
-use lanealign_core::lane_map::{Lane, LaneMap};
-use lanealign_map::osm::read_xml_file;
-use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::se2::Se2;
+use lanealign_core::tile;
+use lanealign_map::compile::{compile, CompileOptions, InputReport};
+use lanealign_map::osm_lanes::LaneOptions;
 
 /// A lane map source as given on the command line.
 #[derive(Clone, Debug)]
 pub enum MapSource {
-    /// Raw OSM XML, anchored into the source's frame.
+    /// Raw OSM or Lanelet2 (XML or PBF), compiled in memory in the plane at the anchor's origin.
     Osm {
-        /// The `.osm` file.
+        /// The road data file.
         path: PathBuf,
         /// Where the odometry frame lies on Earth.
         anchor: Anchor,
@@ -24,55 +26,55 @@ pub enum MapSource {
         /// Lane derivation options.
         options: LaneOptions,
     },
-    /// Lane polylines already in the source's planar frame (`lane_id,x,y`).
+    /// A compiled tile, memory-mapped.
+    Tile {
+        /// The tile file.
+        path: PathBuf,
+        /// Where the odometry frame lies on Earth.
+        anchor: Anchor,
+    },
+    /// Lane polylines already in the source's planar odometry frame (`lane_id,x,y`).
     LanesCsv(PathBuf),
 }
 
-/// Lanes from raw OSM, moved from the map plane at the anchor's origin into the planar odometry
-/// frame the anchor describes (`odom_from_plane`).
-pub fn osm_lanes_in_odom(
-    path: &Path,
-    anchor: &Anchor,
-    projection: Projection,
-    options: &LaneOptions,
-) -> anyhow::Result<Vec<Lane>> {
-    let osm = read_xml_file(path)?;
-    let plane = MapPlane::new(projection, anchor.lat, anchor.lon);
-    let (mut lanes, report) = derive_lanes(&osm, &plane, options);
-    if report.missing_node_refs > 0 || report.ways_without_geometry > 0 {
-        eprintln!(
-            "warning: {}: {} node references missing, {} drivable ways without geometry (skipped)",
-            path.display(),
-            report.missing_node_refs,
-            report.ways_without_geometry
-        );
-    }
-    let odom_from_plane = anchor.plane_from_odom().inverse();
-    for lane in &mut lanes {
-        for p in &mut lane.points {
-            *p = odom_from_plane.apply(*p);
-        }
-    }
-    Ok(lanes)
-}
-
 impl MapSource {
-    /// Loads the lanes and builds the lane map.
-    pub fn load(&self) -> anyhow::Result<Arc<LaneMap>> {
-        let lanes = match self {
+    /// Loads the map and returns it with `plane_from_odom`, the source's placement on it.
+    pub fn load(&self) -> anyhow::Result<(Arc<LaneMap>, Se2)> {
+        match self {
             MapSource::Osm {
                 path,
                 anchor,
                 projection,
                 options,
-            } => osm_lanes_in_odom(path, anchor, *projection, options)?,
-            MapSource::LanesCsv(path) => lane_csv::read(path)?,
-        };
-        let what = match self {
-            MapSource::Osm { path, .. } | MapSource::LanesCsv(path) => path.display().to_string(),
-        };
-        Ok(Arc::new(LaneMap::new(&lanes).with_context(|| {
-            format!("building the lane map of {what}")
-        })?))
+            } => {
+                let compile_options = CompileOptions {
+                    origin: Some((anchor.lat, anchor.lon)),
+                    projection: *projection,
+                    lanes: options.clone(),
+                };
+                let (map, _, reports) = compile(std::slice::from_ref(path), &compile_options)?;
+                if let Some(InputReport::Osm(r)) = reports.first() {
+                    if r.missing_node_refs > 0 || r.ways_without_geometry > 0 {
+                        eprintln!(
+                            "warning: {}: {} node references missing, {} drivable ways without geometry (skipped)",
+                            path.display(),
+                            r.missing_node_refs,
+                            r.ways_without_geometry
+                        );
+                    }
+                }
+                Ok((Arc::new(map), anchor.plane_from_odom()))
+            }
+            MapSource::Tile { path, anchor } => {
+                let (map, info) = tile::load(path)?;
+                Ok((Arc::new(map), anchor.plane_from_odom_in(&info.plane)))
+            }
+            MapSource::LanesCsv(path) => {
+                let lanes = lane_csv::read(path)?;
+                let map = LaneMap::new(&lanes)
+                    .with_context(|| format!("building the lane map of {}", path.display()))?;
+                Ok((Arc::new(map), Se2::IDENTITY))
+            }
+        }
     }
 }

@@ -35,4 +35,5 @@ pub mod offline;
 pub mod params;
 pub mod pose;
 pub mod se2;
+pub mod tile;
 pub mod trajectory;

@@ -1,16 +1,17 @@
-//! lanealign map tools: reads road data (OSM XML) and derives lane maps for the corrector.
+//! lanealign map tools: reads road data (OSM XML and PBF, Lanelet2) and compiles lane maps and
+//! lane tiles for the corrector.
 //!
 //! ```no_run
-//! use std::path::Path;
-//! use lanealign_core::geo::{MapPlane, Projection};
-//! use lanealign_map::{osm::read_xml_file, osm_lanes::{derive_lanes, LaneOptions}};
+//! use std::path::{Path, PathBuf};
+//! use lanealign_map::compile::{compile, CompileOptions};
 //!
-//! let osm = read_xml_file(Path::new("karlsruhe.osm"))?;
-//! let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
-//! let (lanes, report) = derive_lanes(&osm, &plane, &LaneOptions::default());
-//! println!("{} lanes from {} ways", lanes.len(), report.ways_used);
-//! # Ok::<(), lanealign_map::osm::OsmError>(())
+//! let (map, plane, _reports) = compile(&[PathBuf::from("karlsruhe.osm")], &CompileOptions::default())?;
+//! lanealign_core::tile::write(Path::new("karlsruhe.tile"), &map, &plane, 3.0)?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod compile;
+pub mod lanelet2;
 pub mod osm;
 pub mod osm_lanes;
+pub mod pbf;

@@ -49,15 +49,45 @@ pub struct Relation {
     pub tags: Tags,
 }
 
-/// The elements of one OSM file. Node positions are WGS84 degrees.
+/// The elements of one OSM file.
 #[derive(Clone, Debug, Default)]
 pub struct OsmData {
-    /// Node id to `(lat, lon)` in degrees.
-    pub nodes: HashMap<i64, (f64, f64)>,
+    /// Node id to `(lat, lon)` in integer nanodegrees (WGS84), quantised to OSM's own precision
+    /// of 1e-7 degrees (about 1 cm), so that XML and PBF readers give bit-identical positions.
+    pub nodes: HashMap<i64, (i64, i64)>,
     /// Ways in file order.
     pub ways: Vec<Way>,
     /// Relations in file order.
     pub relations: Vec<Relation>,
+}
+
+impl OsmData {
+    /// A node's `(lat, lon)` in degrees.
+    pub fn position(&self, id: i64) -> Option<(f64, f64)> {
+        self.nodes
+            .get(&id)
+            .map(|&(lat, lon)| (lat as f64 / 1e9, lon as f64 / 1e9))
+    }
+
+    /// Orders ways and relations by id, so that everything derived from the data is
+    /// independent of the order a reader met them in.
+    pub fn sort(&mut self) {
+        self.ways.sort_by_key(|w| w.id);
+        self.relations.sort_by_key(|r| r.id);
+    }
+
+    /// Adds another file's elements.
+    pub fn merge(&mut self, other: OsmData) {
+        self.nodes.extend(other.nodes);
+        self.ways.extend(other.ways);
+        self.relations.extend(other.relations);
+    }
+}
+
+/// Degrees to integer nanodegrees, quantised to OSM's precision of 1e-7 degrees (the unit of
+/// its database and of PBF's default granularity).
+pub fn nanodegrees(deg: f64) -> i64 {
+    (deg * 1e7).round() as i64 * 100
 }
 
 /// An OSM file that could not be read.
@@ -217,7 +247,7 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
                 {
                     return Err(er.bad("node", format!("coordinates out of range ({lat}, {lon})")));
                 }
-                data.nodes.insert(id, (lat, lon));
+                data.nodes.insert(id, (nanodegrees(lat), nanodegrees(lon)));
                 if !is_empty {
                     open = Open::Node;
                 }
@@ -282,6 +312,7 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
             root: "(none)".to_string(),
         });
     }
+    data.sort();
     Ok(data)
 }
 

@@ -214,8 +214,8 @@ fn way_line(
 ) -> Option<Vec<[f64; 2]>> {
     let mut line: Vec<[f64; 2]> = Vec::with_capacity(way.nodes.len());
     for id in &way.nodes {
-        match osm.nodes.get(id) {
-            Some(&(lat, lon)) => {
+        match osm.position(*id) {
+            Some((lat, lon)) => {
                 let p = plane.project(lat, lon);
                 if line.last() != Some(&p) {
                     line.push(p);

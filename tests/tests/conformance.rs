@@ -16,9 +16,10 @@ use lanealign_core::corrector::MatchMode;
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::metrics::{ape_2d, Ape2d};
-use lanealign_core::offline::{correct, counts};
+use lanealign_core::offline::{correct, counts, Source};
 use lanealign_core::params::Preset;
 use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 
@@ -54,7 +55,16 @@ fn run(
 ) -> ((usize, usize, usize), Ape2d) {
     let cam = AxisConvention::KittiCamera;
     let map = Arc::new(LaneMap::new(lanes).expect("map"));
-    let out = correct(map, preset.params(), MatchMode::Fast, cam, odom);
+    let out = correct(
+        map,
+        preset.params(),
+        MatchMode::Fast,
+        Source {
+            convention: cam,
+            plane_from_odom: Se2::IDENTITY,
+        },
+        odom,
+    );
     let est: Vec<Pose3> = out.iter().map(|c| cam.to_planar(&c.pose)).collect();
     let gt: Vec<Pose3> = gt.iter().map(|p| cam.to_planar(p)).collect();
     (counts(&out), ape_2d(&gt, &est).expect("paired"))

@@ -6,10 +6,10 @@ use std::sync::Arc;
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::offline::correct;
+use lanealign_core::offline::{correct, Source};
 use lanealign_core::params::Preset;
 use lanealign_core::pose::{planar_heading, AxisConvention};
-use lanealign_core::se2::wrap_angle;
+use lanealign_core::se2::{wrap_angle, Se2};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 
@@ -17,6 +17,10 @@ use lanealign_tests::shared_data;
 fn fast_and_reference_modes_agree_on_real_sequences() {
     let Some(data) = shared_data() else { return };
     let cam = AxisConvention::KittiCamera;
+    let source = Source {
+        convention: cam,
+        plane_from_odom: Se2::IDENTITY,
+    };
     for seq in ["04", "06", "07"] {
         let lanes = lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv"))).unwrap();
         let map = Arc::new(LaneMap::new(&lanes).unwrap());
@@ -30,14 +34,14 @@ fn fast_and_reference_modes_agree_on_real_sequences() {
                 map.clone(),
                 preset.params(),
                 MatchMode::Fast,
-                cam,
+                source,
                 &odom.poses,
             );
             let reference = correct(
                 map.clone(),
                 preset.params(),
                 MatchMode::Reference,
-                cam,
+                source,
                 &odom.poses,
             );
             let accepted = fast

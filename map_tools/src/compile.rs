@@ -1,0 +1,126 @@
+//! Compiling road data into a lane map: read every input, choose the map plane, derive lanes.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::lane_map::{Lane, LaneMap, LaneMapError};
+
+use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
+use crate::osm::{read_xml_file, OsmData, OsmError};
+use crate::osm_lanes::{derive_lanes, DeriveReport, LaneOptions};
+use crate::pbf::{read_pbf_file, PbfError};
+
+/// What compiling needs besides the inputs.
+#[derive(Clone, Debug, Default)]
+pub struct CompileOptions {
+    /// The map plane's origin `(lat, lon)` in degrees; the centre of the data when `None`.
+    pub origin: Option<(f64, f64)>,
+    /// The projection of the map plane.
+    pub projection: Projection,
+    /// Lane derivation from raw OSM (spacing, traffic side, classes); the spacing also applies
+    /// to Lanelet2 centerlines.
+    pub lanes: LaneOptions,
+}
+
+/// What one input contributed.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum InputReport {
+    /// Raw OSM (XML or PBF): lanes derived from ways.
+    Osm(DeriveReport),
+    /// A Lanelet2 map: lanes from lanelets.
+    Lanelet2(LaneletReport),
+}
+
+/// A compile that failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CompileError {
+    /// An XML input could not be read.
+    #[error(transparent)]
+    Osm(#[from] OsmError),
+    /// A PBF input could not be read.
+    #[error(transparent)]
+    Pbf(#[from] PbfError),
+    /// An input is neither `.osm` nor `.osm.pbf`.
+    #[error("{0}: unknown input type (expected .osm or .osm.pbf)")]
+    UnknownInput(PathBuf),
+    /// No input had a node to place the map at.
+    #[error("the inputs contain no nodes")]
+    NoNodes,
+    /// The lanes do not make a map.
+    #[error(transparent)]
+    Map(#[from] LaneMapError),
+}
+
+/// Reads one input by its extension: `.osm.pbf` / `.pbf` as PBF, `.osm` / `.xml` as XML.
+pub fn read_input(path: &Path) -> Result<OsmData, CompileError> {
+    let name = path.to_string_lossy().to_lowercase();
+    if name.ends_with(".pbf") {
+        Ok(read_pbf_file(path)?)
+    } else if name.ends_with(".osm") || name.ends_with(".xml") {
+        Ok(read_xml_file(path)?)
+    } else {
+        Err(CompileError::UnknownInput(path.to_path_buf()))
+    }
+}
+
+/// A spinner that shows itself on a terminal only when reading takes more than a second.
+fn spinner(message: String) -> (indicatif::ProgressBar, Arc<AtomicBool>) {
+    let bar =
+        indicatif::ProgressBar::with_draw_target(None, indicatif::ProgressDrawTarget::hidden());
+    bar.set_message(message);
+    let done = Arc::new(AtomicBool::new(false));
+    let (late_bar, late_done) = (bar.clone(), done.clone());
+    std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_secs(1));
+        if !late_done.load(Ordering::Relaxed) {
+            late_bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            late_bar.enable_steady_tick(Duration::from_millis(120));
+        }
+    });
+    (bar, done)
+}
+
+fn centre(inputs: &[OsmData]) -> Option<(f64, f64)> {
+    let mut b = [i64::MAX, i64::MAX, i64::MIN, i64::MIN];
+    for &(lat, lon) in inputs.iter().flat_map(|d| d.nodes.values()) {
+        b = [b[0].min(lat), b[1].min(lon), b[2].max(lat), b[3].max(lon)];
+    }
+    (b[0] <= b[2]).then(|| ((b[0] + b[2]) as f64 / 2e9, (b[1] + b[3]) as f64 / 2e9))
+}
+
+/// Reads every input and derives its lanes into one map, in input order.
+pub fn compile(
+    inputs: &[PathBuf],
+    options: &CompileOptions,
+) -> Result<(LaneMap, MapPlane, Vec<InputReport>), CompileError> {
+    let mut data = Vec::with_capacity(inputs.len());
+    for path in inputs {
+        let (bar, done) = spinner(format!("reading {}", path.display()));
+        let read = read_input(path);
+        done.store(true, Ordering::Relaxed);
+        bar.finish_and_clear();
+        data.push(read?);
+    }
+    let (lat, lon) = match options.origin {
+        Some(origin) => origin,
+        None => centre(&data).ok_or(CompileError::NoNodes)?,
+    };
+    let plane = MapPlane::new(options.projection, lat, lon);
+    let mut lanes: Vec<Lane> = Vec::new();
+    let mut reports = Vec::with_capacity(data.len());
+    for osm in &data {
+        if is_lanelet2(osm) {
+            let (l, r) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
+            lanes.extend(l);
+            reports.push(InputReport::Lanelet2(r));
+        } else {
+            let (l, r) = derive_lanes(osm, &plane, &options.lanes);
+            lanes.extend(l);
+            reports.push(InputReport::Osm(r));
+        }
+    }
+    Ok((LaneMap::new(&lanes)?, plane, reports))
+}

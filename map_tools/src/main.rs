@@ -1,0 +1,200 @@
+//! `lanealign-map`: compile road data into a lane tile, and inspect tiles.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use clap::{Parser, Subcommand};
+use lanealign_core::geo::Projection;
+use lanealign_core::tile;
+use lanealign_map::compile::{compile, CompileOptions, InputReport};
+use lanealign_map::osm_lanes::{LaneOptions, Traffic, DEFAULT_CLASSES};
+
+#[derive(Parser)]
+#[command(
+    name = "lanealign-map",
+    version,
+    about = "Compile OSM / Lanelet2 road data into lane tiles"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Compile .osm, .osm.pbf and Lanelet2 .osm inputs into one tile.
+    Compile {
+        /// Inputs, merged in order.
+        #[arg(required = true)]
+        inputs: Vec<PathBuf>,
+        /// Origin of the map plane, LAT,LON in degrees (default: the centre of the data).
+        #[arg(long, allow_hyphen_values = true)]
+        origin: Option<String>,
+        /// Map plane projection: tangent (true scale) or kitti (spherical, as KITTI's GPS).
+        #[arg(long, default_value = "tangent")]
+        projection: Projection,
+        /// Minimum spacing of lane points, metres.
+        #[arg(long, default_value_t = 3.0)]
+        spacing: f64,
+        /// Traffic side: right or left.
+        #[arg(long, default_value = "right")]
+        traffic: Traffic,
+        /// Comma-separated highway classes to derive lanes from (default: motorway to
+        /// living_street and their links; add service to include it).
+        #[arg(long)]
+        classes: Option<String>,
+        /// The tile to write.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Print a tile's header, counts, size and validity; optionally export GeoJSON.
+    Inspect {
+        /// The tile.
+        tile: PathBuf,
+        /// Write the lane centerlines (WGS84, in driving direction) as GeoJSON.
+        #[arg(long)]
+        geojson: Option<PathBuf>,
+    },
+}
+
+fn parse_origin(s: &str) -> anyhow::Result<(f64, f64)> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--origin '{s}': expected LAT,LON"))?;
+    match v[..] {
+        [lat, lon] if lat.abs() <= 90.0 && lon.abs() <= 180.0 => Ok((lat, lon)),
+        _ => bail!("--origin '{s}': expected LAT,LON in degrees"),
+    }
+}
+
+fn lane_km(map: &lanealign_core::lane_map::LaneMap) -> f64 {
+    map.lanes()
+        .map(|(_, pts)| {
+            pts.windows(2)
+                .map(|w| ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt())
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / 1000.0
+}
+
+fn main() -> anyhow::Result<()> {
+    match Cli::parse().command {
+        Command::Compile {
+            inputs,
+            origin,
+            projection,
+            spacing,
+            traffic,
+            classes,
+            output,
+        } => {
+            if !(spacing.is_finite() && spacing > 0.0) {
+                bail!("--spacing must be a positive number of metres");
+            }
+            let classes = classes
+                .map(|c| c.split(',').map(|s| s.trim().to_string()).collect())
+                .unwrap_or_else(|| DEFAULT_CLASSES.iter().map(|s| s.to_string()).collect());
+            let options = CompileOptions {
+                origin: origin.as_deref().map(parse_origin).transpose()?,
+                projection,
+                lanes: LaneOptions {
+                    classes,
+                    traffic,
+                    spacing_m: spacing,
+                },
+            };
+            let start = Instant::now();
+            let (map, plane, reports) = compile(&inputs, &options)?;
+            tile::write(&output, &map, &plane, spacing)?;
+            for (path, report) in inputs.iter().zip(&reports) {
+                match report {
+                    InputReport::Osm(r) => eprintln!(
+                        "{}: OSM, {} drivable ways -> {} lanes; {} ways without geometry, {} missing node references",
+                        path.display(), r.ways_used, r.lanes, r.ways_without_geometry, r.missing_node_refs
+                    ),
+                    InputReport::Lanelet2(r) => eprintln!(
+                        "{}: Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
+                        path.display(), r.lanelets_used, r.lanelets_not_drivable, r.lanelets_broken
+                    ),
+                }
+            }
+            eprintln!(
+                "{}: {} lanes, {} points, {:.1} lane-km, {} bytes, origin {:.7},{:.7} ({}), {:.2} s",
+                output.display(), map.lane_count(), map.len(), lane_km(&map), tile::HEADER_LEN + map.image().len(),
+                plane.origin_lat, plane.origin_lon, plane.projection.name(), start.elapsed().as_secs_f64()
+            );
+        }
+        Command::Inspect {
+            tile: path,
+            geojson,
+        } => {
+            let bytes =
+                std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+            let info = tile::read_info(&path, &bytes)?;
+            let (map, _) = tile::load(&path)?;
+            let p = info.plane;
+            let (lat0, lon0) = p.unproject([info.bounds[0], info.bounds[1]]);
+            let (lat1, lon1) = p.unproject([info.bounds[2], info.bounds[3]]);
+            println!("tile        {}", path.display());
+            println!(
+                "format      version {}, little-endian, {} bytes",
+                tile::VERSION,
+                bytes.len()
+            );
+            println!(
+                "origin      {:.9}, {:.9} ({} projection)",
+                p.origin_lat,
+                p.origin_lon,
+                p.projection.name()
+            );
+            println!("spacing     {} m", info.spacing_m);
+            println!("lanes       {}", info.lanes);
+            println!("points      {}", info.points);
+            println!("lane-km     {:.3}", lane_km(&map));
+            println!(
+                "bounds      x {:.1}..{:.1} m, y {:.1}..{:.1} m",
+                info.bounds[0], info.bounds[2], info.bounds[1], info.bounds[3]
+            );
+            println!("lat/lon     {lat0:.7},{lon0:.7} .. {lat1:.7},{lon1:.7}");
+            println!(
+                "checksum    {:016x} ok; arrays and KD-tree valid",
+                info.checksum
+            );
+            if let Some(out) = geojson {
+                let features: Vec<serde_json::Value> = map
+                    .lanes()
+                    .map(|(id, pts)| {
+                        let coords: Vec<[f64; 2]> = pts.iter().map(|&q| {
+                            let (lat, lon) = p.unproject(q);
+                            [lon, lat]
+                        }).collect();
+                        let heading = pts.get(1).map(|b| (b[1] - pts[0][1]).atan2(b[0] - pts[0][0]).to_degrees());
+                        serde_json::json!({
+                            "type": "Feature",
+                            "properties": { "lane_id": id, "points": pts.len(), "start_heading_deg_ccw_from_east": heading },
+                            "geometry": { "type": "LineString", "coordinates": coords },
+                        })
+                    })
+                    .collect();
+                let doc = serde_json::json!({ "type": "FeatureCollection", "features": features });
+                let mut f = std::io::BufWriter::new(
+                    std::fs::File::create(&out)
+                        .with_context(|| format!("creating {}", out.display()))?,
+                );
+                serde_json::to_writer(&mut f, &doc)?;
+                f.flush()?;
+                println!(
+                    "geojson     {} ({} lanes, coordinates in driving order)",
+                    out.display(),
+                    map.lane_count()
+                );
+            }
+        }
+    }
+    Ok(())
+}
