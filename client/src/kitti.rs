@@ -9,9 +9,11 @@ use lanealign_core::geo::Anchor;
 /// The KITTI odometry sequences with ground truth in the shared data (03 has no OSM extract).
 pub const SEQUENCES: [&str; 10] = ["00", "01", "02", "04", "05", "06", "07", "08", "09", "10"];
 
-/// `../shared/data` as seen from the workspace root.
+/// `$LANEALIGN_DATA` when set, else `../shared/data` as seen from the workspace root.
 pub fn default_data_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
+    std::env::var_os("LANEALIGN_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
 }
 
 /// Each sequence's anchor from `kitti/georef.csv`

@@ -1,11 +1,19 @@
-//! `lanealign`: correct a recorded odometry run against lanes, and evaluate trajectories.
+//! `lanealign`: correct a recorded odometry run against lanes, evaluate trajectories, and talk
+//! to `lanealignd` (replay, soak, demo).
+
+mod cli;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::{Args, Parser, Subcommand};
+use std::time::Duration;
+
+use lanealign_client::connection::Connection;
 use lanealign_client::maps::MapSource;
+use lanealign_client::replay::{replay, Rate};
+use lanealign_client::wire::WireStatus;
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, associate_by_time};
@@ -32,6 +40,43 @@ enum Command {
     Correct(CorrectArgs),
     /// APE-2D of an estimate against ground truth (no alignment).
     Eval(EvalArgs),
+    /// Stream a trajectory through a running lanealignd and write the corrected one.
+    Replay(ReplayArgs),
+    /// Many sources through one daemon: latency and loss, corrected and pass-through.
+    Soak {
+        /// Number of sources.
+        #[arg(long, default_value_t = 8)]
+        sources: usize,
+        /// Poses per second per source.
+        #[arg(long, default_value_t = 100.0)]
+        rate: f64,
+        /// Seconds per mode.
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+    },
+    /// Compile a map, start lanealignd, replay an odometry run through it, print the result.
+    Demo,
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    /// The source name configured in lanealignd.
+    #[arg(long)]
+    source: String,
+    /// Poses per second, or max (flow-controlled, 64 in flight).
+    #[arg(long, default_value = "max")]
+    rate: Rate,
+    /// File format: kitti or tum.
+    #[arg(long, default_value = "kitti")]
+    format: Format,
+    /// Sequence number of the first pose (a restarted replay can continue where it stopped).
+    #[arg(long, default_value_t = 1)]
+    first_seq: u64,
+    /// The trajectory to stream (in the source's axis convention).
+    input: PathBuf,
+    /// Where to write the corrected trajectory.
+    #[arg(short, long)]
+    output: PathBuf,
 }
 
 #[derive(Args)]
@@ -256,10 +301,58 @@ fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn run_replay(args: &ReplayArgs) -> anyhow::Result<()> {
+    let input = trajectory::read(&args.input, args.format)?;
+    let stamps: Vec<i64> = input
+        .stamps
+        .as_ref()
+        .map(|s| s.iter().map(|t| (t * 1e9).round() as i64).collect())
+        .unwrap_or_default();
+    let conn = Connection::connect(&args.source)?;
+    let result = replay(
+        &conn,
+        &args.source,
+        &input.poses,
+        &stamps,
+        args.first_seq,
+        args.rate,
+        Duration::from_secs(10),
+    )?;
+    let output = Trajectory {
+        stamps: input.stamps.clone(),
+        poses: result.answers.iter().map(cli::pose_of).collect(),
+    };
+    trajectory::write(&args.output, &output, args.format)?;
+    let mut rt = result.round_trip_ns.clone();
+    rt.sort_unstable();
+    let accepted = result
+        .answers
+        .iter()
+        .filter(|a| a.status == WireStatus::Accepted as u32)
+        .count();
+    eprintln!(
+        "{} poses replayed, all answered, {accepted} accepted; round trip p50 {:.1} us, p99 {:.1} us, max {:.1} us",
+        result.answers.len(),
+        cli::percentile_us(&rt, 0.5),
+        cli::percentile_us(&rt, 0.99),
+        cli::percentile_us(&rt, 1.0)
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    // iceoryx2 warns on stdout when it runs on its default configuration, which is intended here.
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     match &cli.command {
         Command::Correct(args) => run_correct(args),
         Command::Eval(args) => run_eval(args),
+        Command::Replay(args) => run_replay(args),
+        Command::Soak {
+            sources,
+            rate,
+            duration,
+        } => cli::soak::run(*sources, *rate, *duration),
+        Command::Demo => cli::demo::run(),
     }
 }

@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use crate::corrector::{Corrector, MatchMode, Status};
+use crate::corrector::{Corrector, MatchMode, Status, StepTiming};
 use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::{apply_planar_correction, planar_position, AxisConvention, Pose3};
@@ -31,6 +31,50 @@ pub struct Source {
     pub plane_from_odom: Se2,
 }
 
+/// One source's corrector with its placement: takes poses in the source's own frame and
+/// convention and returns them corrected in the same. The daemon runs one per source; offline
+/// correction runs one over a whole file, so both give the same answers.
+pub struct SourceCorrector {
+    corrector: Corrector,
+    source: Source,
+    odom_from_plane: Se2,
+}
+
+impl SourceCorrector {
+    /// A corrector for `source` on `map`.
+    pub fn new(map: Arc<LaneMap>, params: Params, mode: MatchMode, source: Source) -> Self {
+        SourceCorrector {
+            corrector: Corrector::with_mode(map, params, mode),
+            odom_from_plane: source.plane_from_odom.inverse(),
+            source,
+        }
+    }
+
+    /// Corrects the next pose; returns the step's timing too.
+    pub fn correct(&mut self, pose: &Pose3) -> (CorrectedPose, StepTiming) {
+        let source = &self.source;
+        let in_plane =
+            apply_planar_correction(&source.plane_from_odom, &source.convention.to_planar(pose));
+        let step = self.corrector.push(planar_position(&in_plane));
+        let corrected = match step.status {
+            Status::InvalidInput => *pose,
+            _ => {
+                let corrected_in_plane = apply_planar_correction(&step.map_from_odom, &in_plane);
+                source.convention.from_planar(&apply_planar_correction(
+                    &self.odom_from_plane,
+                    &corrected_in_plane,
+                ))
+            }
+        };
+        let record = CorrectedPose {
+            pose: corrected,
+            map_from_odom: step.map_from_odom * source.plane_from_odom,
+            status: step.status,
+        };
+        (record, step.timing)
+    }
+}
+
 /// Corrects `poses` against `map`: each pose is moved into the map plane, corrected there, and
 /// moved back, so the output is in the input's own frame and convention.
 pub fn correct(
@@ -40,34 +84,8 @@ pub fn correct(
     source: Source,
     poses: &[Pose3],
 ) -> Vec<CorrectedPose> {
-    let mut corrector = Corrector::with_mode(map, params, mode);
-    let odom_from_plane = source.plane_from_odom.inverse();
-    poses
-        .iter()
-        .map(|pose| {
-            let in_plane = apply_planar_correction(
-                &source.plane_from_odom,
-                &source.convention.to_planar(pose),
-            );
-            let step = corrector.push(planar_position(&in_plane));
-            let corrected = match step.status {
-                Status::InvalidInput => *pose,
-                _ => {
-                    let corrected_in_plane =
-                        apply_planar_correction(&step.map_from_odom, &in_plane);
-                    source.convention.from_planar(&apply_planar_correction(
-                        &odom_from_plane,
-                        &corrected_in_plane,
-                    ))
-                }
-            };
-            CorrectedPose {
-                pose: corrected,
-                map_from_odom: step.map_from_odom * source.plane_from_odom,
-                status: step.status,
-            }
-        })
-        .collect()
+    let mut corrector = SourceCorrector::new(map, params, mode, source);
+    poses.iter().map(|pose| corrector.correct(pose).0).collect()
 }
 
 /// Counts over a corrected run: `(match attempts, accepted, resets)`.

@@ -1,0 +1,111 @@
+//! Per-source latency and outcome counts, reported through `tracing` every metrics interval.
+
+use hdrhistogram::Histogram;
+
+/// Counts and latency histograms of one source since the last report.
+pub struct SourceMetrics {
+    /// Poses processed.
+    pub count: u64,
+    /// Accepted corrections.
+    pub accepted: u64,
+    /// Rejected or reset steps.
+    pub rejected: u64,
+    /// Inputs flagged (non-finite, duplicate or out-of-order sequence numbers).
+    pub flagged: u64,
+    /// Client send to daemon publish (nanoseconds).
+    end_to_end: Histogram<u64>,
+    /// Daemon receive to daemon publish (nanoseconds).
+    in_daemon: Histogram<u64>,
+    /// Time in lane matching, in ICP (nanoseconds).
+    matching: Histogram<u64>,
+    icp: Histogram<u64>,
+}
+
+/// p50, p99, p999 and max of a histogram, in microseconds.
+fn quantiles(h: &Histogram<u64>) -> [f64; 4] {
+    let us = |v: u64| v as f64 / 1e3;
+    [
+        us(h.value_at_quantile(0.5)),
+        us(h.value_at_quantile(0.99)),
+        us(h.value_at_quantile(0.999)),
+        us(h.max()),
+    ]
+}
+
+fn histogram() -> Histogram<u64> {
+    // 1 ns to 100 s at 3 significant digits; allocated once, reset after each report.
+    Histogram::new_with_bounds(1, 100_000_000_000, 3).expect("constant, valid histogram bounds")
+}
+
+impl Default for SourceMetrics {
+    fn default() -> Self {
+        SourceMetrics {
+            count: 0,
+            accepted: 0,
+            rejected: 0,
+            flagged: 0,
+            end_to_end: histogram(),
+            in_daemon: histogram(),
+            matching: histogram(),
+            icp: histogram(),
+        }
+    }
+}
+
+impl SourceMetrics {
+    /// Records one processed pose's latencies (nanoseconds).
+    pub fn record(&mut self, end_to_end_ns: u64, in_daemon_ns: u64, matching_ns: u64, icp_ns: u64) {
+        self.count += 1;
+        // Saturating: values beyond the range are clamped, never an error.
+        self.end_to_end.saturating_record(end_to_end_ns.max(1));
+        self.in_daemon.saturating_record(in_daemon_ns.max(1));
+        self.matching.saturating_record(matching_ns.max(1));
+        self.icp.saturating_record(icp_ns.max(1));
+    }
+
+    /// Emits one INFO event with the counts and latency quantiles, then starts over.
+    pub fn report(&mut self, source: &str) {
+        if self.count == 0 {
+            tracing::info!(source, count = 0, "no poses in this interval");
+            return;
+        }
+        let [e50, e99, e999, emax] = quantiles(&self.end_to_end);
+        let [d50, d99, d999, dmax] = quantiles(&self.in_daemon);
+        let [m50, m99, _, mmax] = quantiles(&self.matching);
+        let [i50, i99, _, imax] = quantiles(&self.icp);
+        tracing::info!(
+            source,
+            count = self.count,
+            accepted = self.accepted,
+            rejected = self.rejected,
+            flagged = self.flagged,
+            e2e_p50_us = e50,
+            e2e_p99_us = e99,
+            e2e_p999_us = e999,
+            e2e_max_us = emax,
+            daemon_p50_us = d50,
+            daemon_p99_us = d99,
+            daemon_p999_us = d999,
+            daemon_max_us = dmax,
+            matching_p50_us = m50,
+            matching_p99_us = m99,
+            matching_max_us = mmax,
+            icp_p50_us = i50,
+            icp_p99_us = i99,
+            icp_max_us = imax,
+            "latency"
+        );
+        self.count = 0;
+        self.accepted = 0;
+        self.rejected = 0;
+        self.flagged = 0;
+        for h in [
+            &mut self.end_to_end,
+            &mut self.in_daemon,
+            &mut self.matching,
+            &mut self.icp,
+        ] {
+            h.reset();
+        }
+    }
+}
