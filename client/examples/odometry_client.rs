@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use lanealign_client::connection::{monotonic_ns, Connection};
 use lanealign_client::synthetic;
-use lanealign_client::wire::{OdomPose, WireStatus};
+use lanealign_client::wire::{pose_to_wire, OdomPose, WireStatus};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let source = std::env::args()
@@ -19,10 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let conn = Connection::connect(&source)?;
     let (_, odometry) = synthetic::drive(1, 1);
     for (i, p) in odometry.iter().take(500).enumerate() {
-        let mut pose = [0.0; 12];
-        for (r, row) in p.iter().enumerate() {
-            pose[r * 4..r * 4 + 4].copy_from_slice(row);
-        }
+        let pose = pose_to_wire(p);
         conn.publish(&OdomPose {
             seq: i as u64 + 1,
             stamp_ns: i as i64 * 100_000_000,

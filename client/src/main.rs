@@ -13,7 +13,7 @@ use std::time::Duration;
 use lanealign_client::connection::Connection;
 use lanealign_client::maps::MapSource;
 use lanealign_client::replay::{replay, Rate};
-use lanealign_client::wire::WireStatus;
+use lanealign_client::wire::{pose_from_wire, WireStatus};
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, associate_by_time};
@@ -320,7 +320,11 @@ fn run_replay(args: &ReplayArgs) -> anyhow::Result<()> {
     )?;
     let output = Trajectory {
         stamps: input.stamps.clone(),
-        poses: result.answers.iter().map(cli::pose_of).collect(),
+        poses: result
+            .answers
+            .iter()
+            .map(|a| pose_from_wire(&a.pose))
+            .collect(),
     };
     trajectory::write(&args.output, &output, args.format)?;
     let mut rt = result.round_trip_ns.clone();

@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use lanealign_core::pose::Pose3;
 
 use crate::connection::{monotonic_ns, Connection, ConnectionError};
-use crate::wire::{CorrectedPose, OdomPose};
+use crate::wire::{pose_to_wire, CorrectedPose, OdomPose};
 
 /// How fast to publish.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,14 +62,6 @@ pub struct Replay {
     pub answers: Vec<CorrectedPose>,
     /// Round-trip latency per pose (client send to client receive), nanoseconds.
     pub round_trip_ns: Vec<u64>,
-}
-
-fn flat(p: &Pose3) -> [f64; 12] {
-    let mut out = [0.0; 12];
-    for (i, row) in p.iter().enumerate() {
-        out[i * 4..i * 4 + 4].copy_from_slice(row);
-    }
-    out
 }
 
 /// Publishes `poses` as `seq = first_seq..` with the given stamps (nanoseconds) and collects
@@ -135,7 +127,7 @@ pub fn replay(
             seq: first_seq + i as u64,
             stamp_ns: stamps_ns.get(i).copied().unwrap_or(i as i64),
             sent_mono_ns: monotonic_ns(),
-            pose: flat(pose),
+            pose: pose_to_wire(pose),
         })?;
         while let Some(a) = conn.try_recv()? {
             take(a, &mut received);

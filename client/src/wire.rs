@@ -10,6 +10,25 @@
 //! an event service of the same name that is notified after every sample.
 
 use iceoryx2::prelude::ZeroCopySend;
+use lanealign_core::pose::Pose3;
+
+/// A 3x4 pose as the wire's row-major `[f64; 12]`.
+pub fn pose_to_wire(p: &Pose3) -> [f64; 12] {
+    let mut out = [0.0; 12];
+    for (i, row) in p.iter().enumerate() {
+        out[i * 4..i * 4 + 4].copy_from_slice(row);
+    }
+    out
+}
+
+/// The wire's row-major `[f64; 12]` as a 3x4 pose.
+pub fn pose_from_wire(v: &[f64; 12]) -> Pose3 {
+    [
+        [v[0], v[1], v[2], v[3]],
+        [v[4], v[5], v[6], v[7]],
+        [v[8], v[9], v[10], v[11]],
+    ]
+}
 
 /// A pose from an odometry source.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]

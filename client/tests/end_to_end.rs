@@ -13,7 +13,7 @@ use lanealign_client::connection::{monotonic_ns, Connection};
 use lanealign_client::daemon_process::DaemonProcess;
 use lanealign_client::kitti::anchors;
 use lanealign_client::replay::{replay, Rate};
-use lanealign_client::wire::{OdomPose, WireStatus};
+use lanealign_client::wire::{pose_from_wire, pose_to_wire, OdomPose, WireStatus};
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::offline::{correct, Source};
@@ -107,14 +107,6 @@ fn offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Vec<Pose3> {
     .collect()
 }
 
-fn pose_of(v: &[f64; 12]) -> Pose3 {
-    [
-        [v[0], v[1], v[2], v[3]],
-        [v[4], v[5], v[6], v[7]],
-        [v[8], v[9], v[10], v[11]],
-    ]
-}
-
 fn start(setup: &Setup) -> DaemonProcess {
     DaemonProcess::start(&setup.config, &setup.dir.path().join(format!("d-{}.log", monotonic_ns()))).expect(
         "lanealignd must be built next to the tests: run `cargo test --workspace` or `cargo build -p lanealign-service` first",
@@ -175,7 +167,7 @@ fn two_sources_at_once_match_offline_bit_for_bit_and_lose_nothing() {
             "{name}: every pose once, in order"
         );
         let want = offline(&setup, name, poses);
-        let got: Vec<Pose3> = r.answers.iter().map(|x| pose_of(&x.pose)).collect();
+        let got: Vec<Pose3> = r.answers.iter().map(|x| pose_from_wire(&x.pose)).collect();
         assert!(
             want == got,
             "{name}: the daemon's poses equal offline correction bit for bit"
@@ -206,13 +198,7 @@ fn bad_input_is_flagged_and_changes_nothing() {
     while !conn.daemon_connected() && Instant::now() < until {
         std::thread::sleep(Duration::from_millis(10));
     }
-    let flat = |p: &Pose3| {
-        let mut v = [0.0; 12];
-        for (i, row) in p.iter().enumerate() {
-            v[i * 4..i * 4 + 4].copy_from_slice(row);
-        }
-        v
-    };
+    let flat = pose_to_wire;
     let send = |seq: u64, pose: [f64; 12]| {
         conn.publish(&OdomPose {
             seq,
@@ -278,7 +264,7 @@ fn bad_input_is_flagged_and_changes_nothing() {
     // The flagged inputs changed nothing: the good answers equal offline correction of the good
     // poses alone.
     let want = offline(&setup, &name, poses);
-    let got: Vec<Pose3> = good.iter().map(|x| pose_of(&x.pose)).collect();
+    let got: Vec<Pose3> = good.iter().map(|x| pose_from_wire(&x.pose)).collect();
     assert!(want == got);
 }
 
@@ -334,7 +320,7 @@ fn a_killed_client_is_cleaned_up_and_others_are_unaffected() {
         want == r
             .answers
             .iter()
-            .map(|x| pose_of(&x.pose))
+            .map(|x| pose_from_wire(&x.pose))
             .collect::<Vec<_>>()
     );
     // The supervisor removes the dead client's node.
@@ -386,10 +372,7 @@ fn the_daemon_restarts_under_a_publishing_client_and_leaves_no_shared_memory() {
         let mut answered_after = 0;
         let mut daemon = Some(daemon);
         for (i, p) in poses.iter().enumerate().take(600) {
-            let mut v = [0.0; 12];
-            for (r, row) in p.iter().enumerate() {
-                v[r * 4..r * 4 + 4].copy_from_slice(row);
-            }
+            let v = pose_to_wire(p);
             conn.publish(&OdomPose {
                 seq: i as u64 + 1,
                 stamp_ns: 0,

@@ -10,12 +10,11 @@ use iceoryx2::prelude::*;
 use lanealign_client::connection::{
     event_service, monotonic_ns, pubsub_service, service_names, ConnectionError,
 };
-use lanealign_client::wire::{CorrectedPose, OdomPose, WireStatus};
+use lanealign_client::wire::{pose_from_wire, pose_to_wire, CorrectedPose, OdomPose, WireStatus};
 use lanealign_core::corrector::{RejectReason, Status, StepTiming};
 use lanealign_core::geo::MapPlane;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::offline::{Source, SourceCorrector};
-use lanealign_core::pose::Pose3;
 
 use crate::config::ResolvedSource;
 use crate::metrics::SourceMetrics;
@@ -69,22 +68,6 @@ impl Sequences {
     }
 }
 
-fn flat(p: &Pose3) -> [f64; 12] {
-    let mut out = [0.0; 12];
-    for (i, row) in p.iter().enumerate() {
-        out[i * 4..i * 4 + 4].copy_from_slice(row);
-    }
-    out
-}
-
-fn pose3(v: &[f64; 12]) -> Pose3 {
-    [
-        [v[0], v[1], v[2], v[3]],
-        [v[4], v[5], v[6], v[7]],
-        [v[8], v[9], v[10], v[11]],
-    ]
-}
-
 fn reason_code(r: RejectReason) -> u32 {
     match r {
         RejectReason::TooFewMatches => 1,
@@ -123,10 +106,10 @@ fn process(
         out.status = flag as u32;
         return (out, StepTiming::default());
     }
-    let (record, timing) = corrector.correct(&pose3(&input.pose));
+    let (record, timing) = corrector.correct(&pose_from_wire(&input.pose));
     let [x, y] = record.map_from_odom.translation();
     out.map_from_odom = [x, y, record.map_from_odom.yaw()];
-    out.pose = flat(&record.pose);
+    out.pose = pose_to_wire(&record.pose);
     let (status, reason, residual_m, match_ratio, window_len) = match record.status {
         Status::WarmingUp { window_len } => {
             (WireStatus::WarmingUp, 0, f64::NAN, f64::NAN, window_len)

@@ -12,7 +12,7 @@ use lanealign_client::daemon_process::DaemonProcess;
 use lanealign_client::kitti::{anchors, default_data_dir};
 use lanealign_client::replay::{replay, Rate};
 use lanealign_client::synthetic;
-use lanealign_client::wire::WireStatus;
+use lanealign_client::wire::{pose_from_wire, WireStatus};
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_map::LaneMap;
@@ -24,7 +24,7 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 
-use super::{percentile_us, pose_of, write_config};
+use super::{percentile_us, write_config};
 
 struct Scenario {
     name: String,
@@ -126,7 +126,11 @@ pub fn run() -> anyhow::Result<()> {
     let log = daemon.log();
     let clean = daemon.stop()?;
     let result = result.with_context(|| format!("replay failed; daemon log:\n{log}"))?;
-    let corrected: Vec<Pose3> = result.answers.iter().map(pose_of).collect();
+    let corrected: Vec<Pose3> = result
+        .answers
+        .iter()
+        .map(|a| pose_from_wire(&a.pose))
+        .collect();
     let planar = |v: &[Pose3]| {
         v.iter()
             .map(|p| s.convention.to_planar(p))

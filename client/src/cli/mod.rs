@@ -6,7 +6,6 @@ pub mod soak;
 use std::path::Path;
 
 use anyhow::Context;
-use lanealign_client::wire::CorrectedPose;
 use lanealign_core::geo::Anchor;
 
 /// Percentile (0..1) of nanosecond samples, in microseconds.
@@ -38,14 +37,4 @@ pub fn write_config(
         ));
     }
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
-}
-
-/// The 3x4 pose of an answer.
-pub fn pose_of(answer: &CorrectedPose) -> [[f64; 4]; 3] {
-    let v = answer.pose;
-    [
-        [v[0], v[1], v[2], v[3]],
-        [v[4], v[5], v[6], v[7]],
-        [v[8], v[9], v[10], v[11]],
-    ]
 }
