@@ -147,6 +147,10 @@ struct CorrectArgs {
     /// File format: kitti or tum.
     #[arg(long, default_value = "kitti")]
     format: Format,
+    /// The correction method. `paper`: the published algorithm (SPEC sections 2-3), so far the
+    /// only one.
+    #[arg(long, default_value = "paper", value_parser = ["paper"])]
+    method: String,
     /// Lane matching: fast (exact, incremental) or reference (SPEC section 2 literally).
     #[arg(long, default_value = "fast")]
     match_mode: MatchMode,
@@ -250,8 +254,9 @@ fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
     }
     let (attempts, accepted, resets) = lanealign_core::offline::counts(&run);
     eprintln!(
-        "{} poses: {attempts} match attempts, {accepted} accepted, {resets} resets",
-        run.len()
+        "{} poses, method {}: {attempts} match attempts, {accepted} accepted, {resets} resets",
+        run.len(),
+        args.method
     );
     Ok(())
 }
