@@ -355,6 +355,14 @@ fn a_killed_client_is_cleaned_up_and_others_are_unaffected() {
 fn the_daemon_restarts_under_a_publishing_client_and_leaves_no_shared_memory() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let Some(data) = data() else { return };
+    // iceoryx2 keeps machine-wide management state (created by the first node on a fresh
+    // machine, kept by design): create it before looking, so that only what this test's
+    // processes leave behind counts.
+    drop(
+        iceoryx2::prelude::NodeBuilder::new()
+            .create::<iceoryx2::prelude::ipc::Service>()
+            .unwrap(),
+    );
     let before = shm_entries();
     let name = unique("restart");
     let setup = setup(&data, &[(&name, "07")]);
