@@ -74,13 +74,14 @@ fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>,
     let anchor = anchors
         .get(seq)
         .with_context(|| format!("no anchor for {seq}"))?;
-    let (map, plane_from_odom) = MapSource::Osm {
+    let loaded = MapSource::Osm {
         path: data.join(format!("osm/kitti_{seq}.osm")),
         anchor: *anchor,
         projection: Projection::Kitti,
         options: LaneOptions::default(),
     }
     .load()?;
+    let (map, plane_from_odom) = (loaded.map, loaded.plane_from_odom);
     let odom = read(
         &data.join(format!("odometry/{odometry}/{seq}.txt")),
         Format::Kitti,

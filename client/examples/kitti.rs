@@ -57,7 +57,8 @@ fn corrected(
     gt: &[Pose3],
 ) -> anyhow::Result<(Ape2d, (usize, usize, usize))> {
     let cam = AxisConvention::KittiCamera;
-    let (map, plane_from_odom) = map_source.load()?;
+    let loaded = map_source.load()?;
+    let (map, plane_from_odom) = (loaded.map, loaded.plane_from_odom);
     let source = Source {
         convention: cam,
         plane_from_odom,

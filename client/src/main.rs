@@ -21,6 +21,7 @@ use lanealign_core::offline::{correct, CorrectedPose, Source};
 use lanealign_core::params::{Params, Preset};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_map::compile::InputReport;
 use lanealign_map::osm_lanes::{LaneOptions, Traffic};
 
 #[derive(Parser)]
@@ -238,12 +239,20 @@ fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
     if input.poses.is_empty() {
         bail!("{}: no poses", args.input.display());
     }
-    let (map, plane_from_odom) = args.map.source()?.load()?;
+    let loaded = args.map.source()?.load()?;
+    if let Some(InputReport::Osm(r)) = &loaded.report {
+        if r.missing_node_refs > 0 || r.ways_without_geometry > 0 {
+            eprintln!(
+                "warning: {} node references missing, {} drivable ways without geometry (skipped)",
+                r.missing_node_refs, r.ways_without_geometry
+            );
+        }
+    }
     let source = Source {
         convention: args.frame,
-        plane_from_odom,
+        plane_from_odom: loaded.plane_from_odom,
     };
-    let run = correct(map, params, args.match_mode, source, &input.poses);
+    let run = correct(loaded.map, params, args.match_mode, source, &input.poses);
     let output = Trajectory {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),

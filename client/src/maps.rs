@@ -12,6 +12,16 @@ use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::osm_lanes::LaneOptions;
 
+/// A loaded map, the source's placement on it, and what reading road data reported.
+pub struct LoadedMap {
+    /// The lane map.
+    pub map: Arc<LaneMap>,
+    /// `plane_from_odom`: where the source's planar odometry frame lies in the map plane.
+    pub plane_from_odom: Se2,
+    /// For road data compiled on the fly, what the reader did (skipped ways, missing nodes).
+    pub report: Option<InputReport>,
+}
+
 /// A lane map source as given on the command line.
 #[derive(Clone, Debug)]
 pub enum MapSource {
@@ -38,8 +48,8 @@ pub enum MapSource {
 }
 
 impl MapSource {
-    /// Loads the map and returns it with `plane_from_odom`, the source's placement on it.
-    pub fn load(&self) -> anyhow::Result<(Arc<LaneMap>, Se2)> {
+    /// Loads the map and places the source on it.
+    pub fn load(&self) -> anyhow::Result<LoadedMap> {
         match self {
             MapSource::Osm {
                 path,
@@ -52,28 +62,30 @@ impl MapSource {
                     projection: *projection,
                     lanes: options.clone(),
                 };
-                let (map, _, reports) = compile(std::slice::from_ref(path), &compile_options)?;
-                if let Some(InputReport::Osm(r)) = reports.first() {
-                    if r.missing_node_refs > 0 || r.ways_without_geometry > 0 {
-                        eprintln!(
-                            "warning: {}: {} node references missing, {} drivable ways without geometry (skipped)",
-                            path.display(),
-                            r.missing_node_refs,
-                            r.ways_without_geometry
-                        );
-                    }
-                }
-                Ok((Arc::new(map), anchor.plane_from_odom()))
+                let (map, _, mut reports) = compile(std::slice::from_ref(path), &compile_options)?;
+                Ok(LoadedMap {
+                    map: Arc::new(map),
+                    plane_from_odom: anchor.plane_from_odom(),
+                    report: reports.pop(),
+                })
             }
             MapSource::Tile { path, anchor } => {
                 let (map, info) = tile::load(path)?;
-                Ok((Arc::new(map), anchor.plane_from_odom_in(&info.plane)))
+                Ok(LoadedMap {
+                    map: Arc::new(map),
+                    plane_from_odom: anchor.plane_from_odom_in(&info.plane),
+                    report: None,
+                })
             }
             MapSource::LanesCsv(path) => {
                 let lanes = lane_csv::read(path)?;
                 let map = LaneMap::new(&lanes)
                     .with_context(|| format!("building the lane map of {}", path.display()))?;
-                Ok((Arc::new(map), Se2::IDENTITY))
+                Ok(LoadedMap {
+                    map: Arc::new(map),
+                    plane_from_odom: Se2::IDENTITY,
+                    report: None,
+                })
             }
         }
     }

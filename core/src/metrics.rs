@@ -38,18 +38,6 @@ pub enum MetricsError {
     Empty,
 }
 
-/// Position errors (metres) of paired planar poses, one per pair.
-pub fn position_errors(gt: &[Pose3], est: &[Pose3]) -> Vec<f64> {
-    gt.iter()
-        .zip(est)
-        .map(|(g, e)| {
-            let dx = e[0][3] - g[0][3];
-            let dy = e[1][3] - g[1][3];
-            (dx * dx + dy * dy).sqrt()
-        })
-        .collect()
-}
-
 /// APE-2D of paired planar poses (`gt[i]` with `est[i]`).
 pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
     if gt.len() != est.len() {
@@ -118,7 +106,6 @@ pub fn associate_by_time(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pose::POSE_IDENTITY;
 
     fn at(x: f64, y: f64, yaw: f64) -> Pose3 {
         let (s, c) = yaw.sin_cos();
@@ -141,7 +128,7 @@ mod tests {
     #[test]
     fn mismatched_lengths_are_an_error() {
         assert_eq!(
-            ape_2d(&[POSE_IDENTITY], &[]),
+            ape_2d(&[at(0.0, 0.0, 0.0)], &[]),
             Err(MetricsError::LengthMismatch { gt: 1, est: 0 })
         );
     }

@@ -9,13 +9,6 @@ use crate::se2::Se2;
 /// A rigid 3D pose `world_from_body` as a row-major 3x4 matrix `[R | t]` (translation in metres).
 pub type Pose3 = [[f64; 4]; 3];
 
-/// The identity pose.
-pub const POSE_IDENTITY: Pose3 = [
-    [1.0, 0.0, 0.0, 0.0],
-    [0.0, 1.0, 0.0, 0.0],
-    [0.0, 0.0, 1.0, 0.0],
-];
-
 /// How a source's world and body axes are laid out.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum AxisConvention {
@@ -126,11 +119,6 @@ pub fn apply_planar_correction(corrected_from_odom: &Se2, pose: &Pose3) -> Pose3
     out[0][3] = x;
     out[1][3] = y;
     out
-}
-
-/// True when every entry of the pose is finite.
-pub fn is_finite(pose: &Pose3) -> bool {
-    pose.iter().flatten().all(|v| v.is_finite())
 }
 
 #[cfg(test)]

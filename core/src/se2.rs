@@ -69,15 +69,6 @@ impl Se2 {
         ]
     }
 
-    /// Rotates a vector (no translation).
-    #[inline]
-    pub fn rotate(&self, v: [f64; 2]) -> [f64; 2] {
-        [
-            self.cos * v[0] - self.sin * v[1],
-            self.sin * v[0] + self.cos * v[1],
-        ]
-    }
-
     /// The inverse transform `a_from_b`.
     pub fn inverse(&self) -> Se2 {
         Se2 {
