@@ -259,6 +259,24 @@ fn bad_input_is_flagged_and_changes_nothing() {
         stranger.recv(Duration::from_millis(200)).unwrap().is_none(),
         "no answer for an unknown source"
     );
+    // The per-source metrics split the corrector's time into matching, ICP and bookkeeping.
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("bookkeeping_p99_us") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let log = daemon.log();
+    assert!(
+        [
+            "matching_p99_us",
+            "icp_p99_us",
+            "bookkeeping_p99_us",
+            "e2e_p999_us",
+            "daemon_p999_us"
+        ]
+        .iter()
+        .all(|k| log.contains(k)),
+        "{log}"
+    );
     drop((conn, stranger));
     assert!(daemon.stop().unwrap());
     // The flagged inputs changed nothing: the good answers equal offline correction of the good
@@ -378,6 +396,7 @@ fn the_daemon_restarts_under_a_publishing_client_and_leaves_no_shared_memory() {
         }
         let mut answered_before = 0;
         let mut answered_after = 0;
+        let mut answered_last_before_stop = false;
         let mut daemon = Some(daemon);
         for (i, p) in poses.iter().enumerate().take(600) {
             let v = pose_to_wire(p);
@@ -397,6 +416,7 @@ fn the_daemon_restarts_under_a_publishing_client_and_leaves_no_shared_memory() {
             }
             std::thread::sleep(Duration::from_millis(3));
             while let Some(a) = conn.try_recv().unwrap() {
+                answered_last_before_stop |= a.seq == 201;
                 if a.seq <= 200 {
                     answered_before += 1;
                 } else {
@@ -410,7 +430,14 @@ fn the_daemon_restarts_under_a_publishing_client_and_leaves_no_shared_memory() {
                 answered_after += (a.seq > 200) as usize;
             }
         }
-        assert!(answered_before > 150, "{answered_before}");
+        assert_eq!(
+            answered_before, 200,
+            "every pose before the restart is answered"
+        );
+        assert!(
+            answered_last_before_stop,
+            "SIGTERM drains: the pose published just before it is answered"
+        );
         assert!(
             answered_after > 200,
             "the restarted daemon serves the same client: {answered_after}"

@@ -16,9 +16,10 @@ pub struct SourceMetrics {
     end_to_end: Histogram<u64>,
     /// Daemon receive to daemon publish (nanoseconds).
     in_daemon: Histogram<u64>,
-    /// Time in lane matching, in ICP (nanoseconds).
+    /// Time in lane matching, in ICP, and in the rest of the corrector step (nanoseconds).
     matching: Histogram<u64>,
     icp: Histogram<u64>,
+    bookkeeping: Histogram<u64>,
 }
 
 /// p50, p99, p999 and max of a histogram, in microseconds.
@@ -48,19 +49,28 @@ impl Default for SourceMetrics {
             in_daemon: histogram(),
             matching: histogram(),
             icp: histogram(),
+            bookkeeping: histogram(),
         }
     }
 }
 
 impl SourceMetrics {
     /// Records one processed pose's latencies (nanoseconds).
-    pub fn record(&mut self, end_to_end_ns: u64, in_daemon_ns: u64, matching_ns: u64, icp_ns: u64) {
+    pub fn record(
+        &mut self,
+        end_to_end_ns: u64,
+        in_daemon_ns: u64,
+        matching_ns: u64,
+        icp_ns: u64,
+        bookkeeping_ns: u64,
+    ) {
         self.count += 1;
         // Saturating: values beyond the range are clamped, never an error.
         self.end_to_end.saturating_record(end_to_end_ns.max(1));
         self.in_daemon.saturating_record(in_daemon_ns.max(1));
         self.matching.saturating_record(matching_ns.max(1));
         self.icp.saturating_record(icp_ns.max(1));
+        self.bookkeeping.saturating_record(bookkeeping_ns.max(1));
     }
 
     /// Emits one INFO event with the counts and latency quantiles, then starts over.
@@ -73,6 +83,7 @@ impl SourceMetrics {
         let [d50, d99, d999, dmax] = quantiles(&self.in_daemon);
         let [m50, m99, _, mmax] = quantiles(&self.matching);
         let [i50, i99, _, imax] = quantiles(&self.icp);
+        let [b50, b99, _, bmax] = quantiles(&self.bookkeeping);
         tracing::info!(
             source,
             count = self.count,
@@ -93,6 +104,9 @@ impl SourceMetrics {
             icp_p50_us = i50,
             icp_p99_us = i99,
             icp_max_us = imax,
+            bookkeeping_p50_us = b50,
+            bookkeeping_p99_us = b99,
+            bookkeeping_max_us = bmax,
             "latency"
         );
         self.count = 0;

@@ -208,9 +208,13 @@ pub fn run(
     let mut summary = WorkerSummary::default();
     let mut next_report = Instant::now() + metrics_interval;
     tracing::info!(source = %source.name, preset_window = source.params.max_window, pass_through = source.pass_through, "worker started");
-    while !shutdown.load(Ordering::Relaxed) {
-        // An interrupted wait (a signal) is a wake-up like any other.
-        let _ = listener.timed_wait(|_| {}, WAKE_UP);
+    loop {
+        // On shutdown, answer what is already queued once more, then stop.
+        let stopping = shutdown.load(Ordering::Relaxed);
+        if !stopping {
+            // An interrupted wait (a signal) is a wake-up like any other.
+            let _ = listener.timed_wait(|_| {}, WAKE_UP);
+        }
         loop {
             let sample = match subscriber.receive() {
                 Ok(Some(sample)) => sample,
@@ -261,7 +265,14 @@ pub fn run(
                 out.published_mono_ns - received,
                 timing.matching.as_nanos() as u64,
                 timing.icp.as_nanos() as u64,
+                timing
+                    .total
+                    .saturating_sub(timing.matching + timing.icp)
+                    .as_nanos() as u64,
             );
+        }
+        if stopping {
+            break;
         }
         if Instant::now() >= next_report {
             metrics.report(&source.name);
