@@ -23,6 +23,16 @@ pub enum RejectReason {
     ResidualTooLarge,
 }
 
+impl RejectReason {
+    /// A short lowercase name: `too_few_matches`, `residual_too_large`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            RejectReason::TooFewMatches => "too_few_matches",
+            RejectReason::ResidualTooLarge => "residual_too_large",
+        }
+    }
+}
+
 /// What happened on one step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Status {
@@ -111,6 +121,11 @@ pub struct Step {
     pub timing: StepTiming,
 }
 
+#[inline]
+fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
 /// The window of corrected positions, oldest first, kept contiguous for matching.
 /// Dropping from the front moves a start offset; the buffer is compacted when the dead prefix
 /// outgrows the live part, so every operation is amortised O(1).
@@ -143,6 +158,19 @@ impl Window {
 
     fn drop_oldest(&mut self, count: usize) {
         self.start += count.min(self.len());
+    }
+
+    /// How many of the oldest poses to drop so that the window's path length (metres) is at
+    /// most `max_m`, keeping at least `keep` poses.
+    fn excess_over_path(&self, max_m: f64, keep: usize) -> usize {
+        let w = self.as_slice();
+        let mut length: f64 = w.windows(2).map(|s| distance(s[0], s[1])).sum();
+        let mut drop = 0;
+        while length > max_m && w.len() - drop > keep {
+            length -= distance(w[drop], w[drop + 1]);
+            drop += 1;
+        }
+        drop
     }
 
     /// True when the path length of the window (metres) is at least `min_m`. Sums from the
@@ -198,6 +226,10 @@ pub struct Corrector {
     map_from_odom: Se2,
     window: Window,
     failures: u32,
+    /// Odometry path length since the last accepted step (metres): how far the odometry may
+    /// have drifted since the window last fitted the lanes.
+    travelled_m: f64,
+    last_position_in_odom: Option<[f64; 2]>,
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -218,6 +250,8 @@ impl Corrector {
             map_from_odom: Se2::IDENTITY,
             window: Window::default(),
             failures: 0,
+            travelled_m: 0.0,
+            last_position_in_odom: None,
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -257,12 +291,22 @@ impl Corrector {
             };
         }
         let p = self.params;
+        if let Some(last) = self.last_position_in_odom {
+            self.travelled_m += distance(last, position_in_odom);
+        }
+        self.last_position_in_odom = Some(position_in_odom);
         self.window.push(self.map_from_odom.apply(position_in_odom));
         if let Matcher::Fast(cache) = &mut self.matcher {
             cache.push();
         }
         if self.window.len() > p.max_window {
             self.drop_oldest(1);
+        }
+        if p.max_window_path_m.is_finite() {
+            let excess = self
+                .window
+                .excess_over_path(p.max_window_path_m, p.min_window);
+            self.drop_oldest(excess);
         }
         let window_len = self.window.len();
         if window_len < p.min_window || !self.window.path_at_least(p.min_path_length_m) {
@@ -289,6 +333,11 @@ impl Corrector {
             ),
         }
         timing.matching = matching_start.elapsed();
+        if p.max_match_distance_m.is_finite() {
+            let gate = self.widened(p.max_match_distance_m);
+            self.correspondences
+                .retain(|c| distance(c.source, c.target) <= gate);
+        }
         let matched = self.correspondences.len();
         let match_ratio = matched as f64 / window_len as f64;
         let (reason, residual_m) =
@@ -299,24 +348,27 @@ impl Corrector {
                     trim_ratio: p.trim_ratio,
                     max_iterations: p.icp_max_iterations,
                     tolerance_m: p.icp_tolerance_m,
+                    tolerance_band_m: p.lane_tolerance_m,
                 };
                 let icp_start = Instant::now();
                 let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);
                 timing.icp = icp_start.elapsed();
-                if fit.residual_m < p.max_residual_m {
+                if fit.residual_m >= p.max_residual_m {
+                    (RejectReason::ResidualTooLarge, fit.residual_m)
+                } else {
                     let correction = fit.transform;
                     self.map_from_odom = correction * self.map_from_odom;
                     for x in self.window.as_mut_slice() {
                         *x = correction.apply(*x);
                     }
                     self.failures = 0;
+                    self.travelled_m = 0.0;
                     return self.step(Status::Accepted {
                         residual_m: fit.residual_m,
                         match_ratio,
                         window_len,
                     });
                 }
-                (RejectReason::ResidualTooLarge, fit.residual_m)
             };
         self.drop_oldest(1);
         self.failures += 1;
@@ -338,6 +390,12 @@ impl Corrector {
             match_ratio,
             window_len,
         })
+    }
+
+    /// `base` widened by the drift the odometry may have accumulated since the last accepted
+    /// step (metres).
+    fn widened(&self, base: f64) -> f64 {
+        base + self.params.drift_per_m * self.travelled_m
     }
 
     fn drop_oldest(&mut self, count: usize) {
@@ -480,6 +538,54 @@ mod tests {
             previous = Some(step.status);
         }
         panic!("no reset happened");
+    }
+
+    #[test]
+    fn the_robust_gate_ignores_a_parallel_street_the_paper_jumps_to() {
+        // Only a road 40 m north exists for the stretch driven: the paper's matching takes it
+        // (no distance bound) and the output jumps 40 m; the robust method finds no match.
+        let far: Vec<[f64; 2]> = (0..200).map(|i| [i as f64 * 3.0, 40.0]).collect();
+        let map = Arc::new(LaneMap::new(&[Lane { id: 1, points: far }]).unwrap());
+        let drive: Vec<[f64; 2]> = (0..200).map(|i| [i as f64 * 2.0, 0.0]).collect();
+        let last = |params: Params| {
+            let mut c = Corrector::new(map.clone(), params);
+            drive.iter().map(|&p| c.push(p)).last().unwrap()
+        };
+        let mut paper = small_params();
+        paper.max_window = 300;
+        let jumped = last(paper);
+        assert!(
+            (jumped.position_in_map[1] - 40.0).abs() < 1e-6,
+            "{jumped:?}"
+        );
+        let robust = Params {
+            max_match_distance_m: 5.0,
+            drift_per_m: 0.05,
+            ..paper
+        };
+        let stayed = last(robust);
+        assert_eq!(stayed.map_from_odom, Se2::IDENTITY, "{stayed:?}");
+        assert!(matches!(
+            stayed.status,
+            Status::Rejected {
+                reason: RejectReason::TooFewMatches,
+                ..
+            } | Status::Reset { .. }
+        ));
+    }
+
+    #[test]
+    fn the_window_path_limit_drops_old_poses_but_keeps_min_window() {
+        let mut params = small_params();
+        params.max_window_path_m = 100.0;
+        let mut c = Corrector::new(l_shaped_map(), params);
+        for p in l_drive([0.0, 0.5]) {
+            c.push(p);
+            let w = c.window.as_slice();
+            let length: f64 = w.windows(2).map(|s| distance(s[0], s[1])).sum();
+            assert!(length <= 100.0 + 1e-9 || w.len() <= params.min_window);
+        }
+        assert_eq!(c.window.len(), 51, "50 steps of 2 m");
     }
 
     #[test]

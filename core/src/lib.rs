@@ -2,7 +2,8 @@
 //!
 //! Everything here is pure and free of IPC and threads: SE(2) geometry ([`se2`]), the lane map
 //! ([`lane_map`]), lane matching ([`matching`]), trimmed ICP ([`icp`]), the online corrector
-//! ([`corrector`]) with the paper's presets ([`params`]), map projections and anchors ([`geo`]),
+//! ([`corrector`]) with the paper's presets and lanealign's robust method ([`params`]), smooth
+//! output ([`smoothing`]), map projections and anchors ([`geo`]),
 //! trajectory files ([`trajectory`]) and accuracy metrics ([`metrics`]).
 //!
 //! ```
@@ -35,5 +36,6 @@ pub mod offline;
 pub mod params;
 pub mod pose;
 pub mod se2;
+pub mod smoothing;
 pub mod tile;
 pub mod trajectory;

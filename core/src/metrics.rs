@@ -1,7 +1,7 @@
 //! Accuracy metrics in the plane, without alignment (evo's APE with `--project_to_plane xy`).
 
 use crate::pose::{planar_heading, Pose3};
-use crate::se2::wrap_angle;
+use crate::se2::{wrap_angle, Se2};
 
 /// Absolute pose error of an estimate against ground truth, both planar (`flu`) and paired.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -72,6 +72,49 @@ pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
         max_m: max,
         poses: gt.len(),
     })
+}
+
+/// How much an output trajectory changes from one pose to the next beyond the motion of the
+/// odometry it was computed from: the jumps a consumer of the output sees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutputJumps {
+    /// Largest position change beyond the odometry's motion (metres).
+    pub max_position_m: f64,
+    /// Largest yaw change beyond the odometry's rotation (degrees).
+    pub max_yaw_deg: f64,
+}
+
+fn planar(p: &Pose3) -> Se2 {
+    Se2::new(planar_heading(p), p[0][3], p[1][3])
+}
+
+/// The largest frame-to-frame jumps of `output` beyond the odometry motion of `raw` (both planar,
+/// `flu`, paired by index): for each pose, `output[i-1]` moved by the odometry step
+/// `raw[i-1]^-1 raw[i]` is compared with `output[i]`.
+pub fn output_jumps(raw: &[Pose3], output: &[Pose3]) -> Result<OutputJumps, MetricsError> {
+    if raw.len() != output.len() {
+        return Err(MetricsError::LengthMismatch {
+            gt: raw.len(),
+            est: output.len(),
+        });
+    }
+    let mut jumps = OutputJumps {
+        max_position_m: 0.0,
+        max_yaw_deg: 0.0,
+    };
+    for (r, o) in raw.windows(2).zip(output.windows(2)) {
+        let predicted = planar(&o[0]) * planar(&r[0]).inverse() * planar(&r[1]);
+        let actual = planar(&o[1]);
+        let [px, py] = predicted.translation();
+        let [ax, ay] = actual.translation();
+        jumps.max_position_m = jumps.max_position_m.max((ax - px).hypot(ay - py));
+        jumps.max_yaw_deg = jumps.max_yaw_deg.max(
+            wrap_angle(actual.yaw() - predicted.yaw())
+                .abs()
+                .to_degrees(),
+        );
+    }
+    Ok(jumps)
 }
 
 /// Pairs two timestamped trajectories: for each estimate stamp, the ground-truth pose with the

@@ -8,14 +8,17 @@ use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::{apply_planar_correction, planar_position, AxisConvention, Pose3};
 use crate::se2::Se2;
+use crate::smoothing::{Smoother, Smoothing};
 
 /// The per-pose record of an offline correction.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CorrectedPose {
-    /// The corrected pose, in the input's frame and axis convention.
+    /// The corrected pose, in the input's frame and axis convention (smoothed when the source
+    /// asks for smooth output).
     pub pose: Pose3,
-    /// The correction in force after this pose: maps planar odometry coordinates onto the lane
-    /// map's plane (the anchor placement composed with the accumulated correction).
+    /// The exact correction in force after this pose, never smoothed: maps planar odometry
+    /// coordinates onto the lane map's plane (the anchor placement composed with the accumulated
+    /// correction).
     pub map_from_odom: Se2,
     /// What the corrector did.
     pub status: Status,
@@ -29,6 +32,9 @@ pub struct Source {
     /// Where the source's planar odometry frame lies in the map plane (from its anchor;
     /// the identity when the lanes are already in the odometry frame).
     pub plane_from_odom: Se2,
+    /// Publish smoothed poses within these limits instead of the exact ones (see
+    /// [`crate::smoothing`]); `None` publishes the exact correction.
+    pub smoothing: Option<Smoothing>,
 }
 
 /// One source's corrector with its placement: takes poses in the source's own frame and
@@ -38,6 +44,7 @@ pub struct SourceCorrector {
     corrector: Corrector,
     source: Source,
     odom_from_plane: Se2,
+    smoother: Option<Smoother>,
 }
 
 impl SourceCorrector {
@@ -46,6 +53,7 @@ impl SourceCorrector {
         SourceCorrector {
             corrector: Corrector::with_mode(map, params, mode),
             odom_from_plane: source.plane_from_odom.inverse(),
+            smoother: source.smoothing.map(Smoother::new),
             source,
         }
     }
@@ -59,7 +67,11 @@ impl SourceCorrector {
         let corrected = match step.status {
             Status::InvalidInput => *pose,
             _ => {
-                let corrected_in_plane = apply_planar_correction(&step.map_from_odom, &in_plane);
+                let published = match &mut self.smoother {
+                    Some(smoother) => smoother.next(step.map_from_odom, planar_position(&in_plane)),
+                    None => step.map_from_odom,
+                };
+                let corrected_in_plane = apply_planar_correction(&published, &in_plane);
                 source.convention.from_planar(&apply_planar_correction(
                     &self.odom_from_plane,
                     &corrected_in_plane,

@@ -27,6 +27,64 @@ pub struct Params {
     pub icp_max_iterations: usize,
     /// ICP convergence threshold on the mean residual (metres).
     pub icp_tolerance_m: f64,
+    /// Beyond the paper: largest path length of the window (metres); older poses are dropped,
+    /// but never below `min_window` poses. Bounds the stretch over which the odometry's scale and
+    /// heading drift must fit one rigid correction. Infinite = paper.
+    pub max_window_path_m: f64,
+    /// Beyond the paper: dead band around the lane centrelines (metres). A pose this close to its
+    /// lane match counts as on the lane; ICP pulls farther ones only onto the band's edge. Models
+    /// the offset between OSM centrelines and where cars drive. 0 = paper.
+    pub lane_tolerance_m: f64,
+    /// Beyond the paper: largest distance between a pose and its lane match (metres) right after
+    /// an accepted step; it widens by `drift_per_m` per metre travelled since. Infinite = paper.
+    pub max_match_distance_m: f64,
+    /// Beyond the paper: drift the odometry may accumulate per metre travelled (ratio) since the
+    /// last accepted step, widening the match distance bound.
+    pub drift_per_m: f64,
+}
+
+/// Which correction algorithm runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Method {
+    /// The published algorithm exactly (SPEC sections 2-3).
+    Paper,
+    /// lanealign's corrector: the paper's plus a window bounded by path length, a lane tolerance
+    /// band and a correspondence gate that follows the odometry's possible drift
+    /// (`docs/method.md`).
+    #[default]
+    Robust,
+}
+
+impl Method {
+    /// Both methods.
+    pub const ALL: [Method; 2] = [Method::Paper, Method::Robust];
+
+    /// The method's name on the command line and in configs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Paper => "paper",
+            Method::Robust => "robust",
+        }
+    }
+
+    /// The parameters of `preset` under this method.
+    pub fn params(self, preset: Preset) -> Params {
+        match self {
+            Method::Paper => preset.params(),
+            Method::Robust => preset.robust_params(),
+        }
+    }
+}
+
+impl FromStr for Method {
+    type Err = ParamsError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| ParamsError::UnknownMethod(s.to_string()))
+    }
 }
 
 /// The paper's presets, one per odometry backend.
@@ -61,7 +119,7 @@ impl Preset {
         }
     }
 
-    /// The preset's parameters.
+    /// The preset's parameters in the paper's method (every extension off).
     pub fn params(self) -> Params {
         let (min_window, max_window, neighbours, max_failures, max_residual_m) = match self {
             Preset::Liodom => (50, 3000, 100, 50, 2.0),
@@ -81,6 +139,28 @@ impl Preset {
             min_direction_cos: 0.95,
             icp_max_iterations: 50,
             icp_tolerance_m: 1e-8,
+            max_window_path_m: f64::INFINITY,
+            lane_tolerance_m: 0.0,
+            max_match_distance_m: f64::INFINITY,
+            drift_per_m: 0.0,
+        }
+    }
+
+    /// The preset's parameters in lanealign's robust method: the paper's, with the extensions on.
+    /// One set per preset, the same for every sequence.
+    pub fn robust_params(self) -> Params {
+        // Visual odometry drifts in scale and heading far faster than LiDAR odometry: a shorter
+        // stretch of it still fits one rigid correction.
+        let max_window_path_m = match self {
+            Preset::Liodom | Preset::KissIcp => 500.0,
+            Preset::Basalt | Preset::OrbSlam3 => 300.0,
+        };
+        Params {
+            max_window_path_m,
+            lane_tolerance_m: 1.0,
+            max_match_distance_m: 5.0,
+            drift_per_m: 0.05,
+            ..self.params()
         }
     }
 }
@@ -88,6 +168,9 @@ impl Preset {
 /// A preset name or parameter override that could not be used.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ParamsError {
+    /// The method name is not `paper` or `robust`.
+    #[error("unknown method '{0}' (expected paper or robust)")]
+    UnknownMethod(String),
     /// The preset name is not one of the four.
     #[error("unknown preset '{0}' (expected liodom, basalt, kiss-icp or orb-slam3)")]
     UnknownPreset(String),
@@ -133,7 +216,7 @@ where
 
 impl Params {
     /// The parameter names [`Params::set`] accepts.
-    pub const KEYS: [&'static str; 11] = [
+    pub const KEYS: [&'static str; 15] = [
         "min_window",
         "max_window",
         "neighbours",
@@ -145,6 +228,10 @@ impl Params {
         "min_direction_cos",
         "icp_max_iterations",
         "icp_tolerance_m",
+        "max_window_path_m",
+        "lane_tolerance_m",
+        "max_match_distance_m",
+        "drift_per_m",
     ];
 
     /// Overrides one parameter by name, then checks that the whole set is still consistent.
@@ -162,6 +249,10 @@ impl Params {
             "min_direction_cos" => next.min_direction_cos = parse(key, value)?,
             "icp_max_iterations" => next.icp_max_iterations = parse(key, value)?,
             "icp_tolerance_m" => next.icp_tolerance_m = parse(key, value)?,
+            "max_window_path_m" => next.max_window_path_m = parse(key, value)?,
+            "lane_tolerance_m" => next.lane_tolerance_m = parse(key, value)?,
+            "max_match_distance_m" => next.max_match_distance_m = parse(key, value)?,
+            "drift_per_m" => next.drift_per_m = parse(key, value)?,
             _ => return Err(ParamsError::UnknownKey(key.to_string())),
         }
         next.validate().map_err(|reason| ParamsError::BadValue {
@@ -204,6 +295,15 @@ impl Params {
         }
         if !(-1.0..=1.0).contains(&self.min_direction_cos) {
             return Err("min_direction_cos must be in [-1, 1]".into());
+        }
+        if !finite_nonneg(self.lane_tolerance_m) || !finite_nonneg(self.drift_per_m) {
+            return Err("lane_tolerance_m and drift_per_m must be finite and non-negative".into());
+        }
+        if self.max_window_path_m.is_nan() || self.max_window_path_m <= 0.0 {
+            return Err("max_window_path_m must be positive (inf = off)".into());
+        }
+        if self.max_match_distance_m.is_nan() || self.max_match_distance_m <= 0.0 {
+            return Err("max_match_distance_m must be positive (inf = off)".into());
         }
         if self.icp_max_iterations == 0 {
             return Err("icp_max_iterations must be at least 1".into());
