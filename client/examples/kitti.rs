@@ -1,6 +1,7 @@
-//! Corrects the real KITTI odometry runs of `../shared/data` and prints, per sequence, the raw
-//! APE-2D, lanealign on lanes it derives from OpenStreetMap, lanealign on the paper pipeline's
-//! reference lanes, and the reference implementation's figure (`reference/results.csv`).
+//! Corrects the real KITTI odometry runs of `../shared/data` with the paper's method and prints,
+//! per sequence, the raw APE-2D, lanealign on lanes it derives from OpenStreetMap, lanealign on
+//! the paper pipeline's reference lanes, and the reference implementation's figure
+//! (`reference/results.csv`). The robust method's figures come from the `ablation` example.
 //!
 //! `cargo run --release -p lanealign-client --example kitti [-- --data DIR] [-- --all-presets]`
 //!
@@ -62,6 +63,7 @@ fn corrected(
     let source = Source {
         convention: cam,
         plane_from_odom,
+        smoothing: None,
     };
     let run = correct(map, preset.params(), MatchMode::Fast, source, odom);
     let est: Vec<Pose3> = run.iter().map(|c| cam.to_planar(&c.pose)).collect();

@@ -18,8 +18,9 @@ use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, associate_by_time};
 use lanealign_core::offline::{correct, CorrectedPose, Source};
-use lanealign_core::params::{Params, Preset};
+use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::AxisConvention;
+use lanealign_core::smoothing::Smoothing;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::compile::InputReport;
 use lanealign_map::osm_lanes::{LaneOptions, Traffic};
@@ -148,10 +149,15 @@ struct CorrectArgs {
     /// File format: kitti or tum.
     #[arg(long, default_value = "kitti")]
     format: Format,
-    /// The correction method. `paper`: the published algorithm (SPEC sections 2-3), so far the
-    /// only one.
-    #[arg(long, default_value = "paper", value_parser = ["paper"])]
-    method: String,
+    /// The correction method: `robust` (lanealign's, docs/method.md) or `paper` (the published
+    /// algorithm, SPEC sections 2-3).
+    #[arg(long, default_value = "robust")]
+    method: Method,
+    /// Smooth the output: each correction is spread over the following poses (at most 5 cm and
+    /// 0.1 degree per pose beyond the odometry's own motion). The status file's
+    /// `map_from_odom` stays the exact estimate.
+    #[arg(long)]
+    smooth: bool,
     /// Lane matching: fast (exact, incremental) or reference (SPEC section 2 literally).
     #[arg(long, default_value = "fast")]
     match_mode: MatchMode,
@@ -208,7 +214,7 @@ fn write_status(path: &Path, run: &[CorrectedPose]) -> anyhow::Result<()> {
                 residual_m,
                 match_ratio,
                 window_len,
-            } => (reason_name(reason), residual_m, match_ratio, window_len),
+            } => (reason.name(), residual_m, match_ratio, window_len),
             Status::InvalidInput => ("", f64::NAN, f64::NAN, 0),
         };
         let [x, y] = c.map_from_odom.translation();
@@ -223,15 +229,8 @@ fn write_status(path: &Path, run: &[CorrectedPose]) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn reason_name(r: lanealign_core::corrector::RejectReason) -> &'static str {
-    match r {
-        lanealign_core::corrector::RejectReason::TooFewMatches => "too_few_matches",
-        lanealign_core::corrector::RejectReason::ResidualTooLarge => "residual_too_large",
-    }
-}
-
 fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
-    let mut params: Params = args.preset.params();
+    let mut params: Params = args.method.params(args.preset);
     for pair in &args.overrides {
         params.set_pair(pair)?;
     }
@@ -251,6 +250,7 @@ fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
     let source = Source {
         convention: args.frame,
         plane_from_odom: loaded.plane_from_odom,
+        smoothing: args.smooth.then(Smoothing::default),
     };
     let run = correct(loaded.map, params, args.match_mode, source, &input.poses);
     let output = Trajectory {
@@ -265,7 +265,7 @@ fn run_correct(args: &CorrectArgs) -> anyhow::Result<()> {
     eprintln!(
         "{} poses, method {}: {attempts} match attempts, {accepted} accepted, {resets} resets",
         run.len(),
-        args.method
+        args.method.name()
     );
     Ok(())
 }

@@ -144,7 +144,7 @@ mod tests {
     use lanealign_core::lane_map::LaneMap;
     use lanealign_core::metrics::ape_2d;
     use lanealign_core::offline::{correct, counts, Source};
-    use lanealign_core::params::Preset;
+    use lanealign_core::params::{Method, Preset};
     use lanealign_core::pose::AxisConvention;
     use lanealign_core::se2::Se2;
     use std::sync::Arc;
@@ -156,24 +156,23 @@ mod tests {
         let source = Source {
             convention: AxisConvention::Flu,
             plane_from_odom: Se2::IDENTITY,
+            smoothing: None,
         };
-        let run = correct(
-            map,
-            Preset::KissIcp.params(),
-            MatchMode::Fast,
-            source,
-            &odometry,
-        );
         let raw = ape_2d(&truth, &odometry).unwrap();
-        let corrected: Vec<_> = run.iter().map(|c| c.pose).collect();
-        let fixed = ape_2d(&truth, &corrected).unwrap();
-        let (attempts, accepted, _) = counts(&run);
         assert!(raw.mean_m > 5.0, "the odometry must drift: {}", raw.mean_m);
-        assert!(
-            fixed.mean_m < raw.mean_m / 3.0,
-            "raw {} corrected {} ({accepted}/{attempts} accepted)",
-            raw.mean_m,
-            fixed.mean_m
-        );
+        for method in Method::ALL {
+            let params = method.params(Preset::KissIcp);
+            let run = correct(map.clone(), params, MatchMode::Fast, source, &odometry);
+            let corrected: Vec<_> = run.iter().map(|c| c.pose).collect();
+            let fixed = ape_2d(&truth, &corrected).unwrap();
+            let (attempts, accepted, _) = counts(&run);
+            assert!(
+                fixed.mean_m < raw.mean_m / 3.0,
+                "{}: raw {} corrected {} ({accepted}/{attempts} accepted)",
+                method.name(),
+                raw.mean_m,
+                fixed.mean_m
+            );
+        }
     }
 }

@@ -17,8 +17,9 @@ use lanealign_client::wire::{pose_from_wire, pose_to_wire, OdomPose, WireStatus}
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::offline::{correct, Source};
-use lanealign_core::params::Preset;
+use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::smoothing::Smoothing;
 use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
@@ -65,8 +66,14 @@ fn setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
         let a = all[*seq];
         text.push_str(&format!(
             "\n[[source]]\nname = \"{name}\"\npreset = \"kiss-icp\"\nframe = \"kitti-camera\"\n\
+             smooth = {}\n\
              anchor = {{ lat = {}, lon = {}, yaw_deg = {}, east_m = {}, north_m = {} }}\n",
-            a.lat, a.lon, a.yaw_deg, a.east_m, a.north_m
+            smoothed(name),
+            a.lat,
+            a.lon,
+            a.yaw_deg,
+            a.east_m,
+            a.north_m
         ));
         used.push((name.to_string(), a));
     }
@@ -88,16 +95,24 @@ fn unique(name: &str) -> String {
     )
 }
 
+/// Sources whose name starts with `smooth` are configured with smooth output.
+fn smoothed(name: &str) -> bool {
+    name.starts_with("smooth")
+}
+
+/// What offline correction gives for `source`: the daemon's default (robust) method, smoothed
+/// when the source is.
 fn offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Vec<Pose3> {
     let (map, info) = tile::load(&setup.tile).unwrap();
     let anchor = setup.anchors.iter().find(|(n, _)| n == source).unwrap().1;
     let placement = Source {
         convention: AxisConvention::KittiCamera,
         plane_from_odom: anchor.plane_from_odom_in(&info.plane),
+        smoothing: smoothed(source).then(Smoothing::default),
     };
     correct(
         Arc::new(map),
-        Preset::KissIcp.params(),
+        Method::Robust.params(Preset::KissIcp),
         MatchMode::Fast,
         placement,
         poses,
@@ -134,7 +149,7 @@ fn shm_entries() -> std::collections::BTreeSet<String> {
 fn two_sources_at_once_match_offline_bit_for_bit_and_lose_nothing() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let Some(data) = data() else { return };
-    let (a, b) = (unique("lidar07"), unique("lidar08"));
+    let (a, b) = (unique("lidar07"), unique("smooth08"));
     let setup = setup(&data, &[(&a, "07"), (&b, "08")]);
     let daemon = start(&setup);
     let run = |name: String, seq: &'static str| {

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Anchor;
-use lanealign_core::params::{Params, Preset};
+use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::AxisConvention;
+use lanealign_core::smoothing::Smoothing;
 use serde::Deserialize;
 
 /// The whole configuration file.
@@ -50,6 +51,13 @@ pub struct SourceConfig {
     pub name: String,
     /// liodom, basalt, kiss-icp or orb-slam3.
     pub preset: String,
+    /// `robust` (default, docs/method.md) or `paper` (the published algorithm).
+    #[serde(default = "default_method")]
+    pub method: String,
+    /// Publish smoothed poses (at most 5 cm and 0.1 degree per pose beyond the odometry's own
+    /// motion); `map_from_odom` stays exact.
+    #[serde(default)]
+    pub smooth: bool,
     /// Parameter overrides by name (see `Params::KEYS`).
     #[serde(default)]
     pub overrides: BTreeMap<String, toml::Value>,
@@ -64,6 +72,10 @@ pub struct SourceConfig {
     /// Echo poses back without correcting them (to measure the transport alone).
     #[serde(default)]
     pub pass_through: bool,
+}
+
+fn default_method() -> String {
+    "robust".into()
 }
 
 fn default_frame() -> String {
@@ -99,6 +111,8 @@ pub struct ResolvedSource {
     pub name: String,
     /// Its corrector parameters.
     pub params: Params,
+    /// Smoothing of its published poses, if asked for.
+    pub smoothing: Option<Smoothing>,
     /// Its axis convention.
     pub convention: AxisConvention,
     /// Its anchor.
@@ -202,7 +216,13 @@ impl Config {
                     .map_err(|e: lanealign_core::params::ParamsError| {
                         value(key("preset"), e.to_string())
                     })?;
-            let mut params = preset.params();
+            let method: Method =
+                s.method
+                    .parse()
+                    .map_err(|e: lanealign_core::params::ParamsError| {
+                        value(key("method"), e.to_string())
+                    })?;
+            let mut params = method.params(preset);
             for (k, v) in &s.overrides {
                 let text = match v {
                     toml::Value::String(t) => t.clone(),
@@ -237,6 +257,7 @@ impl Config {
             resolved.push(ResolvedSource {
                 name: s.name.clone(),
                 params,
+                smoothing: s.smooth.then(Smoothing::default),
                 convention,
                 anchor,
                 match_mode,

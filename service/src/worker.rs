@@ -201,6 +201,7 @@ pub fn run(
     let placement = Source {
         convention: source.convention,
         plane_from_odom: source.anchor.plane_from_odom_in(&plane),
+        smoothing: source.smoothing,
     };
     let mut corrector = SourceCorrector::new(map, source.params, source.match_mode, placement);
     let mut sequences = Sequences::default();

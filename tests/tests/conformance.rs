@@ -62,6 +62,7 @@ fn run(
         Source {
             convention: cam,
             plane_from_odom: Se2::IDENTITY,
+            smoothing: None,
         },
         odom,
     );

@@ -7,7 +7,7 @@ use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::offline::{correct, Source};
-use lanealign_core::params::Preset;
+use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::{planar_heading, AxisConvention};
 use lanealign_core::se2::{wrap_angle, Se2};
 use lanealign_core::trajectory::{read, Format};
@@ -20,11 +20,17 @@ fn fast_and_reference_modes_agree_on_real_sequences() {
     let source = Source {
         convention: cam,
         plane_from_odom: Se2::IDENTITY,
+        smoothing: None,
     };
     for seq in ["04", "06", "07"] {
         let lanes = lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv"))).unwrap();
         let map = Arc::new(LaneMap::new(&lanes).unwrap());
-        for (odometry, preset) in [("lidar", Preset::KissIcp), ("stereo_vo", Preset::Basalt)] {
+        for (odometry, preset, method) in [
+            ("lidar", Preset::KissIcp, Method::Paper),
+            ("stereo_vo", Preset::Basalt, Method::Paper),
+            ("lidar", Preset::KissIcp, Method::Robust),
+            ("stereo_vo", Preset::Basalt, Method::Robust),
+        ] {
             let odom = read(
                 &data.join(format!("odometry/{odometry}/{seq}.txt")),
                 Format::Kitti,
@@ -32,14 +38,14 @@ fn fast_and_reference_modes_agree_on_real_sequences() {
             .unwrap();
             let fast = correct(
                 map.clone(),
-                preset.params(),
+                method.params(preset),
                 MatchMode::Fast,
                 source,
                 &odom.poses,
             );
             let reference = correct(
                 map.clone(),
-                preset.params(),
+                method.params(preset),
                 MatchMode::Reference,
                 source,
                 &odom.poses,

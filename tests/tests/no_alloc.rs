@@ -10,7 +10,7 @@ use std::sync::Arc;
 use lanealign_core::corrector::{Corrector, Status};
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::params::Preset;
+use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::{planar_position, AxisConvention};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
@@ -53,8 +53,12 @@ fn steady_state_corrections_do_not_allocate() {
         .iter()
         .map(|p| planar_position(&cam.to_planar(p)))
         .collect();
-    for preset in [Preset::KissIcp, Preset::Liodom] {
-        let mut corrector = Corrector::new(map.clone(), preset.params());
+    for (preset, method) in [
+        (Preset::KissIcp, Method::Paper),
+        (Preset::Liodom, Method::Paper),
+        (Preset::KissIcp, Method::Robust),
+    ] {
+        let mut corrector = Corrector::new(map.clone(), method.params(preset));
         for _warm_up in 0..2 {
             for &p in &positions {
                 corrector.push(p);

@@ -101,6 +101,7 @@ fn a_tile_corrects_exactly_like_its_osm() {
         let source = Source {
             convention: cam,
             plane_from_odom,
+            smoothing: None,
         };
         correct(
             std::sync::Arc::new(m),

@@ -18,7 +18,7 @@ use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::ape_2d;
 use lanealign_core::offline::{correct, Source};
-use lanealign_core::params::Preset;
+use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
@@ -146,11 +146,12 @@ pub fn run() -> anyhow::Result<()> {
         .count();
     let offline = correct(
         Arc::new(s.map),
-        Preset::KissIcp.params(),
+        Method::Robust.params(Preset::KissIcp),
         MatchMode::Fast,
         Source {
             convention: s.convention,
             plane_from_odom: s.anchor.plane_from_odom_in(&s.plane),
+            smoothing: None,
         },
         &s.odometry,
     );
