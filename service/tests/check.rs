@@ -53,6 +53,18 @@ fn a_good_config_and_tile_pass() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("ok: 1 sources"));
+    // Both methods and smoothing are accepted.
+    let paper = CONFIG.replace(
+        "preset = \"orb-slam3\"",
+        "preset = \"orb-slam3\"\nmethod = \"paper\"\nsmooth = true",
+    );
+    std::fs::write(&config, paper).unwrap();
+    let out = check(&config);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
@@ -74,6 +86,13 @@ fn bad_configs_and_tiles_fail_naming_the_problem() {
             "source.wheel.preset",
         ),
         (CONFIG.replace("t.tile", "missing.tile"), "missing.tile"),
+        (
+            CONFIG.replace(
+                "preset = \"orb-slam3\"",
+                "preset = \"orb-slam3\"\nmethod = \"best\"",
+            ),
+            "source.wheel.method",
+        ),
     ];
     for (text, what) in cases {
         std::fs::write(&config, text).unwrap();
