@@ -78,7 +78,7 @@ fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>,
         path: data.join(format!("osm/kitti_{seq}.osm")),
         anchor: *anchor,
         projection: Projection::Kitti,
-        options: LaneOptions::default(),
+        options: LaneOptions::paper(),
     }
     .load()?;
     let (map, plane_from_odom) = (loaded.map, loaded.plane_from_odom);

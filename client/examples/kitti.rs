@@ -84,7 +84,7 @@ fn run(data: &Path, job: &Job, anchor: &Anchor) -> anyhow::Result<Row> {
         path: data.join(format!("osm/kitti_{seq}.osm")),
         anchor: *anchor,
         projection: Projection::Kitti,
-        options: LaneOptions::default(),
+        options: LaneOptions::paper(),
     };
     let (osm, osm_counts) = corrected(osm_map, job.preset, &odom.poses, &gt)?;
     let reference_map = MapSource::LanesCsv(data.join(format!("reference/lanes/lanes_{seq}.csv")));

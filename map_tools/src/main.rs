@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use lanealign_core::geo::Projection;
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
-use lanealign_map::osm_lanes::{LaneOptions, Traffic, DEFAULT_CLASSES};
+use lanealign_map::osm_lanes::{LaneOptions, Traffic, DEFAULT_CLASSES, UNMARKED_OFFSET_SCALE};
 
 #[derive(Parser)]
 #[command(
@@ -41,6 +41,11 @@ enum Command {
         /// Traffic side: right or left.
         #[arg(long, default_value = "right")]
         traffic: Traffic,
+        /// Lanes of unmarked two-way streets (residential, unclassified, living_street without a
+        /// lanes tag) at this fraction of their nominal offset from the way line; 1 is the
+        /// paper's lane geometry.
+        #[arg(long, default_value_t = UNMARKED_OFFSET_SCALE)]
+        unmarked_offset_scale: f64,
         /// Comma-separated highway classes to derive lanes from (default: motorway to
         /// living_street and their links; add service to include it).
         #[arg(long)]
@@ -90,11 +95,15 @@ fn main() -> anyhow::Result<()> {
             projection,
             spacing,
             traffic,
+            unmarked_offset_scale,
             classes,
             output,
         } => {
             if !(spacing.is_finite() && spacing > 0.0) {
                 bail!("--spacing must be a positive number of metres");
+            }
+            if !(0.0..=2.0).contains(&unmarked_offset_scale) {
+                bail!("--unmarked-offset-scale must be between 0 and 2");
             }
             let classes = classes
                 .map(|c| c.split(',').map(|s| s.trim().to_string()).collect())
@@ -106,6 +115,7 @@ fn main() -> anyhow::Result<()> {
                     classes,
                     traffic,
                     spacing_m: spacing,
+                    unmarked_offset_scale,
                 },
             };
             let start = Instant::now();

@@ -58,7 +58,17 @@ pub struct LaneOptions {
     pub traffic: Traffic,
     /// Minimum spacing of the resampled centerline points (metres).
     pub spacing_m: f64,
+    /// Where the lanes of unmarked two-way streets lie (`residential`, `unclassified` and
+    /// `living_street` ways with no `lanes` tag), as a fraction of the nominal offset of half a
+    /// lane width from the way line. On such streets, with parked cars and little oncoming
+    /// traffic, cars drive between their lane's nominal centre and the road's middle (measured on
+    /// the KITTI drives: median 0.5 m right of the way line, against a nominal 1.375 m).
+    /// 1 is the paper's geometry ([`LaneOptions::paper`]); the default is 0.5.
+    pub unmarked_offset_scale: f64,
 }
+
+/// The default [`LaneOptions::unmarked_offset_scale`].
+pub const UNMARKED_OFFSET_SCALE: f64 = 0.5;
 
 impl Default for LaneOptions {
     fn default() -> Self {
@@ -66,6 +76,17 @@ impl Default for LaneOptions {
             classes: DEFAULT_CLASSES.iter().map(|s| s.to_string()).collect(),
             traffic: Traffic::Right,
             spacing_m: 3.0,
+            unmarked_offset_scale: UNMARKED_OFFSET_SCALE,
+        }
+    }
+}
+
+impl LaneOptions {
+    /// The paper's lane geometry: every lane at its nominal offset from the way line.
+    pub fn paper() -> Self {
+        LaneOptions {
+            unmarked_offset_scale: 1.0,
+            ..LaneOptions::default()
         }
     }
 }
@@ -269,6 +290,15 @@ pub fn derive_lanes(
         }
         let total = counts.forward + counts.backward;
         let width = lane_width(class, &way.tags, total);
+        let unmarked = tag(&way.tags, "lanes").is_none()
+            && counts.forward > 0
+            && counts.backward > 0
+            && matches!(class, "residential" | "unclassified" | "living_street");
+        let scale = if unmarked {
+            opts.unmarked_offset_scale
+        } else {
+            1.0
+        };
         // Lanes numbered from the road's left edge (in the way's direction). Right-hand
         // traffic puts the backward lanes on the left, left-hand traffic the forward ones.
         for k in 0..total {
@@ -276,7 +306,7 @@ pub fn derive_lanes(
                 Traffic::Right => k >= counts.backward,
                 Traffic::Left => k < counts.forward,
             };
-            let offset = (total as f64 / 2.0 - k as f64 - 0.5) * width;
+            let offset = (total as f64 / 2.0 - k as f64 - 0.5) * width * scale;
             let mut centre = offset_polyline(&line, offset);
             if !forward {
                 centre.reverse();
@@ -359,6 +389,33 @@ mod tests {
         assert!((east[0][1] + 1.75).abs() < 0.01, "{:?}", east[0]);
         // Resampled at 3 m or more.
         assert!(east.windows(2).all(|w| (w[1][0] - w[0][0]).abs() >= 3.0));
+    }
+
+    #[test]
+    fn unmarked_two_way_streets_have_their_lanes_closer_to_the_way_line() {
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        // The eastbound lane's offset (metres, + north) of a way running east.
+        let eastbound = |class: &str, extra: &str, opts: &LaneOptions| {
+            let xml = format!(
+                r#"<osm><node id="1" lat="49.0" lon="8.4"/><node id="2" lat="49.0" lon="8.401"/>
+                   <way id="7"><nd ref="1"/><nd ref="2"/><tag k="highway" v="{class}"/>{extra}</way>
+                   </osm>"#
+            );
+            let osm = read_xml(xml.as_bytes(), Path::new("w.osm")).unwrap();
+            let (lanes, _) = derive_lanes(&osm, &plane, opts);
+            let lane = lanes.iter().find(|l| l.points[0][0] < l.points[1][0]);
+            lane.unwrap().points[0][1]
+        };
+        let (default, paper) = (LaneOptions::default(), LaneOptions::paper());
+        // Residential, no lanes tag: half of the nominal 2.75 / 2 m.
+        assert!((eastbound("residential", "", &default) + 0.6875).abs() < 0.01);
+        assert!((eastbound("residential", "", &paper) + 1.375).abs() < 0.01);
+        // Marked lanes, other classes and one-way streets keep the nominal offset.
+        let two = r#"<tag k="lanes" v="2"/>"#;
+        assert!((eastbound("residential", two, &default) + 1.375).abs() < 0.01);
+        assert!((eastbound("primary", "", &default) + 1.625).abs() < 0.01);
+        let oneway = r#"<tag k="oneway" v="yes"/>"#;
+        assert!(eastbound("residential", oneway, &default).abs() < 0.01);
     }
 
     #[test]
