@@ -8,6 +8,9 @@
 //!
 //! A `--variant` replaces the built-in list: it is the robust method with the given overrides
 //! (or the paper's, when NAME starts with `paper`); `+smooth` in the list turns smoothing on.
+//! `--pairs RUN:PRESET,...` replaces the (run, preset) pairs; the run `gt` feeds the ground truth
+//! itself as odometry, which shows the error the map alone induces (a perfect corrector leaves
+//! it untouched).
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -48,6 +51,8 @@ struct Variant {
     method: Method,
     overrides: Vec<String>,
     smooth: bool,
+    /// The lane geometry: [`LaneOptions::unmarked_offset_scale`].
+    unmarked: f64,
 }
 
 impl Variant {
@@ -55,23 +60,31 @@ impl Variant {
         let (name, list) = spec.split_once(':').unwrap_or((spec, ""));
         let mut overrides = Vec::new();
         let mut smooth = false;
-        for item in list.split(',').filter(|s| !s.is_empty()) {
-            if item == "+smooth" {
-                smooth = true;
-            } else {
-                overrides.push(item.to_string());
-            }
-        }
         let method = if name.starts_with("paper") {
             Method::Paper
         } else {
             Method::Robust
         };
+        let mut unmarked = match method {
+            Method::Paper => LaneOptions::paper(),
+            Method::Robust => LaneOptions::default(),
+        }
+        .unmarked_offset_scale;
+        for item in list.split(',').filter(|s| !s.is_empty()) {
+            if item == "+smooth" {
+                smooth = true;
+            } else if let Some(v) = item.strip_prefix("unmarked_offset_scale=") {
+                unmarked = v.parse()?;
+            } else {
+                overrides.push(item.to_string());
+            }
+        }
         Ok(Variant {
             name: name.to_string(),
             method,
             overrides,
             smooth,
+            unmarked,
         })
     }
 }
@@ -81,6 +94,7 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
     [
         "paper",
         "robust",
+        "robust, paper lane geometry:unmarked_offset_scale=1",
         "robust, no lane tolerance:lane_tolerance_m=0",
         "robust, no match gate:max_match_distance_m=inf",
         "robust, no window path limit:max_window_path_m=inf",
@@ -94,7 +108,10 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
 struct Sequence {
     gt: Vec<Pose3>,
     odom: Vec<Pose3>,
-    map: Arc<LaneMap>,
+}
+
+struct Map {
+    lanes: Arc<LaneMap>,
     plane_from_odom: Se2,
 }
 
@@ -108,29 +125,40 @@ struct Outcome {
 }
 
 fn load(data: &std::path::Path, odometry: &str, seq: &str) -> anyhow::Result<Sequence> {
+    let gt = read(&data.join(format!("kitti/poses/{seq}.txt")), Format::Kitti)?;
+    let odom = match odometry {
+        "gt" => gt.clone(),
+        run => read(
+            &data.join(format!("odometry/{run}/{seq}.txt")),
+            Format::Kitti,
+        )?,
+    };
+    Ok(Sequence {
+        gt: gt.poses,
+        odom: odom.poses,
+    })
+}
+
+fn load_map(data: &std::path::Path, seq: &str, unmarked: f64) -> anyhow::Result<Map> {
     let anchors = anchors(data)?;
     let anchor = *anchors.get(seq).context("no anchor")?;
-    let gt = read(&data.join(format!("kitti/poses/{seq}.txt")), Format::Kitti)?;
-    let odom = read(
-        &data.join(format!("odometry/{odometry}/{seq}.txt")),
-        Format::Kitti,
-    )?;
     let loaded = MapSource::Osm {
         path: data.join(format!("osm/kitti_{seq}.osm")),
         anchor,
         projection: Projection::Kitti,
-        options: LaneOptions::default(),
+        options: LaneOptions {
+            unmarked_offset_scale: unmarked,
+            ..LaneOptions::default()
+        },
     }
     .load()?;
-    Ok(Sequence {
-        gt: gt.poses,
-        odom: odom.poses,
-        map: loaded.map,
+    Ok(Map {
+        lanes: loaded.map,
         plane_from_odom: loaded.plane_from_odom,
     })
 }
 
-fn run(s: &Sequence, preset: Preset, v: &Variant) -> anyhow::Result<Outcome> {
+fn run(s: &Sequence, map: &Map, preset: Preset, v: &Variant) -> anyhow::Result<Outcome> {
     let cam = AxisConvention::KittiCamera;
     let mut params = v.method.params(preset);
     for o in &v.overrides {
@@ -138,10 +166,10 @@ fn run(s: &Sequence, preset: Preset, v: &Variant) -> anyhow::Result<Outcome> {
     }
     let source = Source {
         convention: cam,
-        plane_from_odom: s.plane_from_odom,
+        plane_from_odom: map.plane_from_odom,
         smoothing: v.smooth.then(Smoothing::default),
     };
-    let out = correct(s.map.clone(), params, MatchMode::Fast, source, &s.odom);
+    let out = correct(map.lanes.clone(), params, MatchMode::Fast, source, &s.odom);
     let planar = |p: &[Pose3]| -> Vec<Pose3> { p.iter().map(|p| cam.to_planar(p)).collect() };
     let gt = planar(&s.gt);
     let raw = planar(&s.odom);
@@ -181,14 +209,40 @@ fn main() -> anyhow::Result<()> {
     } else {
         custom
     };
-    let odometries = ["lidar", "stereo_vo"];
+    let pairs: Vec<(String, Preset)> = match args
+        .iter()
+        .position(|a| a == "--pairs")
+        .and_then(|i| args.get(i + 1))
+    {
+        Some(list) => list
+            .split(',')
+            .map(|p| {
+                let (run, preset) = p.split_once(':').context("--pairs takes RUN:PRESET,...")?;
+                Ok((run.to_string(), preset.parse()?))
+            })
+            .collect::<anyhow::Result<_>>()?,
+        None => PAIRS.iter().map(|&(r, p)| (r.to_string(), p)).collect(),
+    };
+    let mut odometries: Vec<&str> = pairs.iter().map(|(r, _)| r.as_str()).collect();
+    odometries.sort_unstable();
+    odometries.dedup();
     let mut loaded = HashMap::new();
-    for odometry in odometries {
+    for &odometry in &odometries {
         for seq in SEQUENCES {
             loaded.insert((odometry, seq), load(&data, odometry, seq)?);
         }
     }
-    let jobs: Vec<(usize, usize, &str)> = (0..PAIRS.len())
+    let mut maps = HashMap::new();
+    for v in &variants {
+        for seq in SEQUENCES {
+            if let std::collections::hash_map::Entry::Vacant(e) =
+                maps.entry((seq, v.unmarked.to_bits()))
+            {
+                e.insert(load_map(&data, seq, v.unmarked)?);
+            }
+        }
+    }
+    let jobs: Vec<(usize, usize, &str)> = (0..pairs.len())
         .flat_map(|p| (0..variants.len()).flat_map(move |v| SEQUENCES.map(|s| (p, v, s))))
         .collect();
     let next = AtomicUsize::new(0);
@@ -200,8 +254,10 @@ fn main() -> anyhow::Result<()> {
                 let Some(&(p, v, seq)) = jobs.get(i) else {
                     break;
                 };
-                let (odometry, preset) = PAIRS[p];
-                let outcome = run(&loaded[&(odometry, seq)], preset, &variants[v]);
+                let (odometry, preset) = (pairs[p].0.as_str(), pairs[p].1);
+                let variant = &variants[v];
+                let map = &maps[&(seq, variant.unmarked.to_bits())];
+                let outcome = run(&loaded[&(odometry, seq)], map, preset, variant);
                 results
                     .lock()
                     .expect("no worker panics")
@@ -213,12 +269,12 @@ fn main() -> anyhow::Result<()> {
     let get = |p: usize, v: usize, seq: &'static str| -> anyhow::Result<&Outcome> {
         results[&(p, v, seq)]
             .as_ref()
-            .map_err(|e| anyhow::anyhow!("{} {seq}: {e:#}", PAIRS[p].0))
+            .map_err(|e| anyhow::anyhow!("{} {seq}: {e:#}", pairs[p].0))
     };
     println!("Mean APE-2D over the ten sequences (metres); worst excess: the largest (corrected - raw) mean APE of a sequence; worst max excess: the largest (corrected - raw) maximum error; jumps: the largest frame-to-frame change beyond the odometry's motion.\n");
     println!("| odometry | preset | variant | mean APE-2D | worst excess | worst max excess | jumps (m / deg) |");
     println!("|---|---|---|---|---|---|---|");
-    for (p, (odometry, preset)) in PAIRS.iter().enumerate() {
+    for (p, (odometry, preset)) in pairs.iter().enumerate() {
         let raw: f64 = SEQUENCES
             .iter()
             .map(|&s| get(p, 0, s).map(|o| o.raw_mean))
@@ -248,7 +304,7 @@ fn main() -> anyhow::Result<()> {
         let header: Vec<String> = variants.iter().map(|v| v.name.clone()).collect();
         println!("| odometry | preset | seq | raw | {} |", header.join(" | "));
         println!("|---|---|---|---|{}", "---|".repeat(variants.len()));
-        for (p, (odometry, preset)) in PAIRS.iter().enumerate() {
+        for (p, (odometry, preset)) in pairs.iter().enumerate() {
             for seq in SEQUENCES {
                 let raw = get(p, 0, seq)?;
                 let cells: Vec<String> = (0..variants.len())

@@ -158,8 +158,8 @@ impl Preset {
         Params {
             max_window_path_m,
             lane_tolerance_m: 1.0,
-            max_match_distance_m: 5.0,
-            drift_per_m: 0.05,
+            max_match_distance_m: 3.0,
+            drift_per_m: 0.2,
             ..self.params()
         }
     }

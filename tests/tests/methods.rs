@@ -13,10 +13,14 @@ use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::smoothing::Smoothing;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
+use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_tests::{shared_data, SEQUENCES};
 
 struct Sequence {
     name: &'static str,
+    /// Lanes in the paper's geometry.
+    paper_map: Arc<LaneMap>,
+    /// Lanes in lanealign's default geometry.
     map: Arc<LaneMap>,
     anchor: Anchor,
     gt: Vec<Pose3>,
@@ -41,17 +45,21 @@ fn sequences(data: &std::path::Path) -> Vec<Sequence> {
             let anchor: Anchor = format!("{},{},{},{},{}", f[1], f[2], f[4], f[5], f[6])
                 .parse()
                 .unwrap();
-            let options = CompileOptions {
-                origin: Some((anchor.lat, anchor.lon)),
-                projection: Projection::Kitti,
-                ..CompileOptions::default()
-            };
             let osm = data.join(format!("osm/kitti_{name}.osm"));
-            let (map, _, _) = compile(std::slice::from_ref(&osm), &options).unwrap();
+            let lanes = |lanes: LaneOptions| {
+                let options = CompileOptions {
+                    origin: Some((anchor.lat, anchor.lon)),
+                    projection: Projection::Kitti,
+                    lanes,
+                };
+                let (map, _, _) = compile(std::slice::from_ref(&osm), &options).unwrap();
+                Arc::new(map)
+            };
             let gt = read(&data.join(format!("kitti/poses/{name}.txt")), Format::Kitti).unwrap();
             Sequence {
                 name,
-                map: Arc::new(map),
+                paper_map: lanes(LaneOptions::paper()),
+                map: lanes(LaneOptions::default()),
                 anchor,
                 gt: gt.poses,
             }
@@ -78,8 +86,12 @@ fn run(
         plane_from_odom: s.anchor.plane_from_odom(),
         smoothing,
     };
+    let map = match method {
+        Method::Paper => &s.paper_map,
+        Method::Robust => &s.map,
+    };
     let out = correct(
-        s.map.clone(),
+        map.clone(),
         method.params(preset),
         MatchMode::Fast,
         source,
@@ -157,32 +169,26 @@ fn robust_beats_the_paper_and_smooth_output_glides() {
             .map(|r| r.jumps.max_position_m)
             .fold(0.0, f64::max);
         assert!(largest > 1.0, "{odometry}: unsmoothed jumps {largest}");
-        if odometry == "stereo_vo" {
-            for (s, r) in seqs.iter().zip(&robust) {
-                let excess = r.corrected.mean_m - r.raw.mean_m;
-                assert!(excess <= 0.2, "{odometry} {}: {excess:+.3} m", s.name);
-            }
+        for (s, r) in seqs.iter().zip(&robust) {
+            let excess = r.corrected.mean_m - r.raw.mean_m;
+            assert!(excess <= 0.2, "{odometry} {}: {excess:+.3} m", s.name);
         }
     }
 }
 
-/// No catastrophic steps: every preset on both runs. On `stereo_vo` every sequence's largest
-/// error stays within the raw largest error + 1 m. On `lidar` (raw errors of a few metres) the
-/// robust method's worst is +1.62 m (sequence 01 and 09, where the OSM lanes sit off the road
-/// actually driven: docs/method.md); the paper's method reached +82.7 m (liodom, 06). The bound
-/// here guards that regression.
+/// No catastrophic steps: with every preset on both runs, every sequence's largest error stays
+/// within its raw largest error + 1 m (the paper's method reached +82.7 m: liodom on `lidar` 06).
 #[test]
 fn no_catastrophic_steps_with_any_preset_on_either_run() {
     let Some(data) = shared_data() else { return };
     let seqs = sequences(&data);
     for odometry in ["lidar", "stereo_vo"] {
-        let allowed = if odometry == "stereo_vo" { 1.0 } else { 2.0 };
         for preset in Preset::ALL {
             for s in &seqs {
                 let r = run(&data, s, odometry, Method::Robust, preset, None);
                 let excess = r.corrected.max_m - r.raw.max_m;
                 assert!(
-                    excess <= allowed,
+                    excess <= 1.0,
                     "{odometry} {} {}: max error {:.2} m vs raw {:.2} m",
                     preset.name(),
                     s.name,
