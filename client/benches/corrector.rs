@@ -3,6 +3,7 @@
 //! `cargo bench -p lanealign-client --bench corrector [-- OPTIONS]`
 //!
 //! - `--sequences 00,02,08` (default), `--presets all` (default) or a comma list;
+//! - `--methods paper,robust` (default: both, each on its own lane geometry);
 //! - `--reference-poses K`: run the reference mode on the first K poses only (default: all; the
 //!   reference mode needs 5-30 ms per pose); identity and speed-up are then over those K poses;
 //! - `--long-run N`: instead, correct N poses in fast mode by looping KITTI 00 (lidar, kiss-icp)
@@ -20,7 +21,7 @@ use lanealign_client::maps::MapSource;
 use lanealign_core::corrector::{Corrector, MatchMode, Status, Step};
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::params::Preset;
+use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::{planar_position, AxisConvention};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -45,11 +46,11 @@ fn stats(mut us: Vec<f64>) -> Stats {
 
 fn run(
     map: &Arc<LaneMap>,
-    preset: Preset,
+    params: Params,
     mode: MatchMode,
     positions: &[[f64; 2]],
 ) -> (Vec<Step>, Vec<f64>) {
-    let mut c = Corrector::with_mode(map.clone(), preset.params(), mode);
+    let mut c = Corrector::with_mode(map.clone(), params, mode);
     let mut steps = Vec::with_capacity(positions.len());
     let mut us = Vec::with_capacity(positions.len());
     for &p in positions {
@@ -69,7 +70,12 @@ fn identical(a: &[Step], b: &[Step]) -> bool {
     })
 }
 
-fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>, Vec<[f64; 2]>)> {
+fn load(
+    data: &Path,
+    odometry: &str,
+    seq: &str,
+    lanes: LaneOptions,
+) -> anyhow::Result<(Arc<LaneMap>, Vec<[f64; 2]>)> {
     let anchors = anchors(data)?;
     let anchor = anchors
         .get(seq)
@@ -78,7 +84,7 @@ fn load(data: &Path, odometry: &str, seq: &str) -> anyhow::Result<(Arc<LaneMap>,
         path: data.join(format!("osm/kitti_{seq}.osm")),
         anchor: *anchor,
         projection: Projection::Kitti,
-        options: LaneOptions::paper(),
+        options: lanes,
     }
     .load()?;
     let (map, plane_from_odom) = (loaded.map, loaded.plane_from_odom);
@@ -107,7 +113,7 @@ fn resident_kib() -> u64 {
 }
 
 fn long_run(data: &Path, total: usize) -> anyhow::Result<()> {
-    let (map, positions) = load(data, "lidar", "00")?;
+    let (map, positions) = load(data, "lidar", "00", LaneOptions::paper())?;
     let mut c = Corrector::new(map, Preset::KissIcp.params());
     println!("Long run: KITTI 00 lidar, kiss-icp, fast mode, looped to {total} poses");
     println!(
@@ -158,40 +164,52 @@ fn main() -> anyhow::Result<()> {
         None | Some("all") => Preset::ALL.to_vec(),
         Some(list) => list.split(',').map(str::parse).collect::<Result<_, _>>()?,
     };
+    let methods: Vec<Method> = match opt("--methods") {
+        None => Method::ALL.to_vec(),
+        Some(list) => list.split(',').map(str::parse).collect::<Result<_, _>>()?,
+    };
     let reference_poses: Option<usize> = opt("--reference-poses").map(|v| v.parse()).transpose()?;
     println!("Per-pose time of Corrector::push in microseconds, single thread, lanes from OSM.");
-    println!("| odometry | seq | preset | poses | fast mean | fast p50 | fast p99 | fast max | fast: matching / ICP mean | ref. poses | ref. mean | ref. p99 | speed-up (mean, same poses) | identical |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| odometry | seq | method | preset | poses | fast mean | fast p50 | fast p99 | fast max | fast: matching / ICP mean | ref. poses | ref. mean | ref. p99 | speed-up (mean, same poses) | identical |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for odometry in ["lidar", "stereo_vo"] {
         for seq in &sequences {
-            let (map, positions) = load(&data, odometry, seq)?;
-            for &preset in &presets {
-                let (fast_steps, fast_us) = run(&map, preset, MatchMode::Fast, &positions);
-                let k = reference_poses
-                    .unwrap_or(positions.len())
-                    .min(positions.len());
-                let (ref_steps, ref_us) = run(&map, preset, MatchMode::Reference, &positions[..k]);
-                let f = stats(fast_us.clone());
-                let n = fast_steps.len() as f64;
-                let matching = fast_steps
-                    .iter()
-                    .map(|s| s.timing.matching.as_secs_f64())
-                    .sum::<f64>()
-                    * 1e6
-                    / n;
-                let icp = fast_steps
-                    .iter()
-                    .map(|s| s.timing.icp.as_secs_f64())
-                    .sum::<f64>()
-                    * 1e6
-                    / n;
-                let r = stats(ref_us);
-                let fast_prefix = stats(fast_us[..k].to_vec());
-                println!(
-                    "| {odometry} | {seq} | {} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {matching:.1} / {icp:.1} | {k} | {:.0} | {:.0} | {:.0}x | {} |",
-                    preset.name(), positions.len(), f.mean, f.p50, f.p99, f.max, r.mean, r.p99,
+            for &method in &methods {
+                let lanes = match method {
+                    Method::Paper => LaneOptions::paper(),
+                    Method::Robust => LaneOptions::default(),
+                };
+                let (map, positions) = load(&data, odometry, seq, lanes)?;
+                for &preset in &presets {
+                    let params = method.params(preset);
+                    let (fast_steps, fast_us) = run(&map, params, MatchMode::Fast, &positions);
+                    let k = reference_poses
+                        .unwrap_or(positions.len())
+                        .min(positions.len());
+                    let (ref_steps, ref_us) =
+                        run(&map, params, MatchMode::Reference, &positions[..k]);
+                    let f = stats(fast_us.clone());
+                    let n = fast_steps.len() as f64;
+                    let matching = fast_steps
+                        .iter()
+                        .map(|s| s.timing.matching.as_secs_f64())
+                        .sum::<f64>()
+                        * 1e6
+                        / n;
+                    let icp = fast_steps
+                        .iter()
+                        .map(|s| s.timing.icp.as_secs_f64())
+                        .sum::<f64>()
+                        * 1e6
+                        / n;
+                    let r = stats(ref_us);
+                    let fast_prefix = stats(fast_us[..k].to_vec());
+                    println!(
+                    "| {odometry} | {seq} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {matching:.1} / {icp:.1} | {k} | {:.0} | {:.0} | {:.0}x | {} |",
+                    method.name(), preset.name(), positions.len(), f.mean, f.p50, f.p99, f.max, r.mean, r.p99,
                     r.mean / fast_prefix.mean, if identical(&fast_steps[..k], &ref_steps) { "yes" } else { "NO" }
                 );
+                }
             }
         }
     }
