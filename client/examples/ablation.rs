@@ -13,12 +13,11 @@
 //! it untouched).
 
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-use anyhow::{bail, Context};
-use lanealign_client::kitti::{anchors, default_data_dir, SEQUENCES};
+use anyhow::Context;
+use lanealign_client::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_client::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
@@ -189,15 +188,7 @@ fn run(s: &Sequence, map: &Map, preset: Preset, v: &Variant) -> anyhow::Result<O
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let data = args
-        .iter()
-        .position(|a| a == "--data")
-        .and_then(|i| args.get(i + 1))
-        .map(PathBuf::from)
-        .unwrap_or_else(default_data_dir);
-    if !data.join("kitti/georef.csv").is_file() {
-        bail!("no KITTI data at {} (pass --data DIR)", data.display());
-    }
+    let data = data_dir_from_args(&args)?;
     let per_sequence = args.iter().any(|a| a == "--per-sequence");
     let custom: Vec<Variant> = args
         .windows(2)

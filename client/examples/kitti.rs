@@ -9,12 +9,12 @@
 //! them); `--all-presets` adds liodom and basalt (the four pairs of `results.csv`).
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
-use anyhow::{bail, Context};
-use lanealign_client::kitti::{anchors, default_data_dir, SEQUENCES};
+use anyhow::Context;
+use lanealign_client::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_client::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
@@ -99,15 +99,7 @@ fn run(data: &Path, job: &Job, anchor: &Anchor) -> anyhow::Result<Row> {
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let data = args
-        .iter()
-        .position(|a| a == "--data")
-        .and_then(|i| args.get(i + 1))
-        .map(PathBuf::from)
-        .unwrap_or_else(default_data_dir);
-    if !data.join("kitti/georef.csv").is_file() {
-        bail!("no KITTI data at {} (pass --data DIR)", data.display());
-    }
+    let data = data_dir_from_args(&args)?;
     let mut pairs = vec![("lidar", Preset::KissIcp), ("stereo_vo", Preset::OrbSlam3)];
     if args.iter().any(|a| a == "--all-presets") {
         pairs.extend([("lidar", Preset::Liodom), ("stereo_vo", Preset::Basalt)]);

@@ -16,6 +16,21 @@ pub fn default_data_dir() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
 }
 
+/// The data directory of a tool's command line: `--data DIR` if given, else
+/// [`default_data_dir`]; an error naming it when it holds no KITTI data.
+pub fn data_dir_from_args(args: &[String]) -> anyhow::Result<PathBuf> {
+    let data = args
+        .iter()
+        .position(|a| a == "--data")
+        .and_then(|i| args.get(i + 1))
+        .map(PathBuf::from)
+        .unwrap_or_else(default_data_dir);
+    if !data.join("kitti/georef.csv").is_file() {
+        bail!("no KITTI data at {} (pass --data DIR)", data.display());
+    }
+    Ok(data)
+}
+
 /// Each sequence's anchor from `kitti/georef.csv`
 /// (`seq,origin_lat,origin_lon,origin_alt,yaw_deg,east_m,north_m,fit_rmse_m`).
 pub fn anchors(data: &Path) -> anyhow::Result<HashMap<String, Anchor>> {
