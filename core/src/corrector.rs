@@ -353,9 +353,7 @@ impl Corrector {
                 let icp_start = Instant::now();
                 let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);
                 timing.icp = icp_start.elapsed();
-                if fit.residual_m >= p.max_residual_m {
-                    (RejectReason::ResidualTooLarge, fit.residual_m)
-                } else {
+                if fit.residual_m < p.max_residual_m {
                     let correction = fit.transform;
                     self.map_from_odom = correction * self.map_from_odom;
                     for x in self.window.as_mut_slice() {
@@ -369,6 +367,7 @@ impl Corrector {
                         window_len,
                     });
                 }
+                (RejectReason::ResidualTooLarge, fit.residual_m)
             };
         self.drop_oldest(1);
         self.failures += 1;
