@@ -175,10 +175,7 @@ fn main() -> anyhow::Result<()> {
     for odometry in ["lidar", "stereo_vo"] {
         for seq in &sequences {
             for &method in &methods {
-                let lanes = match method {
-                    Method::Paper => LaneOptions::paper(),
-                    Method::Robust => LaneOptions::default(),
-                };
+                let lanes = LaneOptions::for_method(method);
                 let (map, positions) = load(&data, odometry, seq, lanes)?;
                 for &preset in &presets {
                     let params = method.params(preset);

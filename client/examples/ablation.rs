@@ -64,11 +64,7 @@ impl Variant {
         } else {
             Method::Robust
         };
-        let mut unmarked = match method {
-            Method::Paper => LaneOptions::paper(),
-            Method::Robust => LaneOptions::default(),
-        }
-        .unmarked_offset_scale;
+        let mut unmarked = LaneOptions::for_method(method).unmarked_offset_scale;
         for item in list.split(',').filter(|s| !s.is_empty()) {
             if item == "+smooth" {
                 smooth = true;

@@ -127,10 +127,7 @@ impl MapArgs {
         if !(self.spacing.is_finite() && self.spacing > 0.0) {
             bail!("--spacing must be a positive number of metres");
         }
-        let lanes = match method {
-            Method::Paper => LaneOptions::paper(),
-            Method::Robust => LaneOptions::default(),
-        };
+        let lanes = LaneOptions::for_method(method);
         let unmarked_offset_scale = self
             .unmarked_offset_scale
             .unwrap_or(lanes.unmarked_offset_scale);

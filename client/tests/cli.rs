@@ -24,18 +24,14 @@ fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
-/// `evo_ape kitti GT EST --project_to_plane xy` (evo 1.x, no alignment) on KITTI 00, the lidar
-/// odometry against ground truth, both rotated from the camera frame into the planar frame:
-/// mean 4.008812199526548, rmse 4.968945055378295, max 14.595055131424358.
-#[test]
-fn eval_equals_evo_on_kitti_00() {
-    let Some(d) = data() else { return };
+/// `lanealign eval --json` of `est` against `gt` (KITTI format, camera axes); panics on failure.
+fn eval_json(gt: &Path, est: &Path) -> serde_json::Value {
     let out = lanealign(&[
         "eval",
         "--gt",
-        s(&d.join("kitti/poses/00.txt")),
+        s(gt),
         "--est",
-        s(&d.join("odometry/lidar/00.txt")),
+        s(est),
         "--frame",
         "kitti-camera",
         "--json",
@@ -45,7 +41,19 @@ fn eval_equals_evo_on_kitti_00() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    serde_json::from_slice(&out.stdout).expect("json")
+}
+
+/// `evo_ape kitti GT EST --project_to_plane xy` (evo 1.x, no alignment) on KITTI 00, the lidar
+/// odometry against ground truth, both rotated from the camera frame into the planar frame:
+/// mean 4.008812199526548, rmse 4.968945055378295, max 14.595055131424358.
+#[test]
+fn eval_equals_evo_on_kitti_00() {
+    let Some(d) = data() else { return };
+    let v = eval_json(
+        &d.join("kitti/poses/00.txt"),
+        &d.join("odometry/lidar/00.txt"),
+    );
     let get = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
     assert!(
         (get("ape2d_mean_m") - 4.008812199526548).abs() < 1e-6,
@@ -87,17 +95,7 @@ fn method_paper_keeps_the_published_figures_on_kitti_00() {
         ]);
         let err = String::from_utf8_lossy(&out.stderr).to_string();
         assert!(out.status.success(), "{err}");
-        let out = lanealign(&[
-            "eval",
-            "--gt",
-            s(&d.join("kitti/poses/00.txt")),
-            "--est",
-            s(&output),
-            "--frame",
-            "kitti-camera",
-            "--json",
-        ]);
-        let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+        let v = eval_json(&d.join("kitti/poses/00.txt"), &output);
         (v["ape2d_mean_m"].as_f64().unwrap_or(f64::NAN), err)
     };
     let (paper, err) = mean_of("paper");

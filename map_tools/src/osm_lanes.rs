@@ -5,6 +5,7 @@
 
 use lanealign_core::geo::MapPlane;
 use lanealign_core::lane_map::{resample, Lane};
+use lanealign_core::params::Method;
 
 use crate::osm::{tag, OsmData, Tags, Way};
 
@@ -87,6 +88,15 @@ impl LaneOptions {
         LaneOptions {
             unmarked_offset_scale: 1.0,
             ..LaneOptions::default()
+        }
+    }
+
+    /// The lane geometry `method` is designed and measured on: the paper's for
+    /// [`Method::Paper`], the default for [`Method::Robust`].
+    pub fn for_method(method: Method) -> Self {
+        match method {
+            Method::Paper => LaneOptions::paper(),
+            Method::Robust => LaneOptions::default(),
         }
     }
 }

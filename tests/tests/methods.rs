@@ -58,8 +58,8 @@ fn sequences(data: &std::path::Path) -> Vec<Sequence> {
             let gt = read(&data.join(format!("kitti/poses/{name}.txt")), Format::Kitti).unwrap();
             Sequence {
                 name,
-                paper_map: lanes(LaneOptions::paper()),
-                map: lanes(LaneOptions::default()),
+                paper_map: lanes(LaneOptions::for_method(Method::Paper)),
+                map: lanes(LaneOptions::for_method(Method::Robust)),
                 anchor,
                 gt: gt.poses,
             }
