@@ -133,6 +133,9 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
 struct Window {
     buf: Vec<[f64; 2]>,
     start: usize,
+    /// Path length of the window (metres), kept up to date by `push` and `drop_oldest`; rigid
+    /// corrections of the window do not change it.
+    path_m: f64,
 }
 
 impl Window {
@@ -153,18 +156,32 @@ impl Window {
             self.buf.drain(..self.start);
             self.start = 0;
         }
+        if let Some(&last) = self.as_slice().last() {
+            self.path_m += distance(last, p);
+        }
         self.buf.push(p);
     }
 
     fn drop_oldest(&mut self, count: usize) {
-        self.start += count.min(self.len());
+        let count = count.min(self.len());
+        let w = self.as_slice();
+        // The segments that leave with the dropped poses.
+        let end = (count + 1).min(w.len());
+        self.path_m -= w[..end]
+            .windows(2)
+            .map(|s| distance(s[0], s[1]))
+            .sum::<f64>();
+        self.start += count;
+        if self.len() < 2 {
+            self.path_m = 0.0;
+        }
     }
 
     /// How many of the oldest poses to drop so that the window's path length (metres) is at
-    /// most `max_m`, keeping at least `keep` poses.
+    /// most `max_m`, keeping at least `keep` poses. Costs one step per pose dropped.
     fn excess_over_path(&self, max_m: f64, keep: usize) -> usize {
         let w = self.as_slice();
-        let mut length: f64 = w.windows(2).map(|s| distance(s[0], s[1])).sum();
+        let mut length = self.path_m;
         let mut drop = 0;
         while length > max_m && w.len() - drop > keep {
             length -= distance(w[drop], w[drop + 1]);
