@@ -1,234 +1,168 @@
-//! Talking to `lanealignd` from an odometry process: publish poses, receive corrections.
-//!
-//! ```no_run
-//! use std::time::Duration;
-//! use lanealign_client::connection::{monotonic_ns, Connection};
-//! use lanealign_client::wire::OdomPose;
-//!
-//! let conn = Connection::connect("lidar")?;
-//! let identity = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
-//! conn.publish(&OdomPose { seq: 1, stamp_ns: 0, sent_mono_ns: monotonic_ns(), pose: identity })?;
-//! if let Some(corrected) = conn.recv(Duration::from_millis(100))? {
-//!     println!("seq {} corrected to {:?}", corrected.seq, corrected.pose);
-//! }
-//! # Ok::<(), lanealign_client::connection::ConnectionError>(())
-//! ```
+//! A connection to one source of the daemon: one session, its poses out, its answers in.
 
-use std::time::Duration;
+use std::collections::hash_map::RandomState;
+use std::hash::{BuildHasher, Hasher};
+use std::time::{Duration, Instant};
 
 use iceoryx2::node::Node;
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
+use iceoryx2::port::notifier::{Notifier, NotifierNotifyError};
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::prelude::*;
-use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
-use iceoryx2::service::port_factory::PortFactory as _;
+use iceoryx2::port::{ReceiveError as PortReceiveError, SendError};
+use iceoryx2::prelude::ipc;
+use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::payload::{CorrectedPose, OdomPose};
+use lanealign_wire::service::{
+    NameError, Namespace, NodeCreateError, PortCreateError, ServiceOpenError, SourceName,
+    SourceServices,
+};
 
-use crate::wire::{CorrectedPose, OdomPose};
-
-/// Samples a subscriber can hold before the oldest is overwritten (per source and direction).
-pub const BUFFER_SIZE: usize = 4096;
-/// Subscribers of one source's corrected poses at most.
-pub const MAX_SUBSCRIBERS: usize = 16;
-/// Publishers of one service at most (a restarted process may briefly overlap its old ports).
-pub const MAX_PUBLISHERS: usize = 4;
-/// Shortest wait handed to iceoryx2: a shorter remainder is not waited for at all.
+/// Shortest wait handed to iceoryx2: a shorter remainder is not waited for at all (a wait that
+/// rounds to zero at the socket would block until the next event).
 const MIN_WAIT: Duration = Duration::from_micros(10);
 
-/// Nodes per service at most.
-pub const MAX_NODES: usize = 32;
-
-/// Something went wrong talking to the daemon.
+/// Connecting failed.
 #[derive(Debug, thiserror::Error)]
-pub enum ConnectionError {
-    /// The source name does not make a valid service name.
-    #[error("source name '{0}' is not usable in a service name")]
-    BadSourceName(String),
-    /// An iceoryx2 node could not be created.
-    #[error("creating the iceoryx2 node failed: {0}")]
-    Node(String),
-    /// A service could not be opened or created (for example with incompatible settings).
-    #[error("opening service '{service}' failed: {message}")]
-    Service {
-        /// The service name.
-        service: String,
-        /// iceoryx2's message.
-        message: String,
-    },
+pub enum ConnectError {
+    /// The source name or namespace is not usable.
+    #[error(transparent)]
+    Name(#[from] NameError),
+    /// The iceoryx2 node could not be created.
+    #[error(transparent)]
+    Node(#[from] NodeCreateError),
+    /// A service could not be opened.
+    #[error(transparent)]
+    Service(#[from] ServiceOpenError),
     /// A port could not be created.
-    #[error("creating a {port} on '{service}' failed: {message}")]
-    Port {
-        /// What kind of port.
-        port: &'static str,
-        /// The service name.
-        service: String,
-        /// iceoryx2's message.
-        message: String,
-    },
-    /// A sample could not be sent.
-    #[error("sending failed: {0}")]
-    Send(String),
-    /// Receiving failed.
-    #[error("receiving failed: {0}")]
-    Receive(String),
+    #[error(transparent)]
+    Port(#[from] PortCreateError),
 }
 
-/// `CLOCK_MONOTONIC` now, in nanoseconds: comparable across the processes of one machine.
-pub fn monotonic_ns() -> u64 {
-    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
-    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
+/// Publishing a pose failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PublishError {
+    /// The sample could not be sent.
+    #[error("sending a pose failed")]
+    Send(#[source] SendError),
+    /// The daemon could not be woken.
+    #[error("notifying the daemon failed")]
+    Notify(#[source] NotifierNotifyError),
 }
 
-/// The names of a source's services: `(odom, corrected)`.
-pub fn service_names(source: &str) -> (String, String) {
-    (
-        format!("lanealign/{source}/odom"),
-        format!("lanealign/{source}/corrected"),
-    )
+/// Receiving answers failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReceiveError {
+    /// Taking a sample failed.
+    #[error("receiving an answer failed")]
+    Receive(#[source] PortReceiveError),
+    /// Waiting for an answer failed.
+    #[error("waiting for an answer failed")]
+    Wait(#[source] ListenerWaitError),
 }
 
-fn service_name(name: &str, source: &str) -> Result<ServiceName, ConnectionError> {
-    ServiceName::new(name).map_err(|_| ConnectionError::BadSourceName(source.to_string()))
+/// A fresh session id: non-zero, random per call (from the standard library's per-process
+/// random hasher keys), mixed with the process id and the clock.
+pub fn new_session_id() -> u64 {
+    let mut h = RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    h.write_u64(monotonic_ns());
+    h.finish().max(1)
 }
 
-/// Opens (or creates) a publish-subscribe service with the settings both sides agree on.
-pub fn pubsub_service<T: std::fmt::Debug + ZeroCopySend + 'static>(
-    node: &Node<ipc::Service>,
-    name: &str,
-    source: &str,
-) -> Result<PortFactory<ipc::Service, T, ()>, ConnectionError> {
-    node.service_builder(&service_name(name, source)?)
-        .publish_subscribe::<T>()
-        .subscriber_max_buffer_size(BUFFER_SIZE)
-        .max_subscribers(MAX_SUBSCRIBERS)
-        .max_publishers(MAX_PUBLISHERS)
-        .max_nodes(MAX_NODES)
-        .open_or_create()
-        .map_err(|e| ConnectionError::Service {
-            service: name.to_string(),
-            message: format!("{e:?}"),
-        })
-}
-
-/// Opens (or creates) the event service that goes with a publish-subscribe service.
-pub fn event_service(
-    node: &Node<ipc::Service>,
-    name: &str,
-    source: &str,
-) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, ConnectionError> {
-    node.service_builder(&service_name(name, source)?)
-        .event()
-        .max_nodes(MAX_NODES)
-        .max_notifiers(MAX_SUBSCRIBERS)
-        .max_listeners(MAX_SUBSCRIBERS)
-        .open_or_create()
-        .map_err(|e| ConnectionError::Service {
-            service: name.to_string(),
-            message: format!("{e:?}"),
-        })
-}
-
-/// An odometry process's connection to one source of the daemon. Not `Send`: create it on the
-/// thread that uses it (iceoryx2 ports are bound to their thread).
+/// An odometry process's connection to one source of the daemon, in one session: the daemon
+/// runs a fresh corrector for a new session, and only this session's answers are returned.
+/// Not `Send`: create it on the thread that uses it (iceoryx2 ports are bound to their thread).
 pub struct Connection {
+    session: u64,
     // Ports first: they must be dropped before the node that owns them.
     publisher: Publisher<ipc::Service, OdomPose, ()>,
     notifier: Notifier<ipc::Service>,
     subscriber: Subscriber<ipc::Service, CorrectedPose, ()>,
     listener: Listener<ipc::Service>,
-    corrected_service: PortFactory<ipc::Service, CorrectedPose, ()>,
+    services: SourceServices,
     _node: Node<ipc::Service>,
 }
 
 impl Connection {
-    /// Connects to source `source`: opens (or creates) its services, so it works whether the
-    /// daemon is up yet or not, and keeps working across daemon restarts.
-    pub fn connect(source: &str) -> Result<Self, ConnectionError> {
-        let node = NodeBuilder::new()
-            .create::<ipc::Service>()
-            .map_err(|e| ConnectionError::Node(format!("{e:?}")))?;
-        let (odom, corrected) = service_names(source);
-        let port = |port: &'static str, service: &str| {
-            let service = service.to_string();
-            move |e: &dyn std::fmt::Debug| ConnectionError::Port {
-                port,
-                service,
-                message: format!("{e:?}"),
-            }
-        };
-        let odom_service = pubsub_service::<OdomPose>(&node, &odom, source)?;
-        let publisher = odom_service
-            .publisher_builder()
-            .create()
-            .map_err(|e| port("publisher", &odom)(&e))?;
-        let notifier = event_service(&node, &odom, source)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| port("notifier", &odom)(&e))?;
-        let corrected_service = pubsub_service::<CorrectedPose>(&node, &corrected, source)?;
-        let subscriber = corrected_service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| port("subscriber", &corrected)(&e))?;
-        let listener = event_service(&node, &corrected, source)?
-            .listener_builder()
-            .create()
-            .map_err(|e| port("listener", &corrected)(&e))?;
+    /// Connects to `source` in the default namespace, in a new session.
+    pub fn connect(source: &str) -> Result<Self, ConnectError> {
+        Self::connect_in(&Namespace::default(), &source.parse()?, new_session_id())
+    }
+
+    /// Connects to `source` in `namespace`, in session `session` (a new one from
+    /// [`new_session_id`], or an earlier one to resume its corrector). Works whether the daemon
+    /// is up yet or not.
+    pub fn connect_in(
+        namespace: &Namespace,
+        source: &SourceName,
+        session: u64,
+    ) -> Result<Self, ConnectError> {
+        let node = namespace.node()?;
+        let services = SourceServices::open(&node, source)?;
         Ok(Connection {
-            publisher,
-            notifier,
-            subscriber,
-            listener,
-            corrected_service,
+            session: session.max(1),
+            publisher: services.odom_publisher()?,
+            notifier: services.odom_notifier()?,
+            subscriber: services.corrected_subscriber()?,
+            listener: services.corrected_listener()?,
+            services,
             _node: node,
         })
     }
 
-    /// True when a daemon serves this source: its worker creates the corrected-pose publisher
-    /// after every port that receives, so poses published from now on are all seen.
-    pub fn daemon_connected(&self) -> bool {
-        self.corrected_service
-            .dynamic_config()
-            .number_of_publishers()
-            > 0
+    /// This connection's session id.
+    pub fn session(&self) -> u64 {
+        self.session
     }
 
-    /// Publishes a pose and wakes the daemon.
-    pub fn publish(&self, pose: &OdomPose) -> Result<(), ConnectionError> {
+    /// True when a daemon serves this source.
+    pub fn daemon_connected(&self) -> bool {
+        self.services.daemon_serving()
+    }
+
+    /// Publishes pose `seq` of this session (row-major 3x4 `[R | t]` in the source's axis
+    /// convention, metres; `stamp_ns` the sensor time) and wakes the daemon.
+    pub fn publish(&self, seq: u64, stamp_ns: i64, pose: &[f64; 12]) -> Result<(), PublishError> {
         self.publisher
-            .send_copy(*pose)
-            .map_err(|e| ConnectionError::Send(format!("{e:?}")))?;
-        self.notifier
-            .notify()
-            .map_err(|e| ConnectionError::Send(format!("{e:?}")))?;
+            .send_copy(OdomPose {
+                session: self.session,
+                seq,
+                stamp_ns,
+                sent_mono_ns: monotonic_ns(),
+                pose: *pose,
+            })
+            .map_err(PublishError::Send)?;
+        self.notifier.notify().map_err(PublishError::Notify)?;
         Ok(())
     }
 
-    /// The next corrected pose if one is waiting.
-    pub fn try_recv(&self) -> Result<Option<CorrectedPose>, ConnectionError> {
-        match self.subscriber.receive() {
-            Ok(Some(sample)) => Ok(Some(*sample)),
-            Ok(None) => Ok(None),
-            Err(e) => Err(ConnectionError::Receive(format!("{e:?}"))),
+    /// The next answer of this session if one is waiting (answers of other sessions on the
+    /// same source are skipped).
+    pub fn try_recv(&self) -> Result<Option<CorrectedPose>, ReceiveError> {
+        loop {
+            match self.subscriber.receive().map_err(ReceiveError::Receive)? {
+                Some(sample) if sample.session == self.session => return Ok(Some(*sample)),
+                Some(_) => continue,
+                None => return Ok(None),
+            }
         }
     }
 
-    /// The next corrected pose, waiting (without polling) up to `timeout` for one.
-    pub fn recv(&self, timeout: Duration) -> Result<Option<CorrectedPose>, ConnectionError> {
+    /// The next answer of this session, waiting (without polling) up to `timeout` for one.
+    pub fn recv(&self, timeout: Duration) -> Result<Option<CorrectedPose>, ReceiveError> {
         if let Some(pose) = self.try_recv()? {
             return Ok(Some(pose));
         }
-        let deadline = std::time::Instant::now() + timeout;
+        let deadline = Instant::now() + timeout;
         loop {
-            let left = deadline.saturating_duration_since(std::time::Instant::now());
-            // A timeout that rounds to zero at the socket would mean "wait forever" there.
+            let left = deadline.saturating_duration_since(Instant::now());
             if left < MIN_WAIT {
                 return self.try_recv();
             }
             self.listener
                 .timed_wait(|_| {}, left)
-                .map_err(|e| ConnectionError::Receive(format!("{e:?}")))?;
+                .map_err(ReceiveError::Wait)?;
             if let Some(pose) = self.try_recv()? {
                 return Ok(Some(pose));
             }

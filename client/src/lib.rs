@@ -1,13 +1,21 @@
-//! lanealign client side: the wire types and connection odometry processes use to talk to
-//! `lanealignd`, and the building blocks of the `lanealign` tools (map loading, replay, the
-//! synthetic town, running the daemon).
+//! What an odometry process links to talk to `lanealignd`: [`Connection`] connects to one
+//! source, publishes poses in a session of its own and receives that session's corrections.
+//! It depends on `lanealign-wire` and iceoryx2 only.
 //!
-//! See [`connection::Connection`] for the runnable example.
+//! ```no_run
+//! use std::time::Duration;
+//! use lanealign_client::Connection;
+//!
+//! let conn = Connection::connect("lidar")?;
+//! let identity = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+//! conn.publish(1, 0, &identity)?;
+//! if let Some(corrected) = conn.recv(Duration::from_millis(100))? {
+//!     println!("seq {} corrected to {:?}", corrected.seq, corrected.pose);
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod connection;
-pub mod daemon_process;
-pub mod kitti;
-pub mod maps;
-pub mod replay;
-pub mod synthetic;
-pub mod wire;
+
+pub use connection::{ConnectError, Connection, PublishError, ReceiveError};
+pub use lanealign_wire as wire;

@@ -1,11 +1,16 @@
-//! The online corrector (SPEC section 3): a sliding window of corrected positions, lane matching,
-//! trimmed ICP, and the accumulated correction `map_from_odom`.
+//! The online corrector (docs/algorithm.md, section "Online correction"): a sliding window of
+//! corrected positions, lane matching, trimmed ICP, and the accumulated correction.
 //!
-//! One corrector serves one odometry source. Positions are metres in the source's planar frame
-//! (`odom`) on the way in and in the lane map's plane (`map`) on the way out.
+//! One corrector serves one odometry source. It works in the lane map's plane: positions come in
+//! as the source's anchor places them (frame `anchored`: the odometry placed in the map plane,
+//! before any correction) and go out corrected (frame `map`). The accumulated correction is
+//! `map_from_anchored` (SPEC's `T_acc`); [`crate::source_corrector`] composes it with the
+//! anchor into the source's `map_from_odom`.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
 
 use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
 use crate::lane_map::{Candidate, LaneMap};
@@ -25,7 +30,7 @@ pub enum RejectReason {
 
 impl RejectReason {
     /// A short lowercase name: `too_few_matches`, `residual_too_large`.
-    pub fn name(&self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             RejectReason::TooFewMatches => "too_few_matches",
             RejectReason::ResidualTooLarge => "residual_too_large",
@@ -77,14 +82,63 @@ pub enum Status {
 }
 
 impl Status {
+    /// Every status name, in the order of [`Status::name`]'s match.
+    pub const NAMES: [&'static str; 5] = [
+        "warming_up",
+        "accepted",
+        "rejected",
+        "reset",
+        "invalid_input",
+    ];
+
     /// A short lowercase name: `warming_up`, `accepted`, `rejected`, `reset`, `invalid_input`.
     pub fn name(&self) -> &'static str {
         match self {
-            Status::WarmingUp { .. } => "warming_up",
-            Status::Accepted { .. } => "accepted",
-            Status::Rejected { .. } => "rejected",
-            Status::Reset { .. } => "reset",
-            Status::InvalidInput => "invalid_input",
+            Status::WarmingUp { .. } => Self::NAMES[0],
+            Status::Accepted { .. } => Self::NAMES[1],
+            Status::Rejected { .. } => Self::NAMES[2],
+            Status::Reset { .. } => Self::NAMES[3],
+            Status::InvalidInput => Self::NAMES[4],
+        }
+    }
+
+    /// Why the attempt failed, for rejected and reset steps.
+    pub fn reason(&self) -> Option<RejectReason> {
+        match *self {
+            Status::Rejected { reason, .. } | Status::Reset { reason, .. } => Some(reason),
+            _ => None,
+        }
+    }
+
+    /// The mean residual of the kept pairs (metres) when matching ran; infinite when too few
+    /// poses matched.
+    pub fn residual_m(&self) -> Option<f64> {
+        match *self {
+            Status::Accepted { residual_m, .. }
+            | Status::Rejected { residual_m, .. }
+            | Status::Reset { residual_m, .. } => Some(residual_m),
+            _ => None,
+        }
+    }
+
+    /// The matched fraction of the window when matching ran.
+    pub fn match_ratio(&self) -> Option<f64> {
+        match *self {
+            Status::Accepted { match_ratio, .. }
+            | Status::Rejected { match_ratio, .. }
+            | Status::Reset { match_ratio, .. } => Some(match_ratio),
+            _ => None,
+        }
+    }
+
+    /// Poses in the window after the step (0 for invalid input).
+    pub fn window_len(&self) -> usize {
+        match *self {
+            Status::WarmingUp { window_len }
+            | Status::Accepted { window_len, .. }
+            | Status::Rejected { window_len, .. }
+            | Status::Reset { window_len, .. } => window_len,
+            Status::InvalidInput => 0,
         }
     }
 
@@ -113,8 +167,9 @@ pub struct StepTiming {
 pub struct Step {
     /// The corrected position (metres, map plane).
     pub position_in_map: [f64; 2],
-    /// The correction after this step; apply it to the raw pose for the corrected pose.
-    pub map_from_odom: Se2,
+    /// The accumulated correction after this step (SPEC's `T_acc`): apply it to an anchored
+    /// position for the corrected one.
+    pub map_from_anchored: Se2,
     /// What happened.
     pub status: Status,
     /// Where the time went.
@@ -208,7 +263,8 @@ impl Window {
 }
 
 /// How the window is matched to the lanes. Both give identical correspondences.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum MatchMode {
     /// SPEC section 2 literally: every window pose, every step, `N` nearest from the KD-tree.
     Reference,
@@ -217,17 +273,21 @@ pub enum MatchMode {
     Fast,
 }
 
+impl MatchMode {
+    /// The mode's name on the command line and in configs.
+    pub fn name(self) -> &'static str {
+        match self {
+            MatchMode::Reference => "reference",
+            MatchMode::Fast => "fast",
+        }
+    }
+}
+
 impl std::str::FromStr for MatchMode {
-    type Err = String;
+    type Err = crate::names::NameError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "reference" => Ok(MatchMode::Reference),
-            "fast" => Ok(MatchMode::Fast),
-            other => Err(format!(
-                "unknown match mode '{other}' (expected fast or reference)"
-            )),
-        }
+        crate::names::parse_name(s)
     }
 }
 
@@ -240,13 +300,13 @@ enum Matcher {
 pub struct Corrector {
     map: Arc<LaneMap>,
     params: Params,
-    map_from_odom: Se2,
+    map_from_anchored: Se2,
     window: Window,
     failures: u32,
     /// Odometry path length since the last accepted step (metres): how far the odometry may
     /// have drifted since the window last fitted the lanes.
     travelled_m: f64,
-    last_position_in_odom: Option<[f64; 2]>,
+    last_position_in_anchored: Option<[f64; 2]>,
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -264,11 +324,11 @@ impl Corrector {
         Corrector {
             map,
             params,
-            map_from_odom: Se2::IDENTITY,
+            map_from_anchored: Se2::IDENTITY,
             window: Window::default(),
             failures: 0,
             travelled_m: 0.0,
-            last_position_in_odom: None,
+            last_position_in_anchored: None,
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -283,36 +343,38 @@ impl Corrector {
         &self.params
     }
 
-    /// The current correction.
-    pub fn map_from_odom(&self) -> Se2 {
-        self.map_from_odom
+    /// The current correction (SPEC's `T_acc`).
+    pub fn map_from_anchored(&self) -> Se2 {
+        self.map_from_anchored
     }
 
-    /// Processes the next odometry position (metres, planar odometry frame).
-    pub fn push(&mut self, position_in_odom: [f64; 2]) -> Step {
+    /// Processes the next position of the source as its anchor places it in the map plane
+    /// (metres, frame `anchored`).
+    pub fn push(&mut self, position_in_anchored: [f64; 2]) -> Step {
         let start = Instant::now();
         let mut timing = StepTiming::default();
-        let mut step = self.advance(position_in_odom, &mut timing);
+        let mut step = self.advance(position_in_anchored, &mut timing);
         timing.total = start.elapsed();
         step.timing = timing;
         step
     }
 
-    fn advance(&mut self, position_in_odom: [f64; 2], timing: &mut StepTiming) -> Step {
-        if !(position_in_odom[0].is_finite() && position_in_odom[1].is_finite()) {
+    fn advance(&mut self, position_in_anchored: [f64; 2], timing: &mut StepTiming) -> Step {
+        if !(position_in_anchored[0].is_finite() && position_in_anchored[1].is_finite()) {
             return Step {
                 position_in_map: [f64::NAN, f64::NAN],
-                map_from_odom: self.map_from_odom,
+                map_from_anchored: self.map_from_anchored,
                 status: Status::InvalidInput,
                 timing: StepTiming::default(),
             };
         }
         let p = self.params;
-        if let Some(last) = self.last_position_in_odom {
-            self.travelled_m += distance(last, position_in_odom);
+        if let Some(last) = self.last_position_in_anchored {
+            self.travelled_m += distance(last, position_in_anchored);
         }
-        self.last_position_in_odom = Some(position_in_odom);
-        self.window.push(self.map_from_odom.apply(position_in_odom));
+        self.last_position_in_anchored = Some(position_in_anchored);
+        self.window
+            .push(self.map_from_anchored.apply(position_in_anchored));
         if let Matcher::Fast(cache) = &mut self.matcher {
             cache.push();
         }
@@ -372,7 +434,7 @@ impl Corrector {
                 timing.icp = icp_start.elapsed();
                 if fit.residual_m < p.max_residual_m {
                     let correction = fit.transform;
-                    self.map_from_odom = correction * self.map_from_odom;
+                    self.map_from_anchored = correction * self.map_from_anchored;
                     for x in self.window.as_mut_slice() {
                         *x = correction.apply(*x);
                     }
@@ -424,7 +486,7 @@ impl Corrector {
     fn step(&self, status: Status) -> Step {
         Step {
             position_in_map: self.window.as_slice()[self.window.len() - 1],
-            map_from_odom: self.map_from_odom,
+            map_from_anchored: self.map_from_anchored,
             status,
             timing: StepTiming::default(),
         }
@@ -441,19 +503,7 @@ mod tests {
     fn l_shaped_map() -> Arc<LaneMap> {
         let east: Vec<[f64; 2]> = (0..=100).map(|i| [i as f64 * 3.0, 0.0]).collect();
         let north: Vec<[f64; 2]> = (1..=100).map(|i| [300.0, i as f64 * 3.0]).collect();
-        Arc::new(
-            LaneMap::new(&[
-                Lane {
-                    id: 1,
-                    points: east,
-                },
-                Lane {
-                    id: 2,
-                    points: north,
-                },
-            ])
-            .unwrap(),
-        )
+        Arc::new(LaneMap::new(&[Lane::new(1, east), Lane::new(2, north)]).unwrap())
     }
 
     fn small_params() -> Params {
@@ -490,7 +540,7 @@ mod tests {
         ));
         let last = steps.last().unwrap();
         assert!(matches!(last.status, Status::Accepted { .. }));
-        let [x, y] = last.map_from_odom.translation();
+        let [x, y] = last.map_from_anchored.translation();
         assert!(x.abs() < 1e-6 && (y + 1.0).abs() < 1e-6, "{x} {y}");
     }
 
@@ -523,7 +573,7 @@ mod tests {
         // The fourth failure (E = 4 > E_max = 3) resets and clears the count.
         assert!(matches!(statuses[22], Status::Reset { .. }) && failures[22] == 0);
         assert!(rejected(&statuses[23]) && failures[23] == 1);
-        assert_eq!(c.map_from_odom(), Se2::IDENTITY);
+        assert_eq!(c.map_from_anchored(), Se2::IDENTITY);
     }
 
     #[test]
@@ -561,7 +611,7 @@ mod tests {
         // Only a road 40 m north exists for the stretch driven: the paper's matching takes it
         // (no distance bound) and the output jumps 40 m; the robust method finds no match.
         let far: Vec<[f64; 2]> = (0..200).map(|i| [i as f64 * 3.0, 40.0]).collect();
-        let map = Arc::new(LaneMap::new(&[Lane { id: 1, points: far }]).unwrap());
+        let map = Arc::new(LaneMap::new(&[Lane::new(1, far)]).unwrap());
         let drive: Vec<[f64; 2]> = (0..200).map(|i| [i as f64 * 2.0, 0.0]).collect();
         let last = |params: Params| {
             let mut c = Corrector::new(map.clone(), params);
@@ -580,7 +630,7 @@ mod tests {
             ..paper
         };
         let stayed = last(robust);
-        assert_eq!(stayed.map_from_odom, Se2::IDENTITY, "{stayed:?}");
+        assert_eq!(stayed.map_from_anchored, Se2::IDENTITY, "{stayed:?}");
         assert!(matches!(
             stayed.status,
             Status::Rejected {

@@ -1,9 +1,13 @@
 //! WGS84 to metric plane projections, and anchors that place an odometry frame in that plane.
 //!
-//! The map plane is East-North (x east, y north, metres) at an origin latitude/longitude.
+//! The map plane is East-North (x east, y north, metres) at an origin latitude/longitude. An
+//! anchor places a source's planar odometry frame (`odom`) in it before any correction: that
+//! placement is the `anchored` frame, `anchored_from_odom`.
 
 use std::f64::consts::PI;
 use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
 
 use crate::se2::Se2;
 
@@ -13,7 +17,8 @@ pub const WGS84_A: f64 = 6_378_137.0;
 pub const WGS84_F: f64 = 1.0 / 298.257_223_563;
 
 /// How geographic coordinates become plane coordinates.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Projection {
     /// The local tangent plane (East-North-Up) of the WGS84 ellipsoid at the origin: true scale
     /// and true north at the origin. Right for real metric odometry.
@@ -26,6 +31,9 @@ pub enum Projection {
 }
 
 impl Projection {
+    /// Both projections.
+    pub const ALL: [Projection; 2] = [Projection::Tangent, Projection::Kitti];
+
     /// The name used in files and on the command line.
     pub fn name(self) -> &'static str {
         match self {
@@ -36,16 +44,10 @@ impl Projection {
 }
 
 impl FromStr for Projection {
-    type Err = String;
+    type Err = crate::names::NameError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "tangent" => Ok(Projection::Tangent),
-            "kitti" => Ok(Projection::Kitti),
-            other => Err(format!(
-                "unknown projection '{other}' (expected tangent or kitti)"
-            )),
-        }
+        crate::names::parse_name(s)
     }
 }
 
@@ -139,39 +141,142 @@ impl MapPlane {
     }
 }
 
-/// Places a source's planar odometry frame in the map plane: the plane's origin (degrees) and
-/// the pose of the odometry frame in it, `[E, N] = R(yaw) [u, v] + [east, north]`, yaw counter-
-/// clockwise from East (the semantics of `kitti/georef.csv`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Anchor {
-    /// Origin latitude of the map plane (degrees).
-    pub lat: f64,
-    /// Origin longitude of the map plane (degrees).
-    pub lon: f64,
-    /// Yaw of the odometry frame's x axis, counter-clockwise from East (degrees).
-    pub yaw_deg: f64,
-    /// East offset of the odometry origin (metres).
-    pub east_m: f64,
-    /// North offset of the odometry origin (metres).
-    pub north_m: f64,
+/// A geographic value out of range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GeoError {
+    /// Latitude outside [-90, 90] degrees or not finite.
+    #[error("latitude {0} is outside [-90, 90] degrees")]
+    Latitude(f64),
+    /// Longitude outside [-180, 180] degrees or not finite.
+    #[error("longitude {0} is outside [-180, 180] degrees")]
+    Longitude(f64),
+    /// Yaw not finite.
+    #[error("yaw {0} is not a finite number of degrees")]
+    Yaw(f64),
+    /// An offset that is not finite or beyond [`MAX_OFFSET_M`].
+    #[error("offset {0} m is not finite or beyond 1e7 m")]
+    Offset(f64),
+    /// An anchor string that does not have three or five numbers.
+    #[error("anchor '{0}': expected LAT,LON,YAW_DEG or LAT,LON,YAW_DEG,EAST_M,NORTH_M")]
+    AnchorSyntax(String),
 }
 
-impl Anchor {
-    /// `plane_from_odom`: maps planar odometry coordinates into the East-North plane.
-    pub fn plane_from_odom(&self) -> Se2 {
-        Se2::new(self.yaw_deg * PI / 180.0, self.east_m, self.north_m)
+/// The largest offset an anchor may place an odometry origin at (metres): beyond it a local
+/// plane is meaningless (Earth's circumference is 4e7 m).
+pub const MAX_OFFSET_M: f64 = 1e7;
+
+/// Checks a WGS84 position (degrees).
+pub fn check_lat_lon(lat: f64, lon: f64) -> Result<(), GeoError> {
+    if !(lat.is_finite() && lat.abs() <= 90.0) {
+        return Err(GeoError::Latitude(lat));
+    }
+    if !(lon.is_finite() && lon.abs() <= 180.0) {
+        return Err(GeoError::Longitude(lon));
+    }
+    Ok(())
+}
+
+/// Places a source's planar odometry frame in the East-North plane: the plane's origin
+/// (degrees) and the pose of the odometry frame in it, `[E, N] = R(yaw) [u, v] + [east, north]`,
+/// yaw counter-clockwise from East (the semantics of `kitti/georef.csv`).
+///
+/// Every way of making one ([`Anchor::new`], parsing `LAT,LON,YAW_DEG[,EAST_M,NORTH_M]`,
+/// deserialising a config) applies the same range checks.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "AnchorFields")]
+pub struct Anchor {
+    lat: f64,
+    lon: f64,
+    yaw_deg: f64,
+    east_m: f64,
+    north_m: f64,
+}
+
+/// An anchor as written in a configuration file, before its checks.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AnchorFields {
+    lat: f64,
+    lon: f64,
+    yaw_deg: f64,
+    #[serde(default)]
+    east_m: f64,
+    #[serde(default)]
+    north_m: f64,
+}
+
+impl TryFrom<AnchorFields> for Anchor {
+    type Error = GeoError;
+
+    fn try_from(f: AnchorFields) -> Result<Self, Self::Error> {
+        Anchor::new(f.lat, f.lon, f.yaw_deg, f.east_m, f.north_m)
     }
 }
 
 impl Anchor {
-    /// `plane_from_odom` in another map plane (a tile's): the anchor's own plane (same
-    /// projection, at the anchor's origin) placed in `plane` by the rigid transform that maps the
-    /// anchor origin and a point 100 m east of it exactly. Exact when the origins coincide; the
-    /// residual scale difference elsewhere is below 1e-6 within a few kilometres for tangent
-    /// planes.
-    pub fn plane_from_odom_in(&self, plane: &MapPlane) -> Se2 {
+    /// An anchor: origin latitude and longitude (degrees, WGS84), the yaw of the odometry
+    /// frame's x axis counter-clockwise from East (degrees), and the odometry origin's East and
+    /// North offsets from the plane origin (metres). Refuses values out of range.
+    pub fn new(
+        lat: f64,
+        lon: f64,
+        yaw_deg: f64,
+        east_m: f64,
+        north_m: f64,
+    ) -> Result<Anchor, GeoError> {
+        check_lat_lon(lat, lon)?;
+        if !yaw_deg.is_finite() {
+            return Err(GeoError::Yaw(yaw_deg));
+        }
+        for offset in [east_m, north_m] {
+            if !(offset.is_finite() && offset.abs() <= MAX_OFFSET_M) {
+                return Err(GeoError::Offset(offset));
+            }
+        }
+        Ok(Anchor {
+            lat,
+            lon,
+            yaw_deg,
+            east_m,
+            north_m,
+        })
+    }
+
+    /// Origin latitude of the anchor's plane (degrees).
+    pub fn lat(&self) -> f64 {
+        self.lat
+    }
+
+    /// Origin longitude of the anchor's plane (degrees).
+    pub fn lon(&self) -> f64 {
+        self.lon
+    }
+
+    /// Yaw of the odometry frame's x axis, counter-clockwise from East (degrees).
+    pub fn yaw_deg(&self) -> f64 {
+        self.yaw_deg
+    }
+
+    /// East offset of the odometry origin (metres).
+    pub fn east_m(&self) -> f64 {
+        self.east_m
+    }
+
+    /// North offset of the odometry origin (metres).
+    pub fn north_m(&self) -> f64 {
+        self.north_m
+    }
+
+    /// `anchored_from_odom` in the map plane `plane`: where the anchor places planar odometry
+    /// coordinates before any correction. In the anchor's own plane (same origin) this is the
+    /// anchor's rigid transform; in another plane (a tile's) it is that transform composed with
+    /// the rigid transform that maps the anchor origin and a point 100 m east of it exactly.
+    /// Exact when the origins coincide; the residual scale difference elsewhere is below 1e-6
+    /// within a few kilometres for tangent planes.
+    pub fn anchored_from_odom(&self, plane: &MapPlane) -> Se2 {
+        let own_from_odom = Se2::new(self.yaw_deg * PI / 180.0, self.east_m, self.north_m);
         if (plane.origin_lat, plane.origin_lon) == (self.lat, self.lon) {
-            return self.plane_from_odom();
+            return own_from_odom;
         }
         let own = MapPlane::new(plane.projection, self.lat, self.lon);
         let (lat0, lon0) = own.unproject([0.0, 0.0]);
@@ -179,41 +284,25 @@ impl Anchor {
         let t0 = plane.project(lat0, lon0);
         let t1 = plane.project(lat1, lon1);
         let yaw = (t1[1] - t0[1]).atan2(t1[0] - t0[0]);
-        Se2::new(yaw, t0[0], t0[1]) * self.plane_from_odom()
+        Se2::new(yaw, t0[0], t0[1]) * own_from_odom
     }
 }
 
 impl FromStr for Anchor {
-    type Err = String;
+    type Err = GeoError;
 
     /// Parses `LAT,LON,YAW_DEG[,EAST_M,NORTH_M]`.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let syntax = || GeoError::AnchorSyntax(s.to_string());
         let values: Vec<f64> = s
             .split(',')
             .map(|v| v.trim().parse::<f64>())
             .collect::<Result<_, _>>()
-            .map_err(|e| format!("anchor '{s}': {e}"))?;
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(format!("anchor '{s}': values must be finite"));
-        }
+            .map_err(|_| syntax())?;
         match values[..] {
-            [lat, lon, yaw_deg] => Ok(Anchor {
-                lat,
-                lon,
-                yaw_deg,
-                east_m: 0.0,
-                north_m: 0.0,
-            }),
-            [lat, lon, yaw_deg, east_m, north_m] => Ok(Anchor {
-                lat,
-                lon,
-                yaw_deg,
-                east_m,
-                north_m,
-            }),
-            _ => Err(format!(
-                "anchor '{s}': expected LAT,LON,YAW_DEG or LAT,LON,YAW_DEG,EAST_M,NORTH_M"
-            )),
+            [lat, lon, yaw_deg] => Anchor::new(lat, lon, yaw_deg, 0.0, 0.0),
+            [lat, lon, yaw_deg, east_m, north_m] => Anchor::new(lat, lon, yaw_deg, east_m, north_m),
+            _ => Err(syntax()),
         }
     }
 }
@@ -250,21 +339,51 @@ mod tests {
         let own = MapPlane::new(Projection::Tangent, 49.0, 8.4);
         let p_odom = [120.0, -40.0];
         let via_latlon = {
-            let (lat, lon) = own.unproject(a.plane_from_odom().apply(p_odom));
+            let (lat, lon) = own.unproject(a.anchored_from_odom(&own).apply(p_odom));
             tile.project(lat, lon)
         };
-        let direct = a.plane_from_odom_in(&tile).apply(p_odom);
+        let direct = a.anchored_from_odom(&tile).apply(p_odom);
         assert!(
             (via_latlon[0] - direct[0]).abs() < 1e-3 && (via_latlon[1] - direct[1]).abs() < 1e-3
         );
-        assert_eq!(a.plane_from_odom_in(&own), a.plane_from_odom());
+        assert_eq!(
+            a.anchored_from_odom(&own),
+            Se2::new(30f64.to_radians(), 5.0, -3.0)
+        );
     }
 
     #[test]
     fn anchors_parse() {
         let a: Anchor = "48.98,8.39,59.5,0.8,0.3".parse().unwrap();
-        assert_eq!(a.north_m, 0.3);
-        assert!("48.98,8.39".parse::<Anchor>().is_err());
-        assert!("48.98,nan,1".parse::<Anchor>().is_err());
+        assert_eq!(a.north_m(), 0.3);
+        assert!(matches!(
+            "48.98,8.39".parse::<Anchor>(),
+            Err(GeoError::AnchorSyntax(_))
+        ));
+        assert!(matches!(
+            "48.98,nan,1".parse::<Anchor>(),
+            Err(GeoError::Longitude(_))
+        ));
+        assert!(matches!(
+            "91,8,1".parse::<Anchor>(),
+            Err(GeoError::Latitude(_))
+        ));
+        assert!(matches!(
+            "49,181,1".parse::<Anchor>(),
+            Err(GeoError::Longitude(_))
+        ));
+        assert!(matches!(
+            "49,8,inf".parse::<Anchor>(),
+            Err(GeoError::Yaw(_))
+        ));
+        assert!(matches!(
+            "49,8,1,2e7,0".parse::<Anchor>(),
+            Err(GeoError::Offset(_))
+        ));
+        // A configuration file goes through the same checks.
+        let parsed: Result<Anchor, _> = toml::from_str("lat = 91.0\nlon = 8.0\nyaw_deg = 0.0");
+        assert!(parsed.unwrap_err().to_string().contains("latitude 91"));
+        let ok: Anchor = toml::from_str("lat = 48.98\nlon = 8.39\nyaw_deg = 59.5").unwrap();
+        assert_eq!(ok, "48.98,8.39,59.5".parse().unwrap());
     }
 }

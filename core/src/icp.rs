@@ -301,12 +301,43 @@ mod tests {
 
     #[test]
     fn kabsch_never_reflects() {
-        // Mirror-image targets: the best proper rotation, never a reflection.
+        // Mirror-image targets: a reflection would fit them exactly. The fit must instead be
+        // the best proper rotation: orientation kept, and no rotation angle fits better.
         let src = [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [2.0, 1.0]];
         let dst: Vec<[f64; 2]> = src.iter().map(|p| [p[0], -p[1]]).collect();
         let t = fit_rigid(&src, &dst, &[0, 1, 2, 3, 4]);
-        let (c, s) = t.rotation();
-        assert!((c * c + s * s - 1.0).abs() < 1e-12);
+        let cost = |t: &Se2| -> f64 {
+            src.iter()
+                .zip(&dst)
+                .map(|(s, d)| {
+                    let p = t.apply(*s);
+                    (p[0] - d[0]).powi(2) + (p[1] - d[1]).powi(2)
+                })
+                .sum()
+        };
+        let area = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
+            (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        };
+        let (a, b, c) = (src[0], src[1], src[4]);
+        assert!(area(t.apply(a), t.apply(b), t.apply(c)) * area(a, b, c) > 0.0);
+        let centroid = |v: &[[f64; 2]]| {
+            let n = v.len() as f64;
+            [
+                v.iter().map(|p| p[0]).sum::<f64>() / n,
+                v.iter().map(|p| p[1]).sum::<f64>() / n,
+            ]
+        };
+        let (cs, cd) = (centroid(&src), centroid(&dst));
+        let best = (0..3600)
+            .map(|k| {
+                let yaw = k as f64 * std::f64::consts::TAU / 3600.0;
+                let r = Se2::new(yaw, 0.0, 0.0).apply(cs);
+                cost(&Se2::new(yaw, cd[0] - r[0], cd[1] - r[1]))
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert!(cost(&t) <= best + 1e-9, "{} vs {best}", cost(&t));
+        // The reflection would have cost 0: a proper fit cannot reach it.
+        assert!(cost(&t) > 1.0, "{}", cost(&t));
     }
 
     #[test]

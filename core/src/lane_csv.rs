@@ -69,10 +69,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
                         "lane {id} continues after other lanes: its rows must be contiguous"
                     )));
                 }
-                lanes.push(Lane {
-                    id,
-                    points: vec![p],
-                });
+                lanes.push(Lane::new(id, vec![p]));
             }
         }
     }

@@ -6,33 +6,46 @@
 //! fewer than two points owns no segment (its points are still in the tree, as the paper's
 //! pipeline keeps them).
 //!
-//! A map is one byte image: little-endian arrays at 16-byte-aligned offsets, followed by the
-//! KD-tree archived with rkyv (at a 128-byte-aligned offset: its leaves are cache-line aligned). [`LaneMap::new`] builds the image in memory; a tile file
-//! ([`crate::tile`]) is a header and the same image, memory-mapped and used in place. Either way
-//! the image is fully validated once, when the map is made, and read without copies after.
+//! A map is made from lanes ([`LaneMap::new`]) or from the flat arrays a tile stores
+//! ([`LaneMap::from_arrays`]); both go through the same validation, and the KD-tree is always
+//! built here from the validated points, never read from outside.
 
 use std::num::NonZeroUsize;
-use std::ops::Range;
 
-use kiddo::kd_tree::ArchivedKdTree;
-use kiddo::leaf_strategy::VecOfArenas;
-use kiddo::{Eytzinger, ImmutableKdTree, SquaredEuclidean};
-use rkyv::util::AlignedVec;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+
+use crate::lane_geometry::LaneInfo;
 
 /// A lane centerline in its direction of travel (metres, map plane).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Lane {
     /// An identifier kept from the source (OSM way id with a lane suffix, Lanelet2 id, CSV id).
     pub id: u64,
+    /// Its road class and what its geometry rests on.
+    pub info: LaneInfo,
     /// The centerline points in driving order.
     pub points: Vec<[f64; 2]>,
+}
+
+impl Lane {
+    /// A lane of unknown class.
+    pub fn new(id: u64, points: Vec<[f64; 2]>) -> Lane {
+        Lane {
+            id,
+            info: LaneInfo::default(),
+            points,
+        }
+    }
 }
 
 /// Marks a point that owns no segment.
 pub const NO_SEGMENT: u32 = u32::MAX;
 
-/// The KD-tree as it is archived in the image.
-pub type ArchivedTree = ArchivedKdTree<f64, u32, Eytzinger, VecOfArenas<f64, u32, 2, 32>, 2, 32>;
+/// The most lane points a map may hold (point indices are `u32`, one value is reserved).
+pub const MAX_POINTS: usize = (u32::MAX - 1) as usize;
+
+/// The KD-tree over the lane points; item `j` is point `j`.
+pub type LaneTree = ImmutableKdTree<f64, 2>;
 
 /// What can go wrong when building or validating a lane map.
 #[derive(Debug, thiserror::Error)]
@@ -50,109 +63,52 @@ pub enum LaneMapError {
         /// y in metres.
         y: f64,
     },
-    /// More points or lanes than a `u32` index can address.
-    #[error("the lane map has {0} points; at most {max} are supported", max = u32::MAX - 1)]
+    /// More points than a `u32` index can address.
+    #[error("the lane map has {0} points; at most {max} are supported", max = MAX_POINTS)]
     TooManyPoints(usize),
-    /// The KD-tree could not be built or archived.
+    /// The KD-tree could not be built.
     #[error("building the KD-tree failed: {0}")]
     KdTree(String),
-    /// The image does not hold what its counts say, or its content is inconsistent.
-    #[error("invalid lane map image: {0}")]
+    /// The arrays are inconsistent with each other.
+    #[error("invalid lane map: {0}")]
     Invalid(String),
 }
 
-/// Where each array lies in the image (byte ranges), from the counts.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Layout {
-    /// Lane points.
-    pub point_count: usize,
-    /// Lanes.
-    pub lane_count: usize,
-    points: Range<usize>,
-    segment_start: Range<usize>,
-    directions: Range<usize>,
-    lane_offsets: Range<usize>,
-    lane_ids: Range<usize>,
-    tree: Range<usize>,
-}
-
-/// Alignment (bytes) the image and its KD-tree section need.
-pub const IMAGE_ALIGN: usize = 128;
-
-fn align_to(n: usize, align: usize) -> usize {
-    n.div_ceil(align) * align
-}
-
-impl Layout {
-    /// The layout of an image with these counts and an archived tree of `tree_len` bytes.
-    pub fn new(point_count: usize, lane_count: usize, tree_len: usize) -> Self {
-        let mut at = 0;
-        let mut section = |len: usize| {
-            let range = at..at + len;
-            at = align_to(at + len, 16);
-            range
-        };
-        let points = section(point_count * 16);
-        let segment_start = section(point_count * 4);
-        let directions = section(point_count * 16);
-        let lane_offsets = section((lane_count + 1) * 4);
-        let lane_ids = section(lane_count * 8);
-        let tree_start = align_to(lane_ids.end, IMAGE_ALIGN);
-        let tree = tree_start..tree_start + tree_len;
-        Layout {
-            point_count,
-            lane_count,
-            points,
-            segment_start,
-            directions,
-            lane_offsets,
-            lane_ids,
-            tree,
-        }
-    }
-
-    /// Total image length in bytes.
-    pub fn len(&self) -> usize {
-        self.tree.end
-    }
-
-    /// True for an image with nothing in it (never for a valid map).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Length of the archived tree in bytes.
-    pub fn tree_len(&self) -> usize {
-        self.tree.len()
-    }
-}
-
-/// The bytes behind a map: built in memory, or a read-only mapping of a tile file.
-enum Image {
-    Owned(AlignedVec<IMAGE_ALIGN>),
-    Mapped { map: memmap2::Mmap, offset: usize },
-}
-
-impl Image {
-    fn bytes(&self) -> &[u8] {
-        match self {
-            Image::Owned(v) => v.as_slice(),
-            Image::Mapped { map, offset } => &map[*offset..],
-        }
-    }
-}
+/// One KD-tree candidate: squared distance (m^2) and point index.
+pub type Candidate = (f64, u32);
 
 /// A lane map ready for matching: flat, index-addressed arrays plus a KD-tree over the points.
 pub struct LaneMap {
-    image: Image,
-    layout: Layout,
+    points: Vec<[f64; 2]>,
+    segment_start: Vec<u32>,
+    directions: Vec<[f64; 2]>,
+    lane_offsets: Vec<u32>,
+    lane_ids: Vec<u64>,
+    lane_info: Vec<LaneInfo>,
+    tree: LaneTree,
+}
+
+impl PartialEq for LaneMap {
+    /// Two maps are equal when their lanes are (ids, attributes, points, bit for bit); segments
+    /// and the tree follow from those.
+    fn eq(&self, other: &Self) -> bool {
+        self.lane_offsets == other.lane_offsets
+            && self.lane_ids == other.lane_ids
+            && self.lane_info == other.lane_info
+            && self.points.len() == other.points.len()
+            && self
+                .points
+                .iter()
+                .zip(&other.points)
+                .all(|(a, b)| a[0].to_bits() == b[0].to_bits() && a[1].to_bits() == b[1].to_bits())
+    }
 }
 
 impl std::fmt::Debug for LaneMap {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("LaneMap")
-            .field("lanes", &self.layout.lane_count)
-            .field("points", &self.layout.point_count)
+            .field("lanes", &self.lane_ids.len())
+            .field("points", &self.points.len())
             .finish()
     }
 }
@@ -176,9 +132,6 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     let dy = b[1] - a[1];
     (dx * dx + dy * dy).sqrt()
 }
-
-/// One KD-tree candidate: squared distance (m^2) and point index.
-pub type Candidate = (f64, u32);
 
 /// The segment each point of a lane owns: `(start index, unit direction)`, relative to the
 /// lane's first point.
@@ -206,220 +159,184 @@ impl LaneMap {
     pub fn new(lanes: &[Lane]) -> Result<Self, LaneMapError> {
         let lanes: Vec<&Lane> = lanes.iter().filter(|l| !l.points.is_empty()).collect();
         let total: usize = lanes.iter().map(|l| l.points.len()).sum();
-        if total == 0 {
-            return Err(LaneMapError::Empty);
-        }
-        if total >= NO_SEGMENT as usize {
+        if total > MAX_POINTS {
             return Err(LaneMapError::TooManyPoints(total));
         }
-        let mut points: Vec<[f64; 2]> = Vec::with_capacity(total);
-        let mut segment_start: Vec<u32> = Vec::with_capacity(total);
-        let mut directions: Vec<[f64; 2]> = Vec::with_capacity(total);
-        let mut lane_offsets = vec![0u32];
-        let mut lane_ids = Vec::with_capacity(lanes.len());
-        for lane in lanes {
-            if let Some(p) = lane
-                .points
+        if let Some((lane, p)) = lanes.iter().find_map(|l| {
+            l.points
                 .iter()
                 .find(|p| !(p[0].is_finite() && p[1].is_finite()))
-            {
-                return Err(LaneMapError::NonFinite {
-                    lane_id: lane.id,
-                    x: p[0],
-                    y: p[1],
-                });
-            }
-            let first = points.len();
-            for (start, dir) in lane_segments(&lane.points) {
-                segment_start.push(start.map_or(NO_SEGMENT, |s| (first + s) as u32));
-                directions.push(dir);
-            }
+                .map(|p| (l, p))
+        }) {
+            return Err(LaneMapError::NonFinite {
+                lane_id: lane.id,
+                x: p[0],
+                y: p[1],
+            });
+        }
+        let mut points = Vec::with_capacity(total);
+        let mut lane_offsets = Vec::with_capacity(lanes.len() + 1);
+        lane_offsets.push(0u32);
+        for lane in &lanes {
             points.extend_from_slice(&lane.points);
             lane_offsets.push(points.len() as u32);
-            lane_ids.push(lane.id);
         }
-        let tree: ImmutableKdTree<f64, 2> = ImmutableKdTree::new_from_slice(&points)
-            .map_err(|e| LaneMapError::KdTree(format!("{e:?}")))?;
-        let archived = rkyv::to_bytes::<rkyv::rancor::Error>(&tree)
-            .map_err(|e| LaneMapError::KdTree(e.to_string()))?;
-        let layout = Layout::new(points.len(), lane_ids.len(), archived.len());
-        let mut image = AlignedVec::<IMAGE_ALIGN>::with_capacity(layout.len());
-        image.resize(layout.len(), 0);
-        let bytes = image.as_mut_slice();
-        bytes[layout.points.clone()].copy_from_slice(bytemuck::cast_slice(&points));
-        bytes[layout.segment_start.clone()].copy_from_slice(bytemuck::cast_slice(&segment_start));
-        bytes[layout.directions.clone()].copy_from_slice(bytemuck::cast_slice(&directions));
-        bytes[layout.lane_offsets.clone()].copy_from_slice(bytemuck::cast_slice(&lane_offsets));
-        bytes[layout.lane_ids.clone()].copy_from_slice(bytemuck::cast_slice(&lane_ids));
-        bytes[layout.tree.clone()].copy_from_slice(&archived);
-        Self::validated(Image::Owned(image), layout)
+        let lane_ids = lanes.iter().map(|l| l.id).collect();
+        let lane_info = lanes.iter().map(|l| l.info).collect();
+        Self::from_arrays(lane_offsets, lane_ids, lane_info, points)
     }
 
-    /// A map over a memory-mapped tile whose image starts at `offset` (a multiple of
-    /// [`IMAGE_ALIGN`]).
-    /// Validates everything; the mapping is used in place.
-    pub(crate) fn from_mapping(
-        map: memmap2::Mmap,
-        offset: usize,
-        layout: Layout,
+    /// A lane map from its flat arrays (what a tile stores): lane `k` holds points
+    /// `lane_offsets[k]..lane_offsets[k + 1]`, has id `lane_ids[k]` and info `lane_info[k]`.
+    /// Checks that the arrays agree and every point is finite, derives the segments and builds
+    /// the KD-tree.
+    pub fn from_arrays(
+        lane_offsets: Vec<u32>,
+        lane_ids: Vec<u64>,
+        lane_info: Vec<LaneInfo>,
+        points: Vec<[f64; 2]>,
     ) -> Result<Self, LaneMapError> {
-        Self::validated(Image::Mapped { map, offset }, layout)
-    }
-
-    /// The image bytes (what a tile stores after its header).
-    pub fn image(&self) -> &[u8] {
-        self.image.bytes()
-    }
-
-    /// Where the arrays lie in [`Self::image`].
-    pub fn layout(&self) -> &Layout {
-        &self.layout
-    }
-
-    fn validated(image: Image, layout: Layout) -> Result<Self, LaneMapError> {
         let invalid = |what: String| Err(LaneMapError::Invalid(what));
-        let bytes = image.bytes();
-        if bytes.len() < layout.len() {
+        let (n, lanes) = (points.len(), lane_ids.len());
+        if n == 0 {
+            return Err(LaneMapError::Empty);
+        }
+        if n > MAX_POINTS {
+            return Err(LaneMapError::TooManyPoints(n));
+        }
+        if lane_offsets.len() != lanes + 1 || lane_info.len() != lanes {
             return invalid(format!(
-                "{} bytes, the counts need {}",
-                bytes.len(),
-                layout.len()
+                "{lanes} lanes with {} offsets and {} infos",
+                lane_offsets.len(),
+                lane_info.len()
             ));
         }
-        if !(bytes.as_ptr() as usize).is_multiple_of(IMAGE_ALIGN) {
-            return invalid(format!("the image is not {IMAGE_ALIGN}-byte aligned"));
-        }
-        let (n, lanes) = (layout.point_count, layout.lane_count);
-        if n == 0 || n >= NO_SEGMENT as usize || lanes == 0 || lanes > n {
-            return invalid(format!("{n} points in {lanes} lanes"));
-        }
-        let map = LaneMap { image, layout };
-        if let Some(p) = map
-            .points()
-            .iter()
-            .position(|p| !(p[0].is_finite() && p[1].is_finite()))
-        {
-            return invalid(format!("point {p} is not finite"));
-        }
-        let offsets = map.lane_offsets();
-        if offsets[0] != 0
-            || offsets[lanes] as usize != n
-            || offsets.windows(2).any(|w| w[0] >= w[1])
+        if lane_offsets[0] != 0
+            || lane_offsets[lanes] as usize != n
+            || lane_offsets.windows(2).any(|w| w[0] >= w[1])
         {
             return invalid("lane offsets are not increasing from 0 to the point count".into());
         }
-        for (k, w) in offsets.windows(2).enumerate() {
-            let range = w[0] as usize..w[1] as usize;
-            let lane_points = &map.points()[range.clone()];
-            for ((start, dir), j) in lane_segments(lane_points).zip(range.clone()) {
-                let want = start.map_or(NO_SEGMENT, |s| (range.start + s) as u32);
-                let stored = map.segment_start()[j];
-                let stored_dir = map.directions()[j];
-                let same_dir = (stored_dir[0] - dir[0]).abs() <= 1e-12
-                    && (stored_dir[1] - dir[1]).abs() <= 1e-12;
-                if stored != want || !same_dir {
-                    return invalid(format!(
-                        "the segment of point {j} (lane {k}) does not follow its lane"
-                    ));
-                }
+        if let Some(j) = points
+            .iter()
+            .position(|p| !(p[0].is_finite() && p[1].is_finite()))
+        {
+            let k = lane_offsets.partition_point(|&o| o as usize <= j) - 1;
+            return Err(LaneMapError::NonFinite {
+                lane_id: lane_ids[k],
+                x: points[j][0],
+                y: points[j][1],
+            });
+        }
+        if let Some(info) = lane_info
+            .iter()
+            .find(|i| i.flags & !LaneInfo::ALL_FLAGS != 0)
+        {
+            return invalid(format!("unknown lane flags {:#04x}", info.flags));
+        }
+        let mut segment_start = Vec::with_capacity(n);
+        let mut directions = Vec::with_capacity(n);
+        for w in lane_offsets.windows(2) {
+            let first = w[0] as usize;
+            for (start, dir) in lane_segments(&points[first..w[1] as usize]) {
+                segment_start.push(start.map_or(NO_SEGMENT, |s| (first + s) as u32));
+                directions.push(dir);
             }
         }
-        let tree_bytes = &map.image.bytes()[map.layout.tree.clone()];
-        let tree = rkyv::access::<ArchivedTree, rancor::Error>(tree_bytes)
-            .map_err(|e| LaneMapError::Invalid(format!("KD-tree: {e}")))?;
-        if tree.size() != n {
-            return invalid(format!(
-                "the KD-tree holds {} points, the map {n}",
-                tree.size()
-            ));
-        }
-        let mut seen = vec![false; n];
-        for (item, point) in tree.iter() {
-            let j = item as usize;
-            if j >= n || seen[j] || map.points()[j] != point {
-                return invalid(format!("KD-tree item {item} does not match the points"));
-            }
-            seen[j] = true;
-        }
-        Ok(map)
-    }
-
-    fn section<T: bytemuck::Pod>(&self, range: &Range<usize>) -> &[T] {
-        // Validated at construction: in bounds and aligned.
-        bytemuck::cast_slice(&self.image.bytes()[range.clone()])
+        let tree = LaneTree::new_from_slice(&points)
+            .map_err(|e| LaneMapError::KdTree(format!("{e:?}")))?;
+        Ok(LaneMap {
+            points,
+            segment_start,
+            directions,
+            lane_offsets,
+            lane_ids,
+            lane_info,
+            tree,
+        })
     }
 
     /// Number of lane points.
     pub fn len(&self) -> usize {
-        self.layout.point_count
+        self.points.len()
     }
 
     /// True when the map has no points (never, for a built map).
     pub fn is_empty(&self) -> bool {
-        self.layout.point_count == 0
+        self.points.is_empty()
     }
 
     /// All lane points (metres, map plane), lane after lane.
     pub fn points(&self) -> &[[f64; 2]] {
-        self.section(&self.layout.points)
+        &self.points
     }
 
-    fn segment_start(&self) -> &[u32] {
-        self.section(&self.layout.segment_start)
+    /// Lane `k` holds points `lane_offsets()[k]..lane_offsets()[k + 1]`.
+    pub fn lane_offsets(&self) -> &[u32] {
+        &self.lane_offsets
     }
 
-    fn directions(&self) -> &[[f64; 2]] {
-        self.section(&self.layout.directions)
+    /// The lanes' identifiers, in map order.
+    pub fn lane_ids(&self) -> &[u64] {
+        &self.lane_ids
     }
 
-    fn lane_offsets(&self) -> &[u32] {
-        self.section(&self.layout.lane_offsets)
-    }
-
-    fn lane_ids(&self) -> &[u64] {
-        self.section(&self.layout.lane_ids)
+    /// The lanes' attributes, in map order.
+    pub fn lane_info(&self) -> &[LaneInfo] {
+        &self.lane_info
     }
 
     /// Number of lanes.
     pub fn lane_count(&self) -> usize {
-        self.layout.lane_count
+        self.lane_ids.len()
     }
 
-    /// The lanes as `(id, points)`, in map order.
-    pub fn lanes(&self) -> impl Iterator<Item = (u64, &[[f64; 2]])> + '_ {
-        let (offsets, points) = (self.lane_offsets(), self.points());
-        self.lane_ids()
-            .iter()
-            .enumerate()
-            .map(move |(k, &id)| (id, &points[offsets[k] as usize..offsets[k + 1] as usize]))
+    /// The summed length of every lane's centreline (metres).
+    pub fn lane_length_m(&self) -> f64 {
+        self.lanes()
+            .map(|(_, _, pts)| pts.windows(2).map(|w| distance(w[0], w[1])).sum::<f64>())
+            .sum()
+    }
+
+    /// The lane (index in map order) that point `j` belongs to.
+    pub fn lane_of(&self, j: u32) -> usize {
+        self.lane_offsets.partition_point(|&o| o <= j) - 1
+    }
+
+    /// The lanes as `(id, info, points)`, in map order.
+    pub fn lanes(&self) -> impl Iterator<Item = (u64, LaneInfo, &[[f64; 2]])> + '_ {
+        self.lane_ids.iter().enumerate().map(move |(k, &id)| {
+            let range = self.lane_offsets[k] as usize..self.lane_offsets[k + 1] as usize;
+            (id, self.lane_info[k], &self.points[range])
+        })
     }
 
     /// The candidate segment of point `j`: `(a, b, unit direction)`, or `None` when the point
     /// owns no segment.
     #[inline]
     pub fn segment_of(&self, j: u32) -> Option<([f64; 2], [f64; 2], [f64; 2])> {
-        let s = self.segment_start()[j as usize];
+        let s = self.segment_start[j as usize];
         if s == NO_SEGMENT {
             return None;
         }
-        let points = self.points();
         let s = s as usize;
-        Some((points[s], points[s + 1], self.directions()[j as usize]))
+        Some((
+            self.points[s],
+            self.points[s + 1],
+            self.directions[j as usize],
+        ))
     }
 
     /// The KD-tree over [`Self::points`]; item `j` is point `j`.
     #[inline]
-    pub fn kd_tree(&self) -> &ArchivedTree {
-        let bytes = &self.image.bytes()[self.layout.tree.clone()];
-        // SAFETY: these bytes passed `rkyv::access` (full validation) when the map was made, and
-        // the image is immutable for the map's lifetime.
-        unsafe { rkyv::access_unchecked::<ArchivedTree>(bytes) }
+    pub fn kd_tree(&self) -> &LaneTree {
+        &self.tree
     }
 
     /// Squared distance (m^2) from `p` to point `j`, computed the one way every matcher uses.
     #[inline]
     pub fn squared_distance(&self, p: [f64; 2], j: u32) -> f64 {
-        let q = self.points()[j as usize];
+        let q = self.points[j as usize];
         let dx = q[0] - p[0];
         let dy = q[1] - p[1];
         dx * dx + dy * dy
@@ -499,14 +416,8 @@ mod tests {
     #[test]
     fn segments_follow_lanes() {
         let lanes = vec![
-            Lane {
-                id: 7,
-                points: vec![[0.0, 0.0], [3.0, 0.0], [3.0, 4.0]],
-            },
-            Lane {
-                id: 8,
-                points: vec![[9.0, 9.0]],
-            },
+            Lane::new(7, vec![[0.0, 0.0], [3.0, 0.0], [3.0, 4.0]]),
+            Lane::new(8, vec![[9.0, 9.0]]),
         ];
         let map = LaneMap::new(&lanes).unwrap();
         assert_eq!(map.len(), 4);
@@ -515,14 +426,29 @@ mod tests {
         let (a, b, d) = map.segment_of(2).unwrap();
         assert_eq!((a, b, d), ([3.0, 0.0], [3.0, 4.0], [0.0, 1.0]));
         assert!(map.segment_of(3).is_none());
+        assert_eq!((map.lane_of(2), map.lane_of(3)), (0, 1));
+    }
+
+    #[test]
+    fn inconsistent_arrays_are_refused() {
+        let info = vec![LaneInfo::default(); 2];
+        let points = vec![[0.0, 0.0], [3.0, 0.0], [6.0, 0.0]];
+        let ok = LaneMap::from_arrays(vec![0, 2, 3], vec![1, 2], info.clone(), points.clone());
+        assert!(ok.is_ok());
+        for offsets in [vec![0, 3, 3], vec![1, 2, 3], vec![0, 2, 4], vec![0, 2]] {
+            let e = LaneMap::from_arrays(offsets, vec![1, 2], info.clone(), points.clone());
+            assert!(matches!(e, Err(LaneMapError::Invalid(_))), "{e:?}");
+        }
+        let bad_flags = vec![LaneInfo::new(Default::default(), 0x80); 2];
+        let e = LaneMap::from_arrays(vec![0, 2, 3], vec![1, 2], bad_flags, points);
+        assert!(matches!(e, Err(LaneMapError::Invalid(_))));
+        let e = LaneMap::from_arrays(vec![0], vec![], vec![], vec![]);
+        assert!(matches!(e, Err(LaneMapError::Empty)));
     }
 
     #[test]
     fn non_finite_points_are_refused() {
-        let lanes = vec![Lane {
-            id: 3,
-            points: vec![[0.0, f64::NAN]],
-        }];
+        let lanes = vec![Lane::new(3, vec![[0.0, f64::NAN]])];
         assert!(matches!(
             LaneMap::new(&lanes),
             Err(LaneMapError::NonFinite { lane_id: 3, .. })
@@ -540,7 +466,7 @@ mod tests {
             n in 1usize..40,
         ) {
             let points: Vec<[f64; 2]> = raw.iter().map(|&(x, y)| [x as f64, y as f64]).collect();
-            let lanes = vec![Lane { id: 1, points: points.clone() }];
+            let lanes = vec![Lane::new(1, points.clone())];
             let map = LaneMap::new(&lanes).unwrap();
             let p = [q.0 as f64 * 0.5, q.1 as f64 * 0.5];
             let mut got = Vec::new();

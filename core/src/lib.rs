@@ -1,20 +1,23 @@
 //! lanealign core: removes odometry drift by aligning the recent trajectory to lane centerlines.
 //!
-//! Everything here is pure and free of IPC and threads: SE(2) geometry ([`se2`]), the lane map
-//! ([`lane_map`]), lane matching ([`matching`]), trimmed ICP ([`icp`]), the online corrector
-//! ([`corrector`]) with the paper's presets and lanealign's robust method ([`params`]), smooth
-//! output ([`smoothing`]), map projections and anchors ([`geo`]),
-//! trajectory files ([`trajectory`]) and accuracy metrics ([`metrics`]).
+//! Everything here is pure and free of IPC, threads and logging back ends: SE(2) geometry
+//! ([`se2`]), 3D poses and axis conventions ([`pose`]), projections and anchors ([`geo`]), the
+//! lane map ([`lane_map`]) and what its lanes rest on ([`lane_geometry`]), lane matching
+//! ([`matching`], [`match_cache`]), trimmed ICP ([`icp`]), the online corrector ([`corrector`])
+//! with its configuration ([`params`]), smooth output ([`smoothing`]), a source's corrector with
+//! its placement ([`source_corrector`]), accuracy metrics ([`metrics`]) and the file formats
+//! every tool shares: lane tiles ([`tile`]), trajectories ([`trajectory`]) and lane CSV
+//! ([`lane_csv`]). The algorithm as implemented is described in `docs/algorithm.md`.
 //!
 //! ```
 //! use std::sync::Arc;
 //! use lanealign_core::{corrector::{Corrector, Status}, lane_map::{Lane, LaneMap}, params::Preset};
 //!
 //! // One eastbound lane along y = 0 (metres, map plane).
-//! let lane = Lane { id: 1, points: (0..200).map(|i| [i as f64 * 3.0, 0.0]).collect() };
+//! let lane = Lane::new(1, (0..200).map(|i| [i as f64 * 3.0, 0.0]).collect());
 //! let map = Arc::new(LaneMap::new(&[lane]).unwrap());
 //! let mut corrector = Corrector::new(map, Preset::KissIcp.params());
-//! // Odometry that drifted 1 m to the left.
+//! // Odometry, placed in the map plane by its anchor, that drifted 1 m to the left.
 //! let mut last = None;
 //! for i in 0..300 {
 //!     last = Some(corrector.push([i as f64 * 1.5, 1.0]));
@@ -28,14 +31,16 @@ pub mod corrector;
 pub mod geo;
 pub mod icp;
 pub mod lane_csv;
+pub mod lane_geometry;
 pub mod lane_map;
 pub mod match_cache;
 pub mod matching;
 pub mod metrics;
-pub mod offline;
+pub mod names;
 pub mod params;
 pub mod pose;
 pub mod se2;
 pub mod smoothing;
+pub mod source_corrector;
 pub mod tile;
 pub mod trajectory;

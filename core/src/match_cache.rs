@@ -394,12 +394,12 @@ mod tests {
                 let east: Vec<[f64; 2]> = (0..20).map(|i| [i as f64 * 3.0, y]).collect();
                 let mut west = east.clone();
                 west.reverse();
-                lanes.push(Lane { id: 2 * r, points: east });
-                lanes.push(Lane { id: 2 * r + 1, points: west });
+                lanes.push(Lane::new(2 * r, east));
+                lanes.push(Lane::new(2 * r + 1, west));
                 let north: Vec<[f64; 2]> = (0..8).map(|i| [r as f64 * 9.0, i as f64 * 3.0]).collect();
-                lanes.push(Lane { id: 100 + r, points: north });
+                lanes.push(Lane::new(100 + r, north));
                 let diagonal: Vec<[f64; 2]> = (0..10).map(|i| [r as f64 * 9.0 + i as f64 * 2.9, i as f64 * 0.8 - 1.0]).collect();
-                lanes.push(Lane { id: 200 + r, points: diagonal });
+                lanes.push(Lane::new(200 + r, diagonal));
             }
             let map = LaneMap::new(&lanes).unwrap();
             let params = MatchParams { neighbours: n, min_direction_cos: 0.95 };

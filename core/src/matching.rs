@@ -135,7 +135,7 @@ mod tests {
         if !forward {
             points.reverse();
         }
-        Lane { id, points }
+        Lane::new(id, points)
     }
 
     #[test]
@@ -153,10 +153,7 @@ mod tests {
     #[test]
     fn normal_shot_outside_the_segment_is_rejected() {
         // One lane segment from (0,0) to (3,0): poses beyond either end get no match.
-        let lane = Lane {
-            id: 1,
-            points: vec![[0.0, 0.0], [3.0, 0.0]],
-        };
+        let lane = Lane::new(1, vec![[0.0, 0.0], [3.0, 0.0]]);
         let map = LaneMap::new(&[lane]).unwrap();
         let mut s = Vec::new();
         assert!(match_pose(&map, [-0.5, 1.0], [1.0, 0.0], &params(), &mut s).is_none());
@@ -174,10 +171,7 @@ mod tests {
 
     #[test]
     fn perpendicular_segments_are_rejected() {
-        let lane = Lane {
-            id: 1,
-            points: vec![[0.0, -3.0], [0.0, 0.0], [0.0, 3.0]],
-        };
+        let lane = Lane::new(1, vec![[0.0, -3.0], [0.0, 0.0], [0.0, 3.0]]);
         let map = LaneMap::new(&[lane]).unwrap();
         let mut s = Vec::new();
         assert!(match_pose(&map, [0.5, 0.0], [1.0, 0.0], &params(), &mut s).is_none());

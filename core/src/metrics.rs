@@ -1,7 +1,7 @@
 //! Accuracy metrics in the plane, without alignment (evo's APE with `--project_to_plane xy`).
 
-use crate::pose::{planar_heading, Pose3};
-use crate::se2::{wrap_angle, Se2};
+use crate::pose::Pose3;
+use crate::se2::wrap_angle;
 
 /// Absolute pose error of an estimate against ground truth, both planar (`flu`) and paired.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -52,17 +52,18 @@ pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
     let n = gt.len() as f64;
     let (mut sum, mut sq, mut lat_sq, mut heading, mut max) = (0.0, 0.0, 0.0, 0.0, 0.0f64);
     for (g, e) in gt.iter().zip(est) {
-        let dx = e[0][3] - g[0][3];
-        let dy = e[1][3] - g[1][3];
+        let [ex, ey] = e.planar_position();
+        let [gx, gy] = g.planar_position();
+        let (dx, dy) = (ex - gx, ey - gy);
         let d2 = dx * dx + dy * dy;
         let d = d2.sqrt();
         sum += d;
         sq += d2;
         max = max.max(d);
-        let h = planar_heading(g);
+        let h = g.planar_heading();
         let lateral = -h.sin() * dx + h.cos() * dy;
         lat_sq += lateral * lateral;
-        heading += wrap_angle(planar_heading(e) - h).abs();
+        heading += wrap_angle(e.planar_heading() - h).abs();
     }
     Ok(Ape2d {
         mean_m: sum / n,
@@ -84,10 +85,6 @@ pub struct OutputJumps {
     pub max_yaw_deg: f64,
 }
 
-fn planar(p: &Pose3) -> Se2 {
-    Se2::new(planar_heading(p), p[0][3], p[1][3])
-}
-
 /// The largest frame-to-frame jumps of `output` beyond the odometry motion of `raw` (both planar,
 /// `flu`, paired by index): for each pose, `output[i-1]` moved by the odometry step
 /// `raw[i-1]^-1 raw[i]` is compared with `output[i]`.
@@ -103,8 +100,8 @@ pub fn output_jumps(raw: &[Pose3], output: &[Pose3]) -> Result<OutputJumps, Metr
         max_yaw_deg: 0.0,
     };
     for (r, o) in raw.windows(2).zip(output.windows(2)) {
-        let predicted = planar(&o[0]) * planar(&r[0]).inverse() * planar(&r[1]);
-        let actual = planar(&o[1]);
+        let predicted = o[0].to_se2() * r[0].to_se2().inverse() * r[1].to_se2();
+        let actual = o[1].to_se2();
         let [px, py] = predicted.translation();
         let [ax, ay] = actual.translation();
         jumps.max_position_m = jumps.max_position_m.max((ax - px).hypot(ay - py));
@@ -151,8 +148,7 @@ mod tests {
     use super::*;
 
     fn at(x: f64, y: f64, yaw: f64) -> Pose3 {
-        let (s, c) = yaw.sin_cos();
-        [[c, -s, 0.0, x], [s, c, 0.0, y], [0.0, 0.0, 1.0, 5.0]]
+        Pose3::planar(x, y, yaw, 5.0)
     }
 
     #[test]

@@ -1,9 +1,16 @@
-//! Corrector parameters and the paper's presets per odometry backend (SPEC section 3).
+//! The corrector's configuration: the parameters (SPEC section 3, docs/algorithm.md), the paper's
+//! presets per odometry backend, the two methods, typed overrides, and [`CorrectorConfig`], the
+//! one configuration the command line, the daemon's TOML and the tests all use.
 
-use std::str::FromStr;
+use serde::{Deserialize, Serialize};
+
+use crate::corrector::MatchMode;
+use crate::lane_geometry::LaneGeometry;
+use crate::smoothing::Smoothing;
 
 /// Every tunable of the corrector. Lengths in metres.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Params {
     /// Smallest window (poses) before matching runs (M_min).
     pub min_window: usize,
@@ -28,12 +35,11 @@ pub struct Params {
     /// ICP convergence threshold on the mean residual (metres).
     pub icp_tolerance_m: f64,
     /// Beyond the paper: largest path length of the window (metres); older poses are dropped,
-    /// but never below `min_window` poses. Bounds the stretch over which the odometry's scale and
-    /// heading drift must fit one rigid correction. Infinite = paper.
+    /// but never below `min_window` poses. Infinite = paper.
     pub max_window_path_m: f64,
     /// Beyond the paper: dead band around the lane centrelines (metres). A pose this close to its
-    /// lane match counts as on the lane; ICP pulls farther ones only onto the band's edge. Models
-    /// the offset between OSM centrelines and where cars drive. 0 = paper.
+    /// lane match counts as on the lane; ICP pulls farther ones only onto the band's edge. 0 =
+    /// paper.
     pub lane_tolerance_m: f64,
     /// Beyond the paper: largest distance between a pose and its lane match (metres) right after
     /// an accepted step; it widens by `drift_per_m` per metre travelled since. Infinite = paper.
@@ -43,14 +49,19 @@ pub struct Params {
     pub drift_per_m: f64,
 }
 
+/// The unmarked-street offset scale of lanealign's lane geometry (see
+/// [`crate::lane_geometry::LaneGeometry`] and docs/method.md).
+pub const UNMARKED_OFFSET_SCALE: f64 = 0.5;
+
 /// Which correction algorithm runs.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Method {
-    /// The published algorithm exactly (SPEC sections 2-3).
+    /// The published algorithm exactly (docs/algorithm.md), on the paper's lane geometry.
     Paper,
     /// lanealign's corrector: the paper's plus a window bounded by path length, a lane tolerance
     /// band and a correspondence gate that follows the odometry's possible drift
-    /// (`docs/method.md`).
+    /// (docs/method.md).
     #[default]
     Robust,
 }
@@ -74,21 +85,28 @@ impl Method {
             Method::Robust => preset.robust_params(),
         }
     }
+
+    /// The unmarked-street offset scale of the lane geometry the method is designed and measured
+    /// on: 1 (every lane at its nominal offset) for the paper's, 0.5 for the robust method.
+    pub fn unmarked_offset_scale(self) -> f64 {
+        match self {
+            Method::Paper => 1.0,
+            Method::Robust => UNMARKED_OFFSET_SCALE,
+        }
+    }
 }
 
-impl FromStr for Method {
-    type Err = ParamsError;
+impl std::str::FromStr for Method {
+    type Err = crate::names::NameError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Method::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| ParamsError::UnknownMethod(s.to_string()))
+        crate::names::parse_name(s)
     }
 }
 
 /// The paper's presets, one per odometry backend.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Preset {
     /// LiODOM (LiDAR).
     Liodom,
@@ -98,6 +116,14 @@ pub enum Preset {
     KissIcp,
     /// ORB-SLAM3 (visual).
     OrbSlam3,
+}
+
+impl std::str::FromStr for Preset {
+    type Err = crate::names::NameError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        crate::names::parse_name(s)
+    }
 }
 
 impl Preset {
@@ -165,150 +191,281 @@ impl Preset {
     }
 }
 
-/// A preset name or parameter override that could not be used.
-#[derive(Debug, thiserror::Error, PartialEq)]
+/// A configuration the corrector cannot run with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ParamsError {
-    /// The method name is not `paper` or `robust`.
-    #[error("unknown method '{0}' (expected paper or robust)")]
-    UnknownMethod(String),
-    /// The preset name is not one of the four.
-    #[error("unknown preset '{0}' (expected liodom, basalt, kiss-icp or orb-slam3)")]
-    UnknownPreset(String),
-    /// The override names no parameter.
-    #[error("unknown parameter '{0}' (expected one of: {known})", known = Params::KEYS.join(", "))]
-    UnknownKey(String),
-    /// The value does not parse or is out of range.
-    #[error("bad value '{value}' for parameter '{key}': {reason}")]
-    BadValue {
+    /// A parameter is out of range, alone or together with others.
+    #[error("{key} = {value}: {reason}")]
+    Invalid {
         /// The parameter.
-        key: String,
-        /// The value given.
+        key: &'static str,
+        /// Its value.
         value: String,
-        /// What is wrong with it.
-        reason: String,
+        /// The rule it breaks.
+        reason: &'static str,
     },
-    /// The override is not `key=value`.
-    #[error("'{0}' is not of the form key=value")]
-    NotKeyValue(String),
-}
-
-impl FromStr for Preset {
-    type Err = ParamsError;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Preset::ALL
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| ParamsError::UnknownPreset(s.to_string()))
-    }
-}
-
-fn parse<T: FromStr>(key: &str, value: &str) -> Result<T, ParamsError>
-where
-    T::Err: std::fmt::Display,
-{
-    value.parse().map_err(|e: T::Err| ParamsError::BadValue {
-        key: key.to_string(),
-        value: value.to_string(),
-        reason: e.to_string(),
-    })
+    /// The map's lanes were derived with another lane geometry than the configuration needs.
+    #[error(
+        "the map's lanes were derived with unmarked-street offset scale {found}, but the {method} \
+         method needs {wanted}: compile the map with `lanealign-map compile ... \
+         --unmarked-offset-scale {wanted}`, or set unmarked_offset_scale = {found} to use this \
+         map's geometry anyway"
+    )]
+    LaneGeometry {
+        /// The method.
+        method: &'static str,
+        /// The scale the configuration needs.
+        wanted: f64,
+        /// The scale the map has.
+        found: f64,
+    },
 }
 
 impl Params {
-    /// The parameter names [`Params::set`] accepts.
-    pub const KEYS: [&'static str; 15] = [
-        "min_window",
-        "max_window",
-        "neighbours",
-        "max_failures",
-        "max_residual_m",
-        "trim_ratio",
-        "min_match_ratio",
-        "min_path_length_m",
-        "min_direction_cos",
-        "icp_max_iterations",
-        "icp_tolerance_m",
-        "max_window_path_m",
-        "lane_tolerance_m",
-        "max_match_distance_m",
-        "drift_per_m",
-    ];
-
-    /// Overrides one parameter by name, then checks that the whole set is still consistent.
-    pub fn set(&mut self, key: &str, value: &str) -> Result<(), ParamsError> {
-        let mut next = *self;
-        match key {
-            "min_window" => next.min_window = parse(key, value)?,
-            "max_window" => next.max_window = parse(key, value)?,
-            "neighbours" => next.neighbours = parse(key, value)?,
-            "max_failures" => next.max_failures = parse(key, value)?,
-            "max_residual_m" => next.max_residual_m = parse(key, value)?,
-            "trim_ratio" => next.trim_ratio = parse(key, value)?,
-            "min_match_ratio" => next.min_match_ratio = parse(key, value)?,
-            "min_path_length_m" => next.min_path_length_m = parse(key, value)?,
-            "min_direction_cos" => next.min_direction_cos = parse(key, value)?,
-            "icp_max_iterations" => next.icp_max_iterations = parse(key, value)?,
-            "icp_tolerance_m" => next.icp_tolerance_m = parse(key, value)?,
-            "max_window_path_m" => next.max_window_path_m = parse(key, value)?,
-            "lane_tolerance_m" => next.lane_tolerance_m = parse(key, value)?,
-            "max_match_distance_m" => next.max_match_distance_m = parse(key, value)?,
-            "drift_per_m" => next.drift_per_m = parse(key, value)?,
-            _ => return Err(ParamsError::UnknownKey(key.to_string())),
+    /// Checks that the parameters make sense together; names the first one that does not.
+    pub fn validate(&self) -> Result<(), ParamsError> {
+        fn invalid(key: &'static str, value: impl ToString, reason: &'static str) -> ParamsError {
+            ParamsError::Invalid {
+                key,
+                value: value.to_string(),
+                reason,
+            }
         }
-        next.validate().map_err(|reason| ParamsError::BadValue {
-            key: key.to_string(),
-            value: value.to_string(),
-            reason,
-        })?;
-        *self = next;
-        Ok(())
-    }
-
-    /// Applies a `key=value` override.
-    pub fn set_pair(&mut self, pair: &str) -> Result<(), ParamsError> {
-        let (key, value) = pair
-            .split_once('=')
-            .ok_or_else(|| ParamsError::NotKeyValue(pair.to_string()))?;
-        self.set(key.trim(), value.trim())
-    }
-
-    /// Checks that the parameters make sense together; says what does not.
-    pub fn validate(&self) -> Result<(), String> {
         let finite_nonneg = |v: f64| v.is_finite() && v >= 0.0;
+        let positive_or_inf = |v: f64| !v.is_nan() && v > 0.0;
         if self.min_window < 2 {
-            return Err("min_window must be at least 2".into());
+            return Err(invalid("min_window", self.min_window, "must be at least 2"));
         }
         if self.max_window < self.min_window {
-            return Err("max_window must be at least min_window".into());
+            return Err(invalid(
+                "max_window",
+                self.max_window,
+                "must be at least min_window",
+            ));
         }
-        if self.neighbours == 0 {
-            return Err("neighbours must be at least 1".into());
+        if self.max_window > 1_000_000 {
+            return Err(invalid(
+                "max_window",
+                self.max_window,
+                "must be at most 1e6",
+            ));
         }
-        if !finite_nonneg(self.max_residual_m)
-            || !finite_nonneg(self.min_path_length_m)
-            || !finite_nonneg(self.icp_tolerance_m)
-        {
-            return Err("lengths must be finite and non-negative".into());
+        if self.neighbours == 0 || self.neighbours > 10_000 {
+            return Err(invalid(
+                "neighbours",
+                self.neighbours,
+                "must be between 1 and 10000",
+            ));
         }
-        if !(0.0..1.0).contains(&self.trim_ratio) || !(0.0..=1.0).contains(&self.min_match_ratio) {
-            return Err("trim_ratio must be in [0, 1) and min_match_ratio in [0, 1]".into());
+        for (key, v) in [
+            ("max_residual_m", self.max_residual_m),
+            ("min_path_length_m", self.min_path_length_m),
+            ("icp_tolerance_m", self.icp_tolerance_m),
+            ("lane_tolerance_m", self.lane_tolerance_m),
+            ("drift_per_m", self.drift_per_m),
+        ] {
+            if !finite_nonneg(v) {
+                return Err(invalid(key, v, "must be finite and non-negative"));
+            }
+        }
+        if !(0.0..1.0).contains(&self.trim_ratio) {
+            return Err(invalid("trim_ratio", self.trim_ratio, "must be in [0, 1)"));
+        }
+        if !(0.0..=1.0).contains(&self.min_match_ratio) {
+            return Err(invalid(
+                "min_match_ratio",
+                self.min_match_ratio,
+                "must be in [0, 1]",
+            ));
         }
         if !(-1.0..=1.0).contains(&self.min_direction_cos) {
-            return Err("min_direction_cos must be in [-1, 1]".into());
+            return Err(invalid(
+                "min_direction_cos",
+                self.min_direction_cos,
+                "must be in [-1, 1]",
+            ));
         }
-        if !finite_nonneg(self.lane_tolerance_m) || !finite_nonneg(self.drift_per_m) {
-            return Err("lane_tolerance_m and drift_per_m must be finite and non-negative".into());
+        for (key, v) in [
+            ("max_window_path_m", self.max_window_path_m),
+            ("max_match_distance_m", self.max_match_distance_m),
+        ] {
+            if !positive_or_inf(v) {
+                return Err(invalid(key, v, "must be positive (inf = off)"));
+            }
         }
-        if self.max_window_path_m.is_nan() || self.max_window_path_m <= 0.0 {
-            return Err("max_window_path_m must be positive (inf = off)".into());
-        }
-        if self.max_match_distance_m.is_nan() || self.max_match_distance_m <= 0.0 {
-            return Err("max_match_distance_m must be positive (inf = off)".into());
-        }
-        if self.icp_max_iterations == 0 {
-            return Err("icp_max_iterations must be at least 1".into());
+        if self.icp_max_iterations == 0 || self.icp_max_iterations > 100_000 {
+            return Err(invalid(
+                "icp_max_iterations",
+                self.icp_max_iterations,
+                "must be between 1 and 100000",
+            ));
         }
         Ok(())
+    }
+}
+
+/// Parameter overrides on top of a preset: every field of [`Params`], each optional. Unknown
+/// names are refused when parsing (`--set nope=1`, `overrides = { nope = 1 }`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Overrides {
+    /// See [`Params::min_window`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_window: Option<usize>,
+    /// See [`Params::max_window`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_window: Option<usize>,
+    /// See [`Params::neighbours`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub neighbours: Option<usize>,
+    /// See [`Params::max_failures`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_failures: Option<u32>,
+    /// See [`Params::max_residual_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_residual_m: Option<f64>,
+    /// See [`Params::trim_ratio`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub trim_ratio: Option<f64>,
+    /// See [`Params::min_match_ratio`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_match_ratio: Option<f64>,
+    /// See [`Params::min_path_length_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_path_length_m: Option<f64>,
+    /// See [`Params::min_direction_cos`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_direction_cos: Option<f64>,
+    /// See [`Params::icp_max_iterations`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub icp_max_iterations: Option<usize>,
+    /// See [`Params::icp_tolerance_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub icp_tolerance_m: Option<f64>,
+    /// See [`Params::max_window_path_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_window_path_m: Option<f64>,
+    /// See [`Params::lane_tolerance_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lane_tolerance_m: Option<f64>,
+    /// See [`Params::max_match_distance_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_match_distance_m: Option<f64>,
+    /// See [`Params::drift_per_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drift_per_m: Option<f64>,
+}
+
+impl Overrides {
+    /// `base` with every given override applied (not validated: see [`Params::validate`]).
+    pub fn apply(&self, base: Params) -> Params {
+        Params {
+            min_window: self.min_window.unwrap_or(base.min_window),
+            max_window: self.max_window.unwrap_or(base.max_window),
+            neighbours: self.neighbours.unwrap_or(base.neighbours),
+            max_failures: self.max_failures.unwrap_or(base.max_failures),
+            max_residual_m: self.max_residual_m.unwrap_or(base.max_residual_m),
+            trim_ratio: self.trim_ratio.unwrap_or(base.trim_ratio),
+            min_match_ratio: self.min_match_ratio.unwrap_or(base.min_match_ratio),
+            min_path_length_m: self.min_path_length_m.unwrap_or(base.min_path_length_m),
+            min_direction_cos: self.min_direction_cos.unwrap_or(base.min_direction_cos),
+            icp_max_iterations: self.icp_max_iterations.unwrap_or(base.icp_max_iterations),
+            icp_tolerance_m: self.icp_tolerance_m.unwrap_or(base.icp_tolerance_m),
+            max_window_path_m: self.max_window_path_m.unwrap_or(base.max_window_path_m),
+            lane_tolerance_m: self.lane_tolerance_m.unwrap_or(base.lane_tolerance_m),
+            max_match_distance_m: self
+                .max_match_distance_m
+                .unwrap_or(base.max_match_distance_m),
+            drift_per_m: self.drift_per_m.unwrap_or(base.drift_per_m),
+        }
+    }
+}
+
+fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}
+
+/// Everything that decides what one source's corrector does: the preset, the method, the
+/// matching mode, smoothing, parameter overrides and the lane geometry its lanes must have.
+/// The command line builds it from flags, the daemon reads it from each `[[source]]` of its
+/// TOML; [`CorrectorConfig::params`] is the one place it is validated.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CorrectorConfig {
+    /// The parameter preset of the odometry backend.
+    pub preset: Preset,
+    /// The correction method (default robust).
+    #[serde(default)]
+    pub method: Method,
+    /// Lane matching: fast (default) or reference; both give identical corrections.
+    #[serde(default)]
+    pub match_mode: MatchMode,
+    /// Publish smoothed poses (see [`crate::smoothing`]); `map_from_odom` stays exact.
+    #[serde(default)]
+    pub smooth: bool,
+    /// The unmarked-street offset scale the source's lanes must have (see
+    /// [`LaneGeometry::unmarked_offset_scale`]); default: the method's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unmarked_offset_scale: Option<f64>,
+    /// Parameter overrides.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub overrides: Overrides,
+}
+
+impl CorrectorConfig {
+    /// The configuration of `preset` under `method`, everything else default.
+    pub fn new(preset: Preset, method: Method) -> CorrectorConfig {
+        CorrectorConfig {
+            preset,
+            method,
+            match_mode: MatchMode::default(),
+            smooth: false,
+            unmarked_offset_scale: None,
+            overrides: Overrides::default(),
+        }
+    }
+
+    /// The effective parameters: the method's preset with the overrides, validated.
+    pub fn params(&self) -> Result<Params, ParamsError> {
+        let params = self.overrides.apply(self.method.params(self.preset));
+        params.validate()?;
+        if let Some(scale) = self.unmarked_offset_scale {
+            if !(0.0..=2.0).contains(&scale) {
+                return Err(ParamsError::Invalid {
+                    key: "unmarked_offset_scale",
+                    value: scale.to_string(),
+                    reason: "must be between 0 and 2",
+                });
+            }
+        }
+        Ok(params)
+    }
+
+    /// The smoothing limits, when smooth output is asked for.
+    pub fn smoothing(&self) -> Option<Smoothing> {
+        self.smooth.then(Smoothing::default)
+    }
+
+    /// The unmarked-street offset scale the lanes must have: the configured one, else the
+    /// method's.
+    pub fn unmarked_offset_scale(&self) -> f64 {
+        self.unmarked_offset_scale
+            .unwrap_or(self.method.unmarked_offset_scale())
+    }
+
+    /// Refuses a map whose lanes were derived with another unmarked-street model than this
+    /// configuration needs. Maps with no lanes from raw OSM ways (Lanelet2, CSV) always pass.
+    pub fn check_geometry(&self, geometry: &LaneGeometry) -> Result<(), ParamsError> {
+        match geometry.unmarked_offset_scale {
+            Some(found) if found != self.unmarked_offset_scale() => {
+                Err(ParamsError::LaneGeometry {
+                    method: self.method.name(),
+                    wanted: self.unmarked_offset_scale(),
+                    found,
+                })
+            }
+            _ => Ok(()),
+        }
     }
 }
 
@@ -325,22 +482,76 @@ mod tests {
     }
 
     #[test]
-    fn overrides_are_checked() {
-        let mut p = Preset::Basalt.params();
-        p.set_pair("neighbours=25").unwrap();
+    fn names_round_trip_and_unknown_names_list_the_choices() {
+        for p in Preset::ALL {
+            assert_eq!(p.name().parse::<Preset>(), Ok(p));
+        }
+        for m in Method::ALL {
+            assert_eq!(m.name().parse::<Method>(), Ok(m));
+        }
+        let e = "kiss".parse::<Preset>().unwrap_err().to_string();
+        assert!(e.contains("kiss-icp") && e.contains("orb-slam3"), "{e}");
+    }
+
+    #[test]
+    fn overrides_are_typed_and_checked() {
+        let config: CorrectorConfig = toml::from_str(
+            "preset = \"basalt\"\nmethod = \"paper\"\noverrides = { neighbours = 25, max_match_distance_m = inf }",
+        )
+        .unwrap();
+        let p = config.params().unwrap();
         assert_eq!(p.neighbours, 25);
-        assert!(matches!(
-            p.set_pair("nope=1"),
-            Err(ParamsError::UnknownKey(_))
-        ));
-        assert!(matches!(
-            p.set_pair("max_window=3"),
-            Err(ParamsError::BadValue { .. })
-        ));
-        assert!(matches!(
-            p.set_pair("tau"),
-            Err(ParamsError::NotKeyValue(_))
-        ));
-        assert_eq!(p.max_window, 3000, "a refused override changes nothing");
+        assert_eq!(p.max_match_distance_m, f64::INFINITY);
+        let unknown =
+            toml::from_str::<CorrectorConfig>("preset = \"basalt\"\noverrides = { nope = 1 }");
+        assert!(unknown.unwrap_err().to_string().contains("nope"));
+        let wrong_type = toml::from_str::<CorrectorConfig>(
+            "preset = \"basalt\"\noverrides = { neighbours = 2.5 }",
+        );
+        assert!(wrong_type.is_err());
+        let mut small = CorrectorConfig::new(Preset::Basalt, Method::Paper);
+        small.overrides.max_window = Some(3);
+        let e = small.params().unwrap_err().to_string();
+        assert!(e.starts_with("max_window = 3"), "{e}");
+    }
+
+    #[test]
+    fn a_config_round_trips_through_toml() {
+        let mut config = CorrectorConfig::new(Preset::OrbSlam3, Method::Robust);
+        config.smooth = true;
+        config.overrides.lane_tolerance_m = Some(0.5);
+        let text = toml::to_string(&config).unwrap();
+        assert_eq!(toml::from_str::<CorrectorConfig>(&text).unwrap(), config);
+        let params = toml::to_string(&config.params().unwrap()).unwrap();
+        assert!(params.contains("max_match_distance_m = 3.0"), "{params}");
+        assert_eq!(
+            toml::from_str::<Params>(&params).unwrap(),
+            config.params().unwrap()
+        );
+    }
+
+    #[test]
+    fn the_lane_geometry_must_be_the_methods() {
+        let robust_tile = LaneGeometry::default();
+        let paper_tile = LaneGeometry {
+            unmarked_offset_scale: Some(1.0),
+            ..LaneGeometry::default()
+        };
+        let paper = CorrectorConfig::new(Preset::KissIcp, Method::Paper);
+        let robust = CorrectorConfig::new(Preset::KissIcp, Method::Robust);
+        assert!(robust.check_geometry(&robust_tile).is_ok());
+        assert!(paper.check_geometry(&paper_tile).is_ok());
+        let e = paper.check_geometry(&robust_tile).unwrap_err().to_string();
+        assert!(e.contains("--unmarked-offset-scale 1"), "{e}");
+        let lanelets = LaneGeometry {
+            unmarked_offset_scale: None,
+            ..LaneGeometry::default()
+        };
+        assert!(paper.check_geometry(&lanelets).is_ok());
+        let accept_any = CorrectorConfig {
+            unmarked_offset_scale: Some(0.5),
+            ..paper
+        };
+        assert!(accept_any.check_geometry(&robust_tile).is_ok());
     }
 }

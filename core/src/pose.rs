@@ -1,16 +1,109 @@
-//! 3D poses (3x4 `[R | t]`) and the axis conventions odometry sources use.
+//! 3D poses and the axis conventions odometry sources use.
 //!
 //! The corrector works in a planar, z-up frame (`flu`: x forward, y left, z up). A source whose
 //! poses use another convention is converted at the edges: [`AxisConvention::to_planar`] on the
-//! way in, [`AxisConvention::from_planar`] on the way out.
+//! way in, [`AxisConvention::from_planar`] on the way out. The 3D math is nalgebra's.
+
+use nalgebra::{Matrix2, Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::se2::Se2;
 
-/// A rigid 3D pose `world_from_body` as a row-major 3x4 matrix `[R | t]` (translation in metres).
-pub type Pose3 = [[f64; 4]; 3];
+/// A rigid 3D pose `world_from_body`: `point_in_world = rotation * point_in_body + translation`
+/// (metres). Files and the wire store it as the 12 numbers of the row-major 3x4 matrix
+/// `[R | t]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose3 {
+    /// The rotation matrix `world_from_body` (as read: not re-orthonormalised).
+    pub rotation: Matrix3<f64>,
+    /// The body origin in the world frame (metres).
+    pub translation: Vector3<f64>,
+}
+
+impl Pose3 {
+    /// The identity pose.
+    pub fn identity() -> Pose3 {
+        Pose3 {
+            rotation: Matrix3::identity(),
+            translation: Vector3::zeros(),
+        }
+    }
+
+    /// A pose from the row-major 3x4 matrix `[R | t]` (the KITTI and wire layout).
+    pub fn from_row_major(v: &[f64; 12]) -> Pose3 {
+        Pose3 {
+            rotation: Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]),
+            translation: Vector3::new(v[3], v[7], v[11]),
+        }
+    }
+
+    /// The row-major 3x4 matrix `[R | t]`.
+    pub fn to_row_major(&self) -> [f64; 12] {
+        let (r, t) = (&self.rotation, &self.translation);
+        [
+            r[(0, 0)],
+            r[(0, 1)],
+            r[(0, 2)],
+            t[0],
+            r[(1, 0)],
+            r[(1, 1)],
+            r[(1, 2)],
+            t[1],
+            r[(2, 0)],
+            r[(2, 1)],
+            r[(2, 2)],
+            t[2],
+        ]
+    }
+
+    /// A planar pose at `(x, y)` (metres) heading `yaw` (radians, counter-clockwise from x),
+    /// at height `z`.
+    pub fn planar(x: f64, y: f64, yaw: f64, z: f64) -> Pose3 {
+        let (s, c) = yaw.sin_cos();
+        Pose3 {
+            rotation: Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
+            translation: Vector3::new(x, y, z),
+        }
+    }
+
+    /// True when every number is finite.
+    pub fn is_finite(&self) -> bool {
+        self.rotation
+            .iter()
+            .chain(self.translation.iter())
+            .all(|v| v.is_finite())
+    }
+
+    /// How far the rotation is from a proper rotation: the largest entry of `|R^T R - I|`, or
+    /// infinity when `det R <= 0` (a reflection or a degenerate matrix).
+    pub fn rotation_error(&self) -> f64 {
+        if self.rotation.determinant() <= 0.0 {
+            return f64::INFINITY;
+        }
+        let defect = self.rotation.transpose() * self.rotation - Matrix3::identity();
+        defect.amax()
+    }
+
+    /// The planar position (x, y in metres) of a planar (`flu`) pose.
+    pub fn planar_position(&self) -> [f64; 2] {
+        [self.translation[0], self.translation[1]]
+    }
+
+    /// The heading (radians, counter-clockwise from x) of a planar pose's forward (body x) axis.
+    pub fn planar_heading(&self) -> f64 {
+        self.rotation[(1, 0)].atan2(self.rotation[(0, 0)])
+    }
+
+    /// The planar part of a planar pose as an SE(2) transform `world_from_body`.
+    pub fn to_se2(&self) -> Se2 {
+        let [x, y] = self.planar_position();
+        Se2::new(self.planar_heading(), x, y)
+    }
+}
 
 /// How a source's world and body axes are laid out.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum AxisConvention {
     /// x forward, y left, z up (ROS REP 103). Already planar.
     #[default]
@@ -19,59 +112,40 @@ pub enum AxisConvention {
     KittiCamera,
 }
 
+impl AxisConvention {
+    /// Both conventions.
+    pub const ALL: [AxisConvention; 2] = [AxisConvention::Flu, AxisConvention::KittiCamera];
+
+    /// The name used on the command line and in configs.
+    pub fn name(self) -> &'static str {
+        match self {
+            AxisConvention::Flu => "flu",
+            AxisConvention::KittiCamera => "kitti-camera",
+        }
+    }
+}
+
 impl std::str::FromStr for AxisConvention {
-    type Err = String;
+    type Err = crate::names::NameError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "flu" => Ok(AxisConvention::Flu),
-            "kitti-camera" => Ok(AxisConvention::KittiCamera),
-            other => Err(format!(
-                "unknown axis convention '{other}' (expected flu or kitti-camera)"
-            )),
-        }
+        crate::names::parse_name(s)
     }
 }
 
 /// `flu_from_camera` for KITTI: camera z (forward) becomes x, camera x (right) becomes -y,
 /// camera y (down) becomes -z.
-const FLU_FROM_CAMERA: [[f64; 3]; 3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]];
-
-fn mat3_mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let mut m = [[0.0; 3]; 3];
-    for (i, row) in m.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
-        }
-    }
-    m
+fn flu_from_camera() -> Matrix3<f64> {
+    Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0)
 }
 
-fn transpose(a: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let mut m = [[0.0; 3]; 3];
-    for (i, row) in m.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = a[j][i];
-        }
+/// The pose expressed in axes rotated by `new_from_old` (world and body alike):
+/// `new_from_old * pose * old_from_new`.
+fn rotate_axes(new_from_old: &Matrix3<f64>, pose: &Pose3) -> Pose3 {
+    Pose3 {
+        rotation: new_from_old * pose.rotation * new_from_old.transpose(),
+        translation: new_from_old * pose.translation,
     }
-    m
-}
-
-/// `a * pose * b` for fixed rotations `a` and `b` (used to change axis conventions).
-fn conjugate(a: &[[f64; 3]; 3], pose: &Pose3, b: &[[f64; 3]; 3]) -> Pose3 {
-    let r = [
-        [pose[0][0], pose[0][1], pose[0][2]],
-        [pose[1][0], pose[1][1], pose[1][2]],
-        [pose[2][0], pose[2][1], pose[2][2]],
-    ];
-    let r = mat3_mul(&mat3_mul(a, &r), b);
-    let t = [pose[0][3], pose[1][3], pose[2][3]];
-    let mut out = [[0.0; 4]; 3];
-    for i in 0..3 {
-        out[i][..3].copy_from_slice(&r[i]);
-        out[i][3] = a[i][0] * t[0] + a[i][1] * t[1] + a[i][2] * t[2];
-    }
-    out
 }
 
 impl AxisConvention {
@@ -79,9 +153,7 @@ impl AxisConvention {
     pub fn to_planar(self, pose: &Pose3) -> Pose3 {
         match self {
             AxisConvention::Flu => *pose,
-            AxisConvention::KittiCamera => {
-                conjugate(&FLU_FROM_CAMERA, pose, &transpose(&FLU_FROM_CAMERA))
-            }
+            AxisConvention::KittiCamera => rotate_axes(&flu_from_camera(), pose),
         }
     }
 
@@ -89,35 +161,23 @@ impl AxisConvention {
     pub fn from_planar(self, pose: &Pose3) -> Pose3 {
         match self {
             AxisConvention::Flu => *pose,
-            AxisConvention::KittiCamera => {
-                conjugate(&transpose(&FLU_FROM_CAMERA), pose, &FLU_FROM_CAMERA)
-            }
+            AxisConvention::KittiCamera => rotate_axes(&flu_from_camera().transpose(), pose),
         }
     }
 }
 
-/// The planar position (x, y in metres) of a planar pose.
-pub fn planar_position(pose: &Pose3) -> [f64; 2] {
-    [pose[0][3], pose[1][3]]
-}
-
-/// The heading (radians, counter-clockwise from x) of a planar pose's forward (body x) axis.
-pub fn planar_heading(pose: &Pose3) -> f64 {
-    pose[1][0].atan2(pose[0][0])
-}
-
 /// Applies a planar correction `corrected_from_odom` to a planar pose: x and y are moved by the
-/// transform, the yaw gains its rotation angle, and z, roll and pitch are kept.
+/// transform, the yaw gains its rotation angle, and z, roll and pitch are kept (the rotation's
+/// third row and the height are not touched).
 pub fn apply_planar_correction(corrected_from_odom: &Se2, pose: &Pose3) -> Pose3 {
     let (c, s) = corrected_from_odom.rotation();
-    let [x, y] = corrected_from_odom.apply(planar_position(pose));
+    let [x, y] = corrected_from_odom.apply(pose.planar_position());
+    let turn = Matrix2::new(c, -s, s, c);
     let mut out = *pose;
-    for j in 0..3 {
-        out[0][j] = c * pose[0][j] - s * pose[1][j];
-        out[1][j] = s * pose[0][j] + c * pose[1][j];
-    }
-    out[0][3] = x;
-    out[1][3] = y;
+    let top = turn * pose.rotation.fixed_rows::<2>(0);
+    out.rotation.fixed_rows_mut::<2>(0).copy_from(&top);
+    out.translation[0] = x;
+    out.translation[1] = y;
     out
 }
 
@@ -129,31 +189,58 @@ mod tests {
     fn kitti_camera_round_trip_and_forward_axis() {
         // Camera moved 2 m forward (z) and 1 m right (x), yawed left by 0.3 rad about -y (up).
         let (s, c) = 0.3f64.sin_cos();
-        let cam: Pose3 = [[c, 0.0, -s, 1.0], [0.0, 1.0, 0.0, 0.5], [s, 0.0, c, 2.0]];
+        let cam = Pose3::from_row_major(&[c, 0.0, -s, 1.0, 0.0, 1.0, 0.0, 0.5, s, 0.0, c, 2.0]);
         let planar = AxisConvention::KittiCamera.to_planar(&cam);
-        assert_eq!(planar_position(&planar), [2.0, -1.0]);
-        assert!((planar[2][3] + 0.5).abs() < 1e-15);
+        assert_eq!(planar.planar_position(), [2.0, -1.0]);
+        assert!((planar.translation[2] + 0.5).abs() < 1e-15);
         // A left turn is a positive yaw in the z-up frame.
-        assert!((planar_heading(&planar) - 0.3).abs() < 1e-12);
+        assert!((planar.planar_heading() - 0.3).abs() < 1e-12);
         let back = AxisConvention::KittiCamera.from_planar(&planar);
-        for i in 0..3 {
-            for j in 0..4 {
-                assert!((back[i][j] - cam[i][j]).abs() < 1e-15);
-            }
-        }
+        let (a, b) = (back.to_row_major(), cam.to_row_major());
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-15));
     }
 
     #[test]
     fn planar_correction_keeps_z_and_adds_yaw() {
-        let pose: Pose3 = [
-            [1.0, 0.0, 0.0, 1.0],
-            [0.0, 1.0, 0.0, 0.0],
-            [0.0, 0.0, 1.0, 7.0],
-        ];
+        let pose = Pose3::planar(1.0, 0.0, 0.0, 7.0);
         let corr = Se2::new(std::f64::consts::FRAC_PI_2, 10.0, 0.0);
         let out = apply_planar_correction(&corr, &pose);
-        assert!((out[0][3] - 10.0).abs() < 1e-12 && (out[1][3] - 1.0).abs() < 1e-12);
-        assert_eq!(out[2][3], 7.0);
-        assert!((planar_heading(&out) - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert!((out.translation[0] - 10.0).abs() < 1e-12);
+        assert!((out.translation[1] - 1.0).abs() < 1e-12);
+        assert_eq!(out.translation[2], 7.0);
+        assert_eq!(out.rotation.row(2), pose.rotation.row(2));
+        assert!((out.planar_heading() - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn row_major_layout_and_rotation_checks() {
+        let v = [
+            1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0,
+        ];
+        let p = Pose3::from_row_major(&v);
+        assert_eq!(p.translation, Vector3::new(4.0, 8.0, 12.0));
+        assert_eq!(p.rotation[(1, 2)], 7.0);
+        assert_eq!(p.to_row_major(), v);
+        assert!(Pose3::planar(1.0, 2.0, 0.4, 0.0).rotation_error() < 1e-15);
+        let mut scaled = Pose3::identity();
+        scaled.rotation *= 1.01;
+        assert!(scaled.rotation_error() > 0.01);
+        let mut mirrored = Pose3::identity();
+        mirrored.rotation[(2, 2)] = -1.0;
+        assert_eq!(mirrored.rotation_error(), f64::INFINITY);
+        let zero = Pose3 {
+            rotation: Matrix3::zeros(),
+            ..Pose3::identity()
+        };
+        assert_eq!(zero.rotation_error(), f64::INFINITY);
+    }
+
+    #[test]
+    fn convention_names_parse() {
+        for c in AxisConvention::ALL {
+            assert_eq!(c.name().parse::<AxisConvention>(), Ok(c));
+        }
+        let e = "kitti".parse::<AxisConvention>().unwrap_err().to_string();
+        assert!(e.contains("kitti-camera"), "{e}");
     }
 }

@@ -1,7 +1,11 @@
-//! Lane tiles: one file holding a lane map ready to memory-map, with what it needs to be placed
-//! on Earth.
+//! Lane tiles: one file holding a lane map, the plane it lives in and how its lanes were derived.
 //!
-//! Layout (all little-endian):
+//! A tile is untrusted input. Loading reads it into memory the loader owns (bounded by the
+//! file's size, regular files only), checks every header field, the checksum and every array
+//! with checked arithmetic, and builds the KD-tree itself from the validated points: no byte
+//! sequence can make it read out of bounds, and a file changed after loading changes nothing.
+//!
+//! Layout (all little-endian, format version 2):
 //!
 //! | bytes | field |
 //! |---|---|
@@ -9,35 +13,49 @@
 //! | 8..12 | format version (`u32`, [`VERSION`]) |
 //! | 12..16 | endianness mark `0x01020304` (`u32`) |
 //! | 16..20 | projection (`u32`: 0 tangent, 1 kitti) |
-//! | 20..24 | reserved, zero |
+//! | 20..24 | traffic side (`u32`: 0 right, 1 left) |
 //! | 24..40 | origin latitude, longitude (`f64`, degrees, WGS84) |
 //! | 40..48 | point spacing the lanes were resampled at (`f64`, metres) |
 //! | 48..56, 56..64 | point count, lane count (`u64`) |
-//! | 64..72 | KD-tree length in bytes (`u64`) |
+//! | 64..72 | unmarked-street offset scale (`f64`; 0 unless flag bit 0) |
 //! | 72..104 | bounding box min x, min y, max x, max y (`f64`, metres, map plane) |
 //! | 104..112 | payload length in bytes (`u64`) |
-//! | 112..120 | XXH3-64 of bytes 0..112 and of the payload |
-//! | 120..128 | reserved, zero |
-//! | 128.. | payload: the [`LaneMap`] image (arrays at 16-byte-aligned offsets, then the KD-tree) |
+//! | 112..116 | road classes lanes were derived from (`u32`, bit per [`RoadClass`] code) |
+//! | 116..120 | flags (`u32`): bit 0 lanes from raw OSM ways (the offset scale applies), bit 1 signed |
+//! | 120..152 | signer's ed25519 public key (zero unless signed) |
+//! | 152..216 | ed25519 signature (zero unless signed) |
+//! | 216..248 | reserved, zero |
+//! | 248..256 | XXH3-64 of bytes 0..248 and of the payload |
+//! | 256.. | payload |
 //!
-//! Loading maps the file read-only, checks the header, the length, the checksum and every array
-//! (see [`LaneMap`]), and then uses the mapping in place: no parsing, no copy. A tile must not
-//! be modified while mapped: replace it by writing a new file and renaming it over the old one.
+//! Payload: lane offsets (`u32` x lanes + 1), lane ids (`u64` x lanes), lane info (class `u8`,
+//! flags `u8`, per lane), points (`f64` x, y per point); each array starts at a multiple of 8.
+//! Segment directions and the KD-tree are derived from the points at load.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use xxhash_rust::xxh3::Xxh3;
 
-use crate::geo::{MapPlane, Projection};
-use crate::lane_map::{LaneMap, LaneMapError, Layout};
+use crate::geo::{check_lat_lon, MapPlane, Projection};
+use crate::lane_geometry::{LaneGeometry, LaneInfo, RoadClass, RoadClasses, Traffic};
+use crate::lane_map::{LaneMap, LaneMapError, MAX_POINTS};
 
 /// The tile magic.
 pub const MAGIC: [u8; 8] = *b"LANETILE";
 /// The format version this build reads and writes.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 const ENDIAN_MARK: u32 = 0x0102_0304;
 /// Header length in bytes.
-pub const HEADER_LEN: usize = 128;
+pub const HEADER_LEN: usize = 256;
+/// Largest tile this build loads (bytes): far above any real map (a 1 M point tile is 17 MB),
+/// small enough that a bogus size is refused before anything is allocated.
+pub const MAX_TILE_BYTES: u64 = 1 << 32;
+
+const FLAG_OSM_LANES: u32 = 1;
+const FLAG_SIGNED: u32 = 1 << 1;
+const KNOWN_FLAGS: u32 = FLAG_OSM_LANES | FLAG_SIGNED;
+const CHECKSUM_AT: usize = 248;
 
 /// What a tile says about itself.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -46,6 +64,8 @@ pub struct TileInfo {
     pub plane: MapPlane,
     /// The spacing the lanes were resampled at (metres).
     pub spacing_m: f64,
+    /// How the lanes were derived.
+    pub geometry: LaneGeometry,
     /// Lane points.
     pub points: u64,
     /// Lanes.
@@ -61,13 +81,27 @@ pub struct TileInfo {
 /// A tile that could not be written or loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum TileError {
-    /// The file could not be created, opened, read or mapped.
+    /// The file could not be created, opened or read.
     #[error("{path}: {source}")]
     Io {
         /// The file.
         path: PathBuf,
         /// The I/O error.
         source: std::io::Error,
+    },
+    /// Not a regular file (a FIFO, a device, a directory).
+    #[error("{path}: not a regular file")]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
+    /// Larger than [`MAX_TILE_BYTES`].
+    #[error("{path}: {len} bytes, more than any tile this build loads ({MAX_TILE_BYTES})")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its length.
+        len: u64,
     },
     /// Shorter than its header or than the header says.
     #[error("{path}: truncated: {len} bytes, expected {expected}")]
@@ -86,7 +120,7 @@ pub enum TileError {
         path: PathBuf,
     },
     /// A tile of another format version.
-    #[error("{path}: tile format version {found}, this build reads version {VERSION}")]
+    #[error("{path}: tile format version {found}, this build reads version {VERSION}; compile it again with this build's lanealign-map")]
     BadVersion {
         /// The file.
         path: PathBuf,
@@ -129,6 +163,35 @@ pub enum TileError {
     },
 }
 
+/// Where each payload array lies (byte ranges), from the counts, with checked arithmetic.
+struct PayloadLayout {
+    offsets: std::ops::Range<usize>,
+    ids: std::ops::Range<usize>,
+    info: std::ops::Range<usize>,
+    points: std::ops::Range<usize>,
+}
+
+impl PayloadLayout {
+    fn new(points: usize, lanes: usize) -> Option<PayloadLayout> {
+        let mut at = 0usize;
+        let mut section = |len: usize| -> Option<std::ops::Range<usize>> {
+            let range = at..at.checked_add(len)?;
+            at = range.end.checked_next_multiple_of(8)?;
+            Some(range)
+        };
+        Some(PayloadLayout {
+            offsets: section(lanes.checked_add(1)?.checked_mul(4)?)?,
+            ids: section(lanes.checked_mul(8)?)?,
+            info: section(lanes.checked_mul(2)?)?,
+            points: section(points.checked_mul(16)?)?,
+        })
+    }
+
+    fn len(&self) -> usize {
+        self.points.end
+    }
+}
+
 fn projection_code(p: Projection) -> u32 {
     match p {
         Projection::Tangent => 0,
@@ -136,8 +199,15 @@ fn projection_code(p: Projection) -> u32 {
     }
 }
 
-fn bounds(map: &LaneMap) -> [f64; 4] {
-    map.points().iter().fold(
+fn traffic_code(t: Traffic) -> u32 {
+    match t {
+        Traffic::Right => 0,
+        Traffic::Left => 1,
+    }
+}
+
+fn bounds(points: &[[f64; 2]]) -> [f64; 4] {
+    points.iter().fold(
         [
             f64::INFINITY,
             f64::INFINITY,
@@ -157,67 +227,117 @@ fn bounds(map: &LaneMap) -> [f64; 4] {
 
 fn checksum(header: &[u8], payload: &[u8]) -> u64 {
     let mut h = Xxh3::new();
-    h.update(&header[..112]);
+    h.update(&header[..CHECKSUM_AT]);
     h.update(payload);
     h.digest()
 }
 
-/// The header bytes for `map` in `plane`.
-fn header(map: &LaneMap, plane: &MapPlane, spacing_m: f64) -> [u8; HEADER_LEN] {
+fn put(bytes: &mut [u8], at: usize, v: &[u8]) {
+    bytes[at..at + v.len()].copy_from_slice(v);
+}
+
+/// The payload bytes of `map`.
+fn payload(map: &LaneMap) -> Vec<u8> {
+    let layout = PayloadLayout::new(map.len(), map.lane_count())
+        .expect("a built map's counts fit in memory");
+    let mut out = vec![0u8; layout.len()];
+    for (k, o) in map.lane_offsets().iter().enumerate() {
+        put(&mut out, layout.offsets.start + 4 * k, &o.to_le_bytes());
+    }
+    for (k, id) in map.lane_ids().iter().enumerate() {
+        put(&mut out, layout.ids.start + 8 * k, &id.to_le_bytes());
+    }
+    for (k, info) in map.lane_info().iter().enumerate() {
+        put(
+            &mut out,
+            layout.info.start + 2 * k,
+            &[info.class as u8, info.flags],
+        );
+    }
+    for (j, p) in map.points().iter().enumerate() {
+        put(&mut out, layout.points.start + 16 * j, &p[0].to_le_bytes());
+        put(
+            &mut out,
+            layout.points.start + 16 * j + 8,
+            &p[1].to_le_bytes(),
+        );
+    }
+    out
+}
+
+/// The bytes of a tile of `map` in `plane`, resampled at `spacing_m`, derived as `geometry`.
+pub fn encode(map: &LaneMap, plane: &MapPlane, spacing_m: f64, geometry: &LaneGeometry) -> Vec<u8> {
+    let payload = payload(map);
     let mut h = [0u8; HEADER_LEN];
-    let layout = map.layout();
-    let [min_x, min_y, max_x, max_y] = bounds(map);
-    h[0..8].copy_from_slice(&MAGIC);
-    h[8..12].copy_from_slice(&VERSION.to_le_bytes());
-    h[12..16].copy_from_slice(&ENDIAN_MARK.to_le_bytes());
-    h[16..20].copy_from_slice(&projection_code(plane.projection).to_le_bytes());
+    put(&mut h, 0, &MAGIC);
+    put(&mut h, 8, &VERSION.to_le_bytes());
+    put(&mut h, 12, &ENDIAN_MARK.to_le_bytes());
+    put(&mut h, 16, &projection_code(plane.projection).to_le_bytes());
+    put(&mut h, 20, &traffic_code(geometry.traffic).to_le_bytes());
+    let [min_x, min_y, max_x, max_y] = bounds(map.points());
     for (at, v) in [
         (24, plane.origin_lat),
         (32, plane.origin_lon),
         (40, spacing_m),
+        (64, geometry.unmarked_offset_scale.unwrap_or(0.0)),
         (72, min_x),
         (80, min_y),
         (88, max_x),
         (96, max_y),
     ] {
-        h[at..at + 8].copy_from_slice(&v.to_le_bytes());
+        put(&mut h, at, &v.to_le_bytes());
     }
     for (at, v) in [
-        (48, layout.point_count),
-        (56, layout.lane_count),
-        (64, layout.tree_len()),
-        (104, layout.len()),
+        (48, map.len()),
+        (56, map.lane_count()),
+        (104, payload.len()),
     ] {
-        h[at..at + 8].copy_from_slice(&(v as u64).to_le_bytes());
+        put(&mut h, at, &(v as u64).to_le_bytes());
     }
-    let sum = checksum(&h, map.image());
-    h[112..120].copy_from_slice(&sum.to_le_bytes());
-    h
+    put(&mut h, 112, &geometry.classes.bits().to_le_bytes());
+    let flags = if geometry.unmarked_offset_scale.is_some() {
+        FLAG_OSM_LANES
+    } else {
+        0
+    };
+    put(&mut h, 116, &flags.to_le_bytes());
+    let sum = checksum(&h, &payload);
+    put(&mut h, CHECKSUM_AT, &sum.to_le_bytes());
+    let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
+    bytes.extend_from_slice(&h);
+    bytes.extend_from_slice(&payload);
+    bytes
 }
 
-/// Writes `map` (in `plane`, resampled at `spacing_m`) as a tile: to a temporary file beside
-/// `path`, then renamed over it, so that a daemon mapping the old tile never sees a half-written
-/// one.
+/// Writes a tile: to a temporary file beside `path`, then renamed over it, so that a reader
+/// never sees a half-written tile.
 pub fn write(
     path: &Path,
     map: &LaneMap,
     plane: &MapPlane,
     spacing_m: f64,
+    geometry: &LaneGeometry,
 ) -> Result<(), TileError> {
+    write_bytes(path, &encode(map, plane, spacing_m, geometry))
+}
+
+/// Writes tile bytes atomically (temporary file beside `path`, then rename).
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), TileError> {
     let io = |source| TileError::Io {
         path: path.to_path_buf(),
         source,
     };
-    let tmp = path.with_extension("tile.partial");
-    let mut bytes = Vec::with_capacity(HEADER_LEN + map.image().len());
-    bytes.extend_from_slice(&header(map, plane, spacing_m));
-    bytes.extend_from_slice(map.image());
-    std::fs::write(&tmp, &bytes).map_err(io)?;
+    let mut tmp_name = path.as_os_str().to_owned();
+    tmp_name.push(".partial");
+    let tmp = PathBuf::from(tmp_name);
+    std::fs::write(&tmp, bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)
 }
 
 fn u32_at(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+    let mut a = [0u8; 4];
+    a.copy_from_slice(&b[at..at + 4]);
+    u32::from_le_bytes(a)
 }
 
 fn u64_at(b: &[u8], at: usize) -> u64 {
@@ -230,10 +350,15 @@ fn f64_at(b: &[u8], at: usize) -> f64 {
     f64::from_bits(u64_at(b, at))
 }
 
-/// Checks a tile's header and checksum and returns what it says (the payload itself is checked
-/// by [`load`]).
+/// Checks a tile's header and checksum and returns what it says (the payload's content is
+/// checked by [`decode`]).
 pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     let p = || path.to_path_buf();
+    let bad = |field: &'static str, value: String| TileError::BadHeader {
+        path: p(),
+        field,
+        value,
+    };
     if bytes.len() < HEADER_LEN {
         return Err(TileError::Truncated {
             path: p(),
@@ -254,16 +379,6 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     if u32_at(bytes, 12) != ENDIAN_MARK {
         return Err(TileError::BadEndianness { path: p() });
     }
-    let bad = |field: &'static str, value: String| TileError::BadHeader {
-        path: p(),
-        field,
-        value,
-    };
-    let projection = match u32_at(bytes, 16) {
-        0 => Projection::Tangent,
-        1 => Projection::Kitti,
-        other => return Err(bad("projection", other.to_string())),
-    };
     let payload_len = u64_at(bytes, 104);
     let expected = (HEADER_LEN as u64).saturating_add(payload_len);
     if (bytes.len() as u64) < expected {
@@ -282,7 +397,7 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
             ),
         ));
     }
-    let stored = u64_at(bytes, 112);
+    let stored = u64_at(bytes, CHECKSUM_AT);
     let computed = checksum(bytes, &bytes[HEADER_LEN..]);
     if stored != computed {
         return Err(TileError::Checksum {
@@ -291,13 +406,48 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
             computed,
         });
     }
+    let projection = match u32_at(bytes, 16) {
+        0 => Projection::Tangent,
+        1 => Projection::Kitti,
+        other => return Err(bad("projection", other.to_string())),
+    };
+    let traffic = match u32_at(bytes, 20) {
+        0 => Traffic::Right,
+        1 => Traffic::Left,
+        other => return Err(bad("traffic", other.to_string())),
+    };
     let (lat, lon, spacing_m) = (f64_at(bytes, 24), f64_at(bytes, 32), f64_at(bytes, 40));
-    if !(lat.is_finite() && lat.abs() <= 90.0 && lon.is_finite() && lon.abs() <= 180.0) {
-        return Err(bad("origin", format!("({lat}, {lon})")));
-    }
+    check_lat_lon(lat, lon).map_err(|e| bad("origin", e.to_string()))?;
     if !(spacing_m.is_finite() && spacing_m >= 0.0) {
         return Err(bad("spacing", spacing_m.to_string()));
     }
+    let flags = u32_at(bytes, 116);
+    if flags & !KNOWN_FLAGS != 0 {
+        return Err(bad("flags", format!("{flags:#x}")));
+    }
+    if flags & FLAG_SIGNED == 0 && bytes[120..216].iter().any(|&b| b != 0) {
+        return Err(bad("signature", "present in an unsigned tile".into()));
+    }
+    if bytes[216..CHECKSUM_AT].iter().any(|&b| b != 0) {
+        return Err(bad("reserved bytes 216..248", "not zero".into()));
+    }
+    let scale = f64_at(bytes, 64);
+    let unmarked_offset_scale = if flags & FLAG_OSM_LANES != 0 {
+        if !(0.0..=2.0).contains(&scale) {
+            return Err(bad("unmarked offset scale", scale.to_string()));
+        }
+        Some(scale)
+    } else {
+        if scale.to_bits() != 0 {
+            return Err(bad(
+                "unmarked offset scale",
+                format!("{scale} without OSM lanes"),
+            ));
+        }
+        None
+    };
+    let classes = RoadClasses::from_bits(u32_at(bytes, 112))
+        .ok_or_else(|| bad("road classes", format!("{:#x}", u32_at(bytes, 112))))?;
     let bounds = [
         f64_at(bytes, 72),
         f64_at(bytes, 80),
@@ -307,6 +457,11 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     Ok(TileInfo {
         plane: MapPlane::new(projection, lat, lon),
         spacing_m,
+        geometry: LaneGeometry {
+            traffic,
+            classes,
+            unmarked_offset_scale,
+        },
         points: u64_at(bytes, 48),
         lanes: u64_at(bytes, 56),
         bounds,
@@ -315,42 +470,114 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     })
 }
 
-/// Memory-maps and validates a tile: header, length, checksum, every array and the KD-tree.
-pub fn load(path: &Path) -> Result<(LaneMap, TileInfo), TileError> {
+/// Decodes and validates tile bytes; `path` names the source in errors.
+pub fn decode(path: &Path, bytes: &[u8]) -> Result<(LaneMap, TileInfo), TileError> {
+    let info = read_info(path, bytes)?;
+    let bad = |field: &'static str, value: String| TileError::BadHeader {
+        path: path.to_path_buf(),
+        field,
+        value,
+    };
+    let points = usize::try_from(info.points)
+        .ok()
+        .filter(|&n| n <= MAX_POINTS)
+        .ok_or_else(|| bad("point count", info.points.to_string()))?;
+    let lanes = usize::try_from(info.lanes)
+        .ok()
+        .filter(|&l| l <= points)
+        .ok_or_else(|| bad("lane count", format!("{} for {points} points", info.lanes)))?;
+    let layout = PayloadLayout::new(points, lanes)
+        .filter(|l| l.len() as u64 == info.payload_len)
+        .ok_or_else(|| {
+            bad(
+                "payload length",
+                format!(
+                    "{} does not fit {points} points in {lanes} lanes",
+                    info.payload_len
+                ),
+            )
+        })?;
+    let payload = &bytes[HEADER_LEN..];
+    // The padding between arrays is covered by the checksum and must be zero too.
+    let mut covered = vec![false; payload.len()];
+    for r in [&layout.offsets, &layout.ids, &layout.info, &layout.points] {
+        covered[r.clone()].iter_mut().for_each(|c| *c = true);
+    }
+    if payload.iter().zip(&covered).any(|(&b, &c)| !c && b != 0) {
+        return Err(bad("payload padding", "not zero".into()));
+    }
+    let offsets = (0..=lanes)
+        .map(|k| u32_at(payload, layout.offsets.start + 4 * k))
+        .collect();
+    let ids = (0..lanes)
+        .map(|k| u64_at(payload, layout.ids.start + 8 * k))
+        .collect();
+    let info_bytes = &payload[layout.info.clone()];
+    let lane_info = info_bytes
+        .chunks_exact(2)
+        .map(|c| {
+            RoadClass::from_code(c[0])
+                .map(|class| LaneInfo::new(class, c[1]))
+                .ok_or_else(|| bad("lane road class", c[0].to_string()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let pts = (0..points)
+        .map(|j| {
+            let at = layout.points.start + 16 * j;
+            [f64_at(payload, at), f64_at(payload, at + 8)]
+        })
+        .collect();
+    let map =
+        LaneMap::from_arrays(offsets, ids, lane_info, pts).map_err(|source| TileError::Map {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if bounds(map.points()) != info.bounds {
+        return Err(bad(
+            "bounds",
+            format!("{:?} do not match the points", info.bounds),
+        ));
+    }
+    Ok((map, info))
+}
+
+/// Reads a whole file of at most `limit` bytes into memory; refuses anything but a regular
+/// file, so a FIFO or a device is never waited on or read without end.
+pub fn read_regular_file(path: &Path, limit: u64) -> Result<Vec<u8>, TileError> {
     let io = |source| TileError::Io {
         path: path.to_path_buf(),
         source,
     };
     let file = std::fs::File::open(path).map_err(io)?;
-    // SAFETY: the mapping is read-only and tiles are replaced by rename, never modified in place
-    // (see the module docs); every byte is validated before use.
-    let mapping = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
-    let info = read_info(path, &mapping)?;
-    let to_usize = |v: u64, field: &'static str| {
-        usize::try_from(v).map_err(|_| TileError::BadHeader {
+    let meta = file.metadata().map_err(io)?;
+    if !meta.is_file() {
+        return Err(TileError::NotAFile {
             path: path.to_path_buf(),
-            field,
-            value: v.to_string(),
-        })
-    };
-    let layout = Layout::new(
-        to_usize(info.points, "point count")?,
-        to_usize(info.lanes, "lane count")?,
-        to_usize(u64_at(&mapping, 64), "tree length")?,
-    );
-    if layout.len() as u64 != info.payload_len {
-        return Err(TileError::BadHeader {
-            path: path.to_path_buf(),
-            field: "payload length",
-            value: format!("{}, the counts need {}", info.payload_len, layout.len()),
         });
     }
-    let map =
-        LaneMap::from_mapping(mapping, HEADER_LEN, layout).map_err(|source| TileError::Map {
+    if meta.len() > limit {
+        return Err(TileError::TooLarge {
             path: path.to_path_buf(),
-            source,
-        })?;
-    Ok((map, info))
+            len: meta.len(),
+        });
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    // One byte past the limit tells a file that grew while being read.
+    file.take(limit + 1).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(TileError::TooLarge {
+            path: path.to_path_buf(),
+            len: bytes.len() as u64,
+        });
+    }
+    Ok(bytes)
+}
+
+/// Loads a tile: reads it into memory (bounded), validates everything and builds the map. The
+/// map owns its data: the file can change or vanish afterwards without effect.
+pub fn load(path: &Path) -> Result<(LaneMap, TileInfo), TileError> {
+    let bytes = read_regular_file(path, MAX_TILE_BYTES)?;
+    decode(path, &bytes)
 }
 
 #[cfg(test)]
@@ -363,45 +590,56 @@ mod tests {
         let lanes: Vec<Lane> = (0..20)
             .map(|k| Lane {
                 id: k,
+                info: LaneInfo::new(RoadClass::Residential, LaneInfo::UNMARKED),
                 points: (0..30).map(|i| [i as f64 * 3.0, k as f64 * 3.5]).collect(),
             })
             .collect();
         LaneMap::new(&lanes).unwrap()
     }
 
-    fn written(dir: &Path) -> (PathBuf, Vec<u8>) {
-        let path = dir.join("t.tile");
-        let plane = MapPlane::new(Projection::Kitti, 48.98, 8.39);
-        write(&path, &sample_map(), &plane, 3.0).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        (path, bytes)
+    fn plane() -> MapPlane {
+        MapPlane::new(Projection::Kitti, 48.98, 8.39)
+    }
+
+    fn sample_bytes() -> Vec<u8> {
+        encode(&sample_map(), &plane(), 3.0, &LaneGeometry::default())
+    }
+
+    fn resealed(mut bytes: Vec<u8>) -> Vec<u8> {
+        let sum = checksum(&bytes, &bytes[HEADER_LEN..]);
+        bytes[CHECKSUM_AT..CHECKSUM_AT + 8].copy_from_slice(&sum.to_le_bytes());
+        bytes
     }
 
     #[test]
     fn round_trip_keeps_everything() {
         let dir = tempfile::tempdir().unwrap();
-        let (path, _) = written(dir.path());
-        let (map, info) = load(&path).unwrap();
+        let path = dir.path().join("t.tile");
         let original = sample_map();
-        assert_eq!(map.image(), original.image());
-        assert_eq!(info.plane, MapPlane::new(Projection::Kitti, 48.98, 8.39));
+        write(&path, &original, &plane(), 3.0, &LaneGeometry::default()).unwrap();
+        let (map, info) = load(&path).unwrap();
+        assert_eq!(map.points(), original.points());
+        assert_eq!(map.lane_ids(), original.lane_ids());
+        assert_eq!(map.lane_info(), original.lane_info());
+        assert_eq!(info.plane, plane());
+        assert_eq!(info.geometry, LaneGeometry::default());
         assert_eq!((info.points, info.lanes), (600, 20));
         assert_eq!(info.bounds, [0.0, 0.0, 87.0, 66.5]);
-        let mut a = Vec::new();
-        let mut b = Vec::new();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
         map.nearest([10.0, 10.0], 7, &mut a);
         original.nearest([10.0, 10.0], 7, &mut b);
         assert_eq!(a, b);
+        // The file is not needed after loading.
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(map.len(), 600);
     }
 
     #[test]
     fn damage_is_named() {
-        let dir = tempfile::tempdir().unwrap();
-        let (path, bytes) = written(dir.path());
+        let bytes = sample_bytes();
         let check = |b: &[u8], what: &str| {
-            std::fs::write(&path, b).unwrap();
-            let e = load(&path).unwrap_err().to_string();
-            assert!(e.contains(what), "{e}");
+            let e = decode(Path::new("t.tile"), b).unwrap_err().to_string();
+            assert!(e.contains(what), "{what}: {e}");
         };
         check(&bytes[..bytes.len() - 10], "truncated");
         check(&bytes[..50], "truncated");
@@ -417,34 +655,77 @@ mod tests {
         let mut b = bytes.clone();
         b[HEADER_LEN + 5] ^= 1;
         check(&b, "checksum mismatch");
+        let mut b = bytes.clone();
+        b.push(0);
+        check(&b, "payload length");
     }
 
     #[test]
-    fn inconsistent_content_with_a_valid_checksum_is_refused() {
-        // Tampering that recomputes the checksum is caught by the content checks.
+    fn tampering_with_a_valid_checksum_is_refused() {
+        let bytes = sample_bytes();
+        let layout = PayloadLayout::new(600, 20).unwrap();
+        let check = |b: Vec<u8>, what: &str| {
+            let e = decode(Path::new("t.tile"), &resealed(b))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(what), "{what}: {e}");
+        };
+        let mut b = bytes.clone();
+        b[HEADER_LEN + layout.offsets.start + 4] = 0xff;
+        check(b, "lane offsets");
+        let mut b = bytes.clone();
+        let x0 = HEADER_LEN + layout.points.start;
+        b[x0..x0 + 8].copy_from_slice(&f64::NAN.to_le_bytes());
+        check(b, "non-finite");
+        let mut b = bytes.clone();
+        // x of the last point (87 m, the largest) grows a little: the bounds no longer match.
+        b[HEADER_LEN + layout.points.start + 16 * 599] ^= 0x10;
+        check(b, "bounds");
+        let mut b = bytes.clone();
+        b[HEADER_LEN + layout.info.start] = 99;
+        check(b, "road class");
+        let mut b = bytes.clone();
+        b[230] = 1;
+        check(b, "reserved");
+        let mut b = bytes.clone();
+        b[130] = 1;
+        check(b, "signature");
+        let mut b = bytes.clone();
+        b[48..56].copy_from_slice(&u64::MAX.to_le_bytes());
+        check(b, "point count");
+        let mut b = bytes.clone();
+        b[56..64].copy_from_slice(&601u64.to_le_bytes());
+        check(b, "lane count");
+        // Counts chosen so that naive size arithmetic wraps: refused, no panic.
+        let mut b = bytes.clone();
+        b[48..56].copy_from_slice(&(MAX_POINTS as u64).to_le_bytes());
+        b[56..64].copy_from_slice(&(1u64 << 61).to_le_bytes());
+        check(b, "lane count");
+        let mut b = bytes;
+        b[104..112].copy_from_slice(&u64::MAX.to_le_bytes());
+        let e = decode(Path::new("t.tile"), &b).unwrap_err().to_string();
+        assert!(e.contains("truncated"), "{e}");
+    }
+
+    #[test]
+    fn non_regular_files_are_refused_up_front() {
         let dir = tempfile::tempdir().unwrap();
-        let (path, mut bytes) = written(dir.path());
-        let at = HEADER_LEN + 600 * 16; // the first segment start
-        bytes[at..at + 4].copy_from_slice(&7u32.to_le_bytes());
-        let sum = checksum(&bytes, &bytes[HEADER_LEN..]);
-        bytes[112..120].copy_from_slice(&sum.to_le_bytes());
-        std::fs::write(&path, &bytes).unwrap();
-        let e = load(&path).unwrap_err().to_string();
-        assert!(e.contains("segment of point 0"), "{e}");
+        let e = load(dir.path()).unwrap_err();
+        assert!(matches!(e, TileError::NotAFile { .. }), "{e}");
+        let e = load(Path::new("/dev/zero")).unwrap_err();
+        assert!(matches!(e, TileError::NotAFile { .. }), "{e}");
     }
 
     proptest! {
         #![proptest_config(ProptestConfig { cases: 2000, rng_seed: proptest::test_runner::RngSeed::Fixed(3), ..ProptestConfig::default() })]
-        /// Any flipped byte anywhere: the load is an error, never a panic or a map that did
+        /// Any flipped bit anywhere: the load is an error, never a panic or a map that did
         /// not pass validation.
         #[test]
         fn flipped_bytes_are_always_caught(position in 0usize..100_000, bit in 0u8..8) {
-            let dir = tempfile::tempdir().unwrap();
-            let (path, mut bytes) = written(dir.path());
+            let mut bytes = sample_bytes();
             let at = position % bytes.len();
             bytes[at] ^= 1 << bit;
-            std::fs::write(&path, &bytes).unwrap();
-            prop_assert!(load(&path).is_err(), "flip at byte {} went unnoticed", at);
+            prop_assert!(decode(Path::new("t.tile"), &bytes).is_err(), "flip at byte {} went unnoticed", at);
         }
     }
 }

@@ -4,10 +4,14 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
 use crate::pose::Pose3;
 
 /// A trajectory file format.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Format {
     /// KITTI: one pose a line, the 12 numbers of a row-major 3x4 matrix. No timestamps.
     #[default]
@@ -16,15 +20,21 @@ pub enum Format {
     Tum,
 }
 
+impl Format {
+    /// The format's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Kitti => "kitti",
+            Format::Tum => "tum",
+        }
+    }
+}
+
 impl FromStr for Format {
-    type Err = String;
+    type Err = crate::names::NameError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "kitti" => Ok(Format::Kitti),
-            "tum" => Ok(Format::Tum),
-            other => Err(format!("unknown format '{other}' (expected kitti or tum)")),
-        }
+        crate::names::parse_name(s)
     }
 }
 
@@ -66,69 +76,21 @@ pub enum TrajectoryError {
     },
 }
 
-/// The rotation matrix of a unit quaternion `(x, y, z, w)` (normalised first).
-pub fn rotation_from_quaternion(q: [f64; 4]) -> [[f64; 3]; 3] {
-    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
-    let [x, y, z, w] = [q[0] / n, q[1] / n, q[2] / n, q[3] / n];
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - z * w),
-            2.0 * (x * z + y * w),
-        ],
-        [
-            2.0 * (x * y + z * w),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - x * w),
-        ],
-        [
-            2.0 * (x * z - y * w),
-            2.0 * (y * z + x * w),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
+/// The rotation matrix of a quaternion `(x, y, z, w)` (normalised first; nalgebra).
+pub fn rotation_from_quaternion(q: [f64; 4]) -> Matrix3<f64> {
+    UnitQuaternion::from_quaternion(Quaternion::new(q[3], q[0], q[1], q[2]))
+        .to_rotation_matrix()
+        .into_inner()
 }
 
-/// The unit quaternion `(x, y, z, w)` of a rotation matrix (Shepperd's method, `w >= 0`).
-pub fn quaternion_from_rotation(r: &[[f64; 3]; 3]) -> [f64; 4] {
-    let trace = r[0][0] + r[1][1] + r[2][2];
-    let q = if trace > 0.0 {
-        let s = (trace + 1.0).sqrt() * 2.0;
-        [
-            (r[2][1] - r[1][2]) / s,
-            (r[0][2] - r[2][0]) / s,
-            (r[1][0] - r[0][1]) / s,
-            0.25 * s,
-        ]
-    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
-        let s = (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt() * 2.0;
-        [
-            0.25 * s,
-            (r[0][1] + r[1][0]) / s,
-            (r[0][2] + r[2][0]) / s,
-            (r[2][1] - r[1][2]) / s,
-        ]
-    } else if r[1][1] > r[2][2] {
-        let s = (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt() * 2.0;
-        [
-            (r[0][1] + r[1][0]) / s,
-            0.25 * s,
-            (r[1][2] + r[2][1]) / s,
-            (r[0][2] - r[2][0]) / s,
-        ]
+/// The unit quaternion `(x, y, z, w)` of a rotation matrix, with `w >= 0` (nalgebra).
+pub fn quaternion_from_rotation(r: &Matrix3<f64>) -> [f64; 4] {
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
+    let [x, y, z, w] = [q.i, q.j, q.k, q.w];
+    if w < 0.0 {
+        [-x, -y, -z, -w]
     } else {
-        let s = (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt() * 2.0;
-        [
-            (r[0][2] + r[2][0]) / s,
-            (r[1][2] + r[2][1]) / s,
-            0.25 * s,
-            (r[1][0] - r[0][1]) / s,
-        ]
-    };
-    if q[3] < 0.0 {
-        [-q[0], -q[1], -q[2], -q[3]]
-    } else {
-        q
+        [x, y, z, w]
     }
 }
 
@@ -172,11 +134,9 @@ pub fn parse(text: &str, path: &Path, format: Format) -> Result<Trajectory, Traj
                         format!("expected 12 numbers, found {}", v.len()),
                     ));
                 }
-                out.poses.push([
-                    [v[0], v[1], v[2], v[3]],
-                    [v[4], v[5], v[6], v[7]],
-                    [v[8], v[9], v[10], v[11]],
-                ]);
+                let mut row_major = [0.0; 12];
+                row_major.copy_from_slice(&v);
+                out.poses.push(Pose3::from_row_major(&row_major));
             }
             Format::Tum => {
                 if v.len() != 8 {
@@ -189,12 +149,10 @@ pub fn parse(text: &str, path: &Path, format: Format) -> Result<Trajectory, Traj
                 if qn < 1e-9 {
                     return Err(error(k + 1, "the quaternion has zero length".to_string()));
                 }
-                let r = rotation_from_quaternion([v[4], v[5], v[6], v[7]]);
-                out.poses.push([
-                    [r[0][0], r[0][1], r[0][2], v[1]],
-                    [r[1][0], r[1][1], r[1][2], v[2]],
-                    [r[2][0], r[2][1], r[2][2], v[3]],
-                ]);
+                out.poses.push(Pose3 {
+                    rotation: rotation_from_quaternion([v[4], v[5], v[6], v[7]]),
+                    translation: Vector3::new(v[1], v[2], v[3]),
+                });
                 if let Some(stamps) = out.stamps.as_mut() {
                     stamps.push(v[0]);
                 }
@@ -223,7 +181,7 @@ pub fn format_text(
     match format {
         Format::Kitti => {
             for p in &traj.poses {
-                let row: Vec<String> = p.iter().flatten().map(|v| format!("{v}")).collect();
+                let row: Vec<String> = p.to_row_major().iter().map(|v| format!("{v}")).collect();
                 let _ = writeln!(s, "{}", row.join(" "));
             }
         }
@@ -235,17 +193,9 @@ pub fn format_text(
                     path: path.to_path_buf(),
                 })?;
             for (t, p) in stamps.iter().zip(&traj.poses) {
-                let r = [
-                    [p[0][0], p[0][1], p[0][2]],
-                    [p[1][0], p[1][1], p[1][2]],
-                    [p[2][0], p[2][1], p[2][2]],
-                ];
-                let q = quaternion_from_rotation(&r);
-                let _ = writeln!(
-                    s,
-                    "{t} {} {} {} {} {} {} {}",
-                    p[0][3], p[1][3], p[2][3], q[0], q[1], q[2], q[3]
-                );
+                let q = quaternion_from_rotation(&p.rotation);
+                let [x, y, z] = [p.translation[0], p.translation[1], p.translation[2]];
+                let _ = writeln!(s, "{t} {x} {y} {z} {} {} {} {}", q[0], q[1], q[2], q[3]);
             }
         }
     }
@@ -286,13 +236,10 @@ mod tests {
         let p = Path::new("x.tum");
         let t = parse(text, p, Format::Tum).unwrap();
         assert_eq!(t.stamps.as_deref(), Some(&[1.5][..]));
-        assert!((t.poses[0][1][0] - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12);
+        assert!((t.poses[0].rotation[(1, 0)] - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12);
         let again = parse(&format_text(&t, Format::Tum, p).unwrap(), p, Format::Tum).unwrap();
-        for i in 0..3 {
-            for j in 0..4 {
-                assert!((again.poses[0][i][j] - t.poses[0][i][j]).abs() < 1e-12);
-            }
-        }
+        let (a, b) = (again.poses[0].to_row_major(), t.poses[0].to_row_major());
+        assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-12));
     }
 
     #[test]

@@ -2,8 +2,8 @@
 //!
 //! `cargo bench -p lanealign-map --bench tiles [-- --loads N] [-- --pbf-copies K]`
 //!
-//! Part 1, per map: compile time, tile bytes, bytes per lane-km, and load time (mmap + full
-//! validation) over N loads (default 1000), median and p99.
+//! Part 1, per map: compile time, tile bytes, bytes per lane-km, and load time (read + full
+//! validation + KD-tree build) over N loads (default 1000), median and p99.
 //! Part 2: a large PBF made by tiling KITTI 00's OSM K x K times (default 32) with shifted ids
 //! and coordinates (written to a temporary folder, never kept), converted with `osmium cat`; read
 //! by lanealign-map and by `osmium fileinfo -e` and `osmium cat -f opl` on the same file, each
@@ -32,17 +32,6 @@ fn percentile(mut v: Vec<f64>, q: f64) -> f64 {
     v[((v.len() - 1) as f64 * q).round() as usize]
 }
 
-fn lane_km(map: &lanealign_core::lane_map::LaneMap) -> f64 {
-    map.lanes()
-        .map(|(_, p)| {
-            p.windows(2)
-                .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
-                .sum::<f64>()
-        })
-        .sum::<f64>()
-        / 1000.0
-}
-
 fn maps_table(data: &Path, loads: usize) -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
     println!("| map | compile (ms) | lanes | lane-km | tile bytes | bytes per lane-km | load median (us) | load p99 (us) |");
@@ -54,9 +43,10 @@ fn maps_table(data: &Path, loads: usize) -> anyhow::Result<()> {
     inputs.push(data.join("lanelet2/mapping_example.osm"));
     for input in inputs {
         let start = Instant::now();
-        let (map, plane, _) = compile(std::slice::from_ref(&input), &CompileOptions::default())?;
+        let compiled = compile(std::slice::from_ref(&input), &CompileOptions::default())?;
+        let map = &compiled.map;
         let out = dir.path().join("map.tile");
-        tile::write(&out, &map, &plane, 3.0)?;
+        tile::write_bytes(&out, &compiled.tile_bytes(3.0))?;
         let compile_ms = start.elapsed().as_secs_f64() * 1e3;
         let bytes = std::fs::metadata(&out)?.len();
         let mut times = Vec::with_capacity(loads);
@@ -66,7 +56,7 @@ fn maps_table(data: &Path, loads: usize) -> anyhow::Result<()> {
             times.push(t.elapsed().as_secs_f64() * 1e6);
             std::hint::black_box(loaded);
         }
-        let km = lane_km(&map);
+        let km = map.lane_length_m() / 1000.0;
         println!(
             "| {} | {compile_ms:.1} | {} | {km:.1} | {bytes} | {:.0} | {:.0} | {:.0} |",
             input

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses};
 use lanealign_core::lane_map::{Lane, LaneMap, LaneMapError};
 
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
@@ -91,11 +92,27 @@ fn centre(inputs: &[OsmData]) -> Option<(f64, f64)> {
     (b[0] <= b[2]).then(|| ((b[0] + b[2]) as f64 / 2e9, (b[1] + b[3]) as f64 / 2e9))
 }
 
+/// A compiled lane map and everything a tile records about it.
+pub struct Compiled {
+    /// The lanes.
+    pub map: LaneMap,
+    /// The plane they are in.
+    pub plane: MapPlane,
+    /// How they were derived.
+    pub geometry: LaneGeometry,
+    /// What each input contributed, in input order.
+    pub reports: Vec<InputReport>,
+}
+
+impl Compiled {
+    /// The tile bytes of this map (points resampled at `spacing_m`).
+    pub fn tile_bytes(&self, spacing_m: f64) -> Vec<u8> {
+        lanealign_core::tile::encode(&self.map, &self.plane, spacing_m, &self.geometry)
+    }
+}
+
 /// Reads every input and derives its lanes into one map, in input order.
-pub fn compile(
-    inputs: &[PathBuf],
-    options: &CompileOptions,
-) -> Result<(LaneMap, MapPlane, Vec<InputReport>), CompileError> {
+pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled, CompileError> {
     let mut data = Vec::with_capacity(inputs.len());
     for path in inputs {
         let (bar, done) = spinner(format!("reading {}", path.display()));
@@ -111,6 +128,7 @@ pub fn compile(
     let plane = MapPlane::new(options.projection, lat, lon);
     let mut lanes: Vec<Lane> = Vec::new();
     let mut reports = Vec::with_capacity(data.len());
+    let mut from_osm_ways = false;
     for osm in &data {
         if is_lanelet2(osm) {
             let (l, r) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
@@ -120,7 +138,22 @@ pub fn compile(
             let (l, r) = derive_lanes(osm, &plane, &options.lanes);
             lanes.extend(l);
             reports.push(InputReport::Osm(r));
+            from_osm_ways = true;
         }
     }
-    Ok((LaneMap::new(&lanes)?, plane, reports))
+    let geometry = if from_osm_ways {
+        options.lanes.geometry()
+    } else {
+        LaneGeometry {
+            traffic: options.lanes.traffic,
+            classes: RoadClasses::EMPTY,
+            unmarked_offset_scale: None,
+        }
+    };
+    Ok(Compiled {
+        map: LaneMap::new(&lanes)?,
+        plane,
+        geometry,
+        reports,
+    })
 }

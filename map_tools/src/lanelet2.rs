@@ -8,6 +8,7 @@
 //! on the left. `one_way=no` lanelets are driven both ways and yield a lane in each direction.
 
 use lanealign_core::geo::MapPlane;
+use lanealign_core::lane_geometry::{LaneInfo, RoadClass};
 use lanealign_core::lane_map::{resample, Lane};
 
 use crate::osm::{tag, OsmData, Relation};
@@ -170,11 +171,13 @@ pub fn derive_lanelet_lanes(
         let mut reverse = two_way.then(|| centre.iter().rev().copied().collect::<Vec<_>>());
         lanes.push(Lane {
             id,
+            info: LaneInfo::new(RoadClass::Lanelet, 0),
             points: resample(&centre, spacing_m),
         });
         if let Some(reverse) = reverse.take() {
             lanes.push(Lane {
                 id: id | 1,
+                info: LaneInfo::new(RoadClass::Lanelet, LaneInfo::BACKWARD),
                 points: resample(&reverse, spacing_m),
             });
         }

@@ -5,8 +5,8 @@
 //! use std::path::{Path, PathBuf};
 //! use lanealign_map::compile::{compile, CompileOptions};
 //!
-//! let (map, plane, _reports) = compile(&[PathBuf::from("karlsruhe.osm")], &CompileOptions::default())?;
-//! lanealign_core::tile::write(Path::new("karlsruhe.tile"), &map, &plane, 3.0)?;
+//! let compiled = compile(&[PathBuf::from("karlsruhe.osm")], &CompileOptions::default())?;
+//! lanealign_core::tile::write_bytes(Path::new("karlsruhe.tile"), &compiled.tile_bytes(3.0))?;
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 

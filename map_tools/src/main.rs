@@ -6,16 +6,18 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
-use lanealign_core::geo::Projection;
+use lanealign_core::geo::{check_lat_lon, Projection};
+use lanealign_core::lane_geometry::{LaneInfo, RoadClass, RoadClasses, Traffic};
+use lanealign_core::params::UNMARKED_OFFSET_SCALE;
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
-use lanealign_map::osm_lanes::{LaneOptions, Traffic, DEFAULT_CLASSES, UNMARKED_OFFSET_SCALE};
+use lanealign_map::osm_lanes::LaneOptions;
 
 #[derive(Parser)]
 #[command(
     name = "lanealign-map",
     version,
-    about = "Compile OSM / Lanelet2 road data into lane tiles"
+    about = "Compile OSM / Lanelet2 road data into lane tiles, and inspect tiles"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -42,8 +44,8 @@ enum Command {
         #[arg(long, default_value = "right")]
         traffic: Traffic,
         /// Lanes of unmarked two-way streets (residential, unclassified, living_street without a
-        /// lanes tag) at this fraction of their nominal offset from the way line; 1 is the
-        /// paper's lane geometry.
+        /// lanes tag) at this fraction of their nominal offset from the way line: 0.5 is
+        /// lanealign's lane geometry (the robust method's), 1 the paper's (`--method paper`).
         #[arg(long, default_value_t = UNMARKED_OFFSET_SCALE)]
         unmarked_offset_scale: f64,
         /// Comma-separated highway classes to derive lanes from (default: motorway to
@@ -54,7 +56,7 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Print a tile's header, counts, size and validity; optionally export GeoJSON.
+    /// Print a tile's header, counts, lane geometry and validity; optionally export GeoJSON.
     Inspect {
         /// The tile.
         tile: PathBuf,
@@ -70,21 +72,37 @@ fn parse_origin(s: &str) -> anyhow::Result<(f64, f64)> {
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
         .with_context(|| format!("--origin '{s}': expected LAT,LON"))?;
-    match v[..] {
-        [lat, lon] if lat.abs() <= 90.0 && lon.abs() <= 180.0 => Ok((lat, lon)),
-        _ => bail!("--origin '{s}': expected LAT,LON in degrees"),
-    }
+    let [lat, lon] = v[..] else {
+        bail!("--origin '{s}': expected LAT,LON in degrees");
+    };
+    check_lat_lon(lat, lon).with_context(|| format!("--origin '{s}'"))?;
+    Ok((lat, lon))
 }
 
-fn lane_km(map: &lanealign_core::lane_map::LaneMap) -> f64 {
-    map.lanes()
-        .map(|(_, pts)| {
-            pts.windows(2)
-                .map(|w| ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt())
-                .sum::<f64>()
-        })
-        .sum::<f64>()
-        / 1000.0
+/// GeoJSON properties of one lane: where it came from and how it runs.
+fn lane_properties(id: u64, info: LaneInfo, points: usize) -> serde_json::Value {
+    let direction = if info.has(LaneInfo::BACKWARD) {
+        "backward"
+    } else {
+        "forward"
+    };
+    let mut p = serde_json::json!({
+        "lane_id": id,
+        "road_class": info.class.name(),
+        "direction": direction,
+        "lanes_tagged": info.has(LaneInfo::LANES_TAGGED),
+        "unmarked": info.has(LaneInfo::UNMARKED),
+        "points": points,
+    });
+    match info.class {
+        RoadClass::Lanelet => p["lanelet_id"] = serde_json::json!(id >> 1),
+        RoadClass::Unknown => {}
+        _ => {
+            p["osm_way_id"] = serde_json::json!(id >> 5);
+            p["lane_index"] = serde_json::json!(id & 31);
+        }
+    }
+    p
 }
 
 fn main() -> anyhow::Result<()> {
@@ -105,9 +123,10 @@ fn main() -> anyhow::Result<()> {
             if !(0.0..=2.0).contains(&unmarked_offset_scale) {
                 bail!("--unmarked-offset-scale must be between 0 and 2");
             }
-            let classes = classes
-                .map(|c| c.split(',').map(|s| s.trim().to_string()).collect())
-                .unwrap_or_else(|| DEFAULT_CLASSES.iter().map(|s| s.to_string()).collect());
+            let classes = match classes {
+                Some(list) => RoadClasses::parse_list(&list).context("--classes")?,
+                None => RoadClasses::DEFAULT,
+            };
             let options = CompileOptions {
                 origin: origin.as_deref().map(parse_origin).transpose()?,
                 projection,
@@ -119,9 +138,10 @@ fn main() -> anyhow::Result<()> {
                 },
             };
             let start = Instant::now();
-            let (map, plane, reports) = compile(&inputs, &options)?;
-            tile::write(&output, &map, &plane, spacing)?;
-            for (path, report) in inputs.iter().zip(&reports) {
+            let compiled = compile(&inputs, &options)?;
+            let bytes = compiled.tile_bytes(spacing);
+            tile::write_bytes(&output, &bytes)?;
+            for (path, report) in inputs.iter().zip(&compiled.reports) {
                 match report {
                     InputReport::Osm(r) => eprintln!(
                         "{}: OSM, {} drivable ways -> {} lanes; {} ways without geometry, {} missing node references",
@@ -133,20 +153,20 @@ fn main() -> anyhow::Result<()> {
                     ),
                 }
             }
+            let (map, plane) = (&compiled.map, &compiled.plane);
             eprintln!(
-                "{}: {} lanes, {} points, {:.1} lane-km, {} bytes, origin {:.7},{:.7} ({}), {:.2} s",
-                output.display(), map.lane_count(), map.len(), lane_km(&map), tile::HEADER_LEN + map.image().len(),
-                plane.origin_lat, plane.origin_lon, plane.projection.name(), start.elapsed().as_secs_f64()
+                "{}: {} lanes, {} points, {:.1} lane-km, {} bytes, origin {:.7},{:.7} ({}); {}; {:.2} s",
+                output.display(), map.lane_count(), map.len(), map.lane_length_m() / 1000.0, bytes.len(),
+                plane.origin_lat, plane.origin_lon, plane.projection.name(), compiled.geometry,
+                start.elapsed().as_secs_f64()
             );
         }
         Command::Inspect {
             tile: path,
             geojson,
         } => {
-            let bytes =
-                std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-            let info = tile::read_info(&path, &bytes)?;
-            let (map, _) = tile::load(&path)?;
+            let bytes = tile::read_regular_file(&path, tile::MAX_TILE_BYTES)?;
+            let (map, info) = tile::decode(&path, &bytes)?;
             let p = info.plane;
             let (lat0, lon0) = p.unproject([info.bounds[0], info.bounds[1]]);
             let (lat1, lon1) = p.unproject([info.bounds[2], info.bounds[3]]);
@@ -163,35 +183,42 @@ fn main() -> anyhow::Result<()> {
                 p.projection.name()
             );
             println!("spacing     {} m", info.spacing_m);
+            println!("geometry    {}", info.geometry);
             println!("lanes       {}", info.lanes);
             println!("points      {}", info.points);
-            println!("lane-km     {:.3}", lane_km(&map));
+            println!("lane-km     {:.3}", map.lane_length_m() / 1000.0);
             println!(
                 "bounds      x {:.1}..{:.1} m, y {:.1}..{:.1} m",
                 info.bounds[0], info.bounds[2], info.bounds[1], info.bounds[3]
             );
             println!("lat/lon     {lat0:.7},{lon0:.7} .. {lat1:.7},{lon1:.7}");
             println!(
-                "checksum    {:016x} ok; arrays and KD-tree valid",
+                "checksum    {:016x} ok; every field and array valid",
                 info.checksum
             );
             if let Some(out) = geojson {
                 let features: Vec<serde_json::Value> = map
                     .lanes()
-                    .map(|(id, pts)| {
-                        let coords: Vec<[f64; 2]> = pts.iter().map(|&q| {
-                            let (lat, lon) = p.unproject(q);
-                            [lon, lat]
-                        }).collect();
-                        let heading = pts.get(1).map(|b| (b[1] - pts[0][1]).atan2(b[0] - pts[0][0]).to_degrees());
+                    .map(|(id, lane_info, pts)| {
+                        let coords: Vec<[f64; 2]> = pts
+                            .iter()
+                            .map(|&q| {
+                                let (lat, lon) = p.unproject(q);
+                                [lon, lat]
+                            })
+                            .collect();
                         serde_json::json!({
                             "type": "Feature",
-                            "properties": { "lane_id": id, "points": pts.len(), "start_heading_deg_ccw_from_east": heading },
+                            "properties": lane_properties(id, lane_info, pts.len()),
                             "geometry": { "type": "LineString", "coordinates": coords },
                         })
                     })
                     .collect();
-                let doc = serde_json::json!({ "type": "FeatureCollection", "features": features });
+                let doc = serde_json::json!({
+                    "type": "FeatureCollection",
+                    "attribution": "Lane centerlines derived from OpenStreetMap data, (c) OpenStreetMap contributors, ODbL 1.0 (https://www.openstreetmap.org/copyright)",
+                    "features": features,
+                });
                 let mut f = std::io::BufWriter::new(
                     std::fs::File::create(&out)
                         .with_context(|| format!("creating {}", out.display()))?,

@@ -4,57 +4,18 @@
 //! centre and pointing in the lane's direction of travel. Coordinates are metres in the map plane.
 
 use lanealign_core::geo::MapPlane;
+use lanealign_core::lane_geometry::{LaneGeometry, LaneInfo, RoadClass, RoadClasses, Traffic};
 use lanealign_core::lane_map::{resample, Lane};
-use lanealign_core::params::Method;
+use lanealign_core::params::{Method, UNMARKED_OFFSET_SCALE};
 
 use crate::osm::{tag, OsmData, Tags, Way};
-
-/// Which side of the road traffic keeps to.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Traffic {
-    /// Right-hand traffic (continental Europe, the Americas).
-    #[default]
-    Right,
-    /// Left-hand traffic (UK, Japan, ...).
-    Left,
-}
-
-impl std::str::FromStr for Traffic {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "right" => Ok(Traffic::Right),
-            "left" => Ok(Traffic::Left),
-            other => Err(format!(
-                "unknown traffic side '{other}' (expected right or left)"
-            )),
-        }
-    }
-}
-
-/// The `highway` classes lanes are derived from by default.
-pub const DEFAULT_CLASSES: [&str; 13] = [
-    "motorway",
-    "trunk",
-    "primary",
-    "secondary",
-    "tertiary",
-    "unclassified",
-    "residential",
-    "living_street",
-    "motorway_link",
-    "trunk_link",
-    "primary_link",
-    "secondary_link",
-    "tertiary_link",
-];
 
 /// How lanes are derived.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LaneOptions {
-    /// The `highway` values to use (see [`DEFAULT_CLASSES`]; add `service` to include it).
-    pub classes: Vec<String>,
+    /// The `highway` classes to use (default [`RoadClasses::DEFAULT`]; add `service` to
+    /// include it).
+    pub classes: RoadClasses,
     /// Traffic side.
     pub traffic: Traffic,
     /// Minimum spacing of the resampled centerline points (metres).
@@ -68,13 +29,10 @@ pub struct LaneOptions {
     pub unmarked_offset_scale: f64,
 }
 
-/// The default [`LaneOptions::unmarked_offset_scale`].
-pub const UNMARKED_OFFSET_SCALE: f64 = 0.5;
-
 impl Default for LaneOptions {
     fn default() -> Self {
         LaneOptions {
-            classes: DEFAULT_CLASSES.iter().map(|s| s.to_string()).collect(),
+            classes: RoadClasses::DEFAULT,
             traffic: Traffic::Right,
             spacing_m: 3.0,
             unmarked_offset_scale: UNMARKED_OFFSET_SCALE,
@@ -94,9 +52,18 @@ impl LaneOptions {
     /// The lane geometry `method` is designed and measured on: the paper's for
     /// [`Method::Paper`], the default for [`Method::Robust`].
     pub fn for_method(method: Method) -> Self {
-        match method {
-            Method::Paper => LaneOptions::paper(),
-            Method::Robust => LaneOptions::default(),
+        LaneOptions {
+            unmarked_offset_scale: method.unmarked_offset_scale(),
+            ..LaneOptions::default()
+        }
+    }
+
+    /// The lane geometry these options give lanes derived from raw OSM ways.
+    pub fn geometry(&self) -> LaneGeometry {
+        LaneGeometry {
+            traffic: self.traffic,
+            classes: self.classes,
+            unmarked_offset_scale: Some(self.unmarked_offset_scale),
         }
     }
 }
@@ -191,14 +158,19 @@ pub fn lane_counts(class: &str, tags: &Tags) -> LaneCounts {
     }
 }
 
-/// The lane width (metres) of a way: `width` divided by the lane count when plausible, else the
-/// class default.
-pub fn lane_width(class: &str, tags: &Tags, lanes: u32) -> f64 {
+/// The lane width (metres) from a way's `width` tag divided by the lane count, when present and
+/// plausible (2 to 5 m).
+fn tagged_lane_width(tags: &Tags, lanes: u32) -> Option<f64> {
     tag(tags, "width")
         .and_then(|v| v.trim().trim_end_matches('m').trim().parse::<f64>().ok())
         .map(|w| w / lanes.max(1) as f64)
         .filter(|w| (2.0..=5.0).contains(w))
-        .unwrap_or_else(|| default_lane_width(class))
+}
+
+/// The lane width (metres) of a way: `width` divided by the lane count when plausible, else the
+/// class default.
+pub fn lane_width(class: &str, tags: &Tags, lanes: u32) -> f64 {
+    tagged_lane_width(tags, lanes).unwrap_or_else(|| default_lane_width(class))
 }
 
 /// The polyline shifted sideways by `offset_m` (positive to the left of its direction), with
@@ -268,12 +240,16 @@ pub fn derive_lanes(
     let mut report = DeriveReport::default();
     let mut lanes = Vec::new();
     for way in &osm.ways {
-        let Some(class) = tag(&way.tags, "highway") else {
+        let Some(highway) = tag(&way.tags, "highway") else {
             continue;
         };
-        if !opts.classes.iter().any(|c| c == class) || tag(&way.tags, "area") == Some("yes") {
+        let Some(road_class) = RoadClass::from_osm(highway) else {
+            continue;
+        };
+        if !opts.classes.contains(road_class) || tag(&way.tags, "area") == Some("yes") {
             continue;
         }
+        let class = road_class.name();
         let Some(mut line) = way_line(osm, way, plane, &mut report) else {
             report.ways_without_geometry += 1;
             continue;
@@ -284,26 +260,42 @@ pub fn derive_lanes(
         report.ways_used += 1;
         let counts = lane_counts(class, &way.tags);
         let id = |k: u32| (way.id.unsigned_abs() << 5) | u64::from(k & 31);
+        let lanes_tagged = ["lanes", "lanes:forward", "lanes:backward"]
+            .iter()
+            .any(|key| tag(&way.tags, key).is_some());
+        let mut tags_flags = 0;
+        if lanes_tagged {
+            tags_flags |= LaneInfo::LANES_TAGGED;
+        }
         if counts.shared {
             let forward = resample(&line, opts.spacing_m);
             let mut reversed = line.clone();
             reversed.reverse();
+            let flags = tags_flags | LaneInfo::SHARED;
             lanes.push(Lane {
                 id: id(0),
+                info: LaneInfo::new(road_class, flags),
                 points: forward,
             });
             lanes.push(Lane {
                 id: id(1),
+                info: LaneInfo::new(road_class, flags | LaneInfo::BACKWARD),
                 points: resample(&reversed, opts.spacing_m),
             });
             continue;
         }
         let total = counts.forward + counts.backward;
         let width = lane_width(class, &way.tags, total);
+        if tagged_lane_width(&way.tags, total).is_some() {
+            tags_flags |= LaneInfo::WIDTH_TAGGED;
+        }
         let unmarked = tag(&way.tags, "lanes").is_none()
             && counts.forward > 0
             && counts.backward > 0
             && matches!(class, "residential" | "unclassified" | "living_street");
+        if unmarked {
+            tags_flags |= LaneInfo::UNMARKED;
+        }
         let scale = if unmarked {
             opts.unmarked_offset_scale
         } else {
@@ -318,11 +310,14 @@ pub fn derive_lanes(
             };
             let offset = (total as f64 / 2.0 - k as f64 - 0.5) * width * scale;
             let mut centre = offset_polyline(&line, offset);
+            let mut flags = tags_flags;
             if !forward {
                 centre.reverse();
+                flags |= LaneInfo::BACKWARD;
             }
             lanes.push(Lane {
                 id: id(k),
+                info: LaneInfo::new(road_class, flags),
                 points: resample(&centre, opts.spacing_m),
             });
         }

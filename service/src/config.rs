@@ -1,23 +1,28 @@
-//! The daemon's configuration (TOML). Unknown keys and bad values are refused at start, naming
-//! the key; see `configs/lanealignd.toml` for every field.
+//! The daemon's configuration (TOML), typed: unknown keys and bad values are refused naming the
+//! key. [`Config::resolve`] is the one validation; `lanealignd check` and the daemon both call
+//! it, and [`Config::check_tile`] the one tile check. `configs/lanealignd.toml` documents every
+//! field.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Anchor;
-use lanealign_core::params::{Method, Params, Preset};
+use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::AxisConvention;
-use lanealign_core::smoothing::Smoothing;
-use serde::Deserialize;
+use lanealign_core::tile::TileInfo;
+use lanealign_wire::service::{Namespace, SourceName};
+use serde::{Deserialize, Serialize};
 
 /// The whole configuration file.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
     /// The lane tile (relative paths are relative to the config file).
     pub tile: PathBuf,
-    /// Seconds between two metrics reports per source.
+    /// The deployment's namespace: daemons and clients of different namespaces never see each
+    /// other. Default `default`.
+    #[serde(default = "default_namespace")]
+    pub namespace: String,
+    /// Seconds between two metrics reports per source (0.1 to 3600).
     #[serde(default = "default_metrics_interval")]
     pub metrics_interval_s: f64,
     /// `text` or `json` log lines.
@@ -28,13 +33,17 @@ pub struct Config {
     pub sources: Vec<SourceConfig>,
 }
 
+fn default_namespace() -> String {
+    Namespace::default().to_string()
+}
+
 fn default_metrics_interval() -> f64 {
     5.0
 }
 
 /// Log line format.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum LogFormat {
     /// Human-readable lines.
     #[default]
@@ -43,82 +52,45 @@ pub enum LogFormat {
     Json,
 }
 
+impl std::str::FromStr for LogFormat {
+    type Err = lanealign_core::names::NameError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        lanealign_core::names::parse_name(s)
+    }
+}
+
 /// One odometry source.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SourceConfig {
     /// The source name: its services are `lanealign/<name>/odom` and `.../corrected`.
     pub name: String,
-    /// liodom, basalt, kiss-icp or orb-slam3.
-    pub preset: String,
-    /// `robust` (default, docs/method.md) or `paper` (the published algorithm).
-    #[serde(default = "default_method")]
-    pub method: String,
-    /// Publish smoothed poses (at most 5 cm and 0.1 degree per pose beyond the odometry's own
-    /// motion); `map_from_odom` stays exact.
+    /// Axis convention of the source's poses (default `flu`).
     #[serde(default)]
-    pub smooth: bool,
-    /// Parameter overrides by name (see `Params::KEYS`).
-    #[serde(default)]
-    pub overrides: BTreeMap<String, toml::Value>,
-    /// Axis convention of the source's poses: `flu` or `kitti-camera`.
-    #[serde(default = "default_frame")]
-    pub frame: String,
+    pub frame: AxisConvention,
     /// Where the source's odometry frame lies on Earth.
-    pub anchor: AnchorConfig,
-    /// `fast` (default) or `reference` matching.
-    #[serde(default = "default_match_mode")]
-    pub match_mode: String,
+    pub anchor: Anchor,
     /// Echo poses back without correcting them (to measure the transport alone).
     #[serde(default)]
     pub pass_through: bool,
-}
-
-fn default_method() -> String {
-    "robust".into()
-}
-
-fn default_frame() -> String {
-    "flu".into()
-}
-
-fn default_match_mode() -> String {
-    "fast".into()
-}
-
-/// A source's anchor (`kitti/georef.csv` semantics).
-#[derive(Debug, Clone, Copy, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AnchorConfig {
-    /// Origin latitude, degrees.
-    pub lat: f64,
-    /// Origin longitude, degrees.
-    pub lon: f64,
-    /// Yaw of the odometry x axis, counter-clockwise from East, degrees.
-    pub yaw_deg: f64,
-    /// East offset of the odometry origin, metres.
-    #[serde(default)]
-    pub east_m: f64,
-    /// North offset of the odometry origin, metres.
-    #[serde(default)]
-    pub north_m: f64,
+    /// The corrector: preset, method, matching, smoothing, overrides.
+    pub corrector: CorrectorConfig,
 }
 
 /// A source ready to run.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct ResolvedSource {
     /// Its name.
-    pub name: String,
-    /// Its corrector parameters.
+    pub name: SourceName,
+    /// Its corrector configuration.
+    pub corrector: CorrectorConfig,
+    /// Its effective corrector parameters.
     pub params: Params,
-    /// Smoothing of its published poses, if asked for.
-    pub smoothing: Option<Smoothing>,
     /// Its axis convention.
     pub convention: AxisConvention,
     /// Its anchor.
     pub anchor: Anchor,
-    /// Its match mode.
-    pub match_mode: MatchMode,
     /// Echo without correcting.
     pub pass_through: bool,
 }
@@ -147,146 +119,157 @@ pub enum ConfigError {
     Value {
         /// The file.
         path: PathBuf,
-        /// The key, dotted (`source.lidar.preset`).
+        /// The key, dotted (`source.lidar.corrector`).
         key: String,
         /// What is wrong.
         message: String,
     },
 }
 
+/// The largest configuration file read (bytes).
+const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 impl Config {
-    /// Reads and checks a configuration file; makes `tile` absolute.
-    pub fn load(path: &Path) -> Result<(Config, Vec<ResolvedSource>), ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+    /// Reads a configuration file (at most 1 MiB, regular files only); makes `tile` absolute.
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let io = |source| ConfigError::Io {
             path: path.to_path_buf(),
             source,
-        })?;
+        };
+        let meta = std::fs::metadata(path).map_err(io)?;
+        if !meta.is_file() || meta.len() > MAX_CONFIG_BYTES {
+            return Err(ConfigError::Value {
+                path: path.to_path_buf(),
+                key: "(file)".into(),
+                message: format!("not a regular file of at most {MAX_CONFIG_BYTES} bytes"),
+            });
+        }
+        let text = std::fs::read_to_string(path).map_err(io)?;
         Self::parse(&text, path)
     }
 
-    /// Parses and checks configuration text; `path` names it and anchors relative paths.
-    pub fn parse(text: &str, path: &Path) -> Result<(Config, Vec<ResolvedSource>), ConfigError> {
+    /// Parses configuration text; `path` names it and anchors relative paths.
+    pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
         let mut config: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
+        if config.tile.is_relative() {
+            config.tile = path.parent().unwrap_or(Path::new(".")).join(&config.tile);
+        }
+        Ok(config)
+    }
+
+    /// Checks every rule the daemon applies before it starts a worker, and resolves each
+    /// source's parameters. The one validation: `lanealignd check` runs exactly this (and
+    /// [`Config::check_tile`]).
+    pub fn resolve(&self, path: &Path) -> Result<(Namespace, Vec<ResolvedSource>), ConfigError> {
         let value = |key: String, message: String| ConfigError::Value {
             path: path.to_path_buf(),
             key,
             message,
         };
-        if config.tile.is_relative() {
-            config.tile = path.parent().unwrap_or(Path::new(".")).join(&config.tile);
-        }
-        if !(config.metrics_interval_s.is_finite() && config.metrics_interval_s > 0.0) {
+        let namespace: Namespace =
+            self.namespace
+                .parse()
+                .map_err(|e: lanealign_wire::service::NameError| {
+                    value("namespace".into(), e.to_string())
+                })?;
+        if !(self.metrics_interval_s.is_finite()
+            && (0.1..=3600.0).contains(&self.metrics_interval_s))
+        {
             return Err(value(
                 "metrics_interval_s".into(),
-                "must be a positive number of seconds".into(),
+                format!(
+                    "{}: must be between 0.1 and 3600 seconds",
+                    self.metrics_interval_s
+                ),
             ));
         }
-        if config.sources.is_empty() {
+        if self.sources.is_empty() {
             return Err(value(
                 "source".into(),
                 "at least one [[source]] is needed".into(),
             ));
         }
-        let mut resolved = Vec::new();
-        for s in &config.sources {
-            let key = |field: &str| format!("source.{}.{field}", s.name);
-            if s.name.is_empty()
-                || !s
-                    .name
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-            {
+        let mut resolved: Vec<ResolvedSource> = Vec::new();
+        for s in &self.sources {
+            let name: SourceName =
+                s.name
+                    .parse()
+                    .map_err(|e: lanealign_wire::service::NameError| {
+                        value("source.name".into(), e.to_string())
+                    })?;
+            if resolved.iter().any(|r| r.name == name) {
                 return Err(value(
                     "source.name".into(),
-                    format!("'{}': use letters, digits, '-' and '_'", s.name),
+                    format!("'{name}' is configured twice"),
                 ));
             }
-            if resolved.iter().any(|r: &ResolvedSource| r.name == s.name) {
-                return Err(value(
-                    "source.name".into(),
-                    format!("'{}' is configured twice", s.name),
-                ));
-            }
-            let preset: Preset =
-                s.preset
-                    .parse()
-                    .map_err(|e: lanealign_core::params::ParamsError| {
-                        value(key("preset"), e.to_string())
-                    })?;
-            let method: Method =
-                s.method
-                    .parse()
-                    .map_err(|e: lanealign_core::params::ParamsError| {
-                        value(key("method"), e.to_string())
-                    })?;
-            let mut params = method.params(preset);
-            for (k, v) in &s.overrides {
-                let text = match v {
-                    toml::Value::String(t) => t.clone(),
-                    other => other.to_string(),
-                };
-                params
-                    .set(k, &text)
-                    .map_err(|e| value(key(&format!("overrides.{k}")), e.to_string()))?;
-            }
-            let convention: AxisConvention = s
-                .frame
-                .parse()
-                .map_err(|e: String| value(key("frame"), e))?;
-            let match_mode: MatchMode = s
-                .match_mode
-                .parse()
-                .map_err(|e: String| value(key("match_mode"), e))?;
-            let a = s.anchor;
-            let anchor_text = format!(
-                "{},{},{},{},{}",
-                a.lat, a.lon, a.yaw_deg, a.east_m, a.north_m
-            );
-            let anchor: Anchor = anchor_text
-                .parse()
-                .map_err(|e: String| value(key("anchor"), e))?;
-            if a.lat.abs() > 90.0 || a.lon.abs() > 180.0 {
-                return Err(value(
-                    key("anchor"),
-                    "latitude or longitude out of range".into(),
-                ));
-            }
+            let params = s
+                .corrector
+                .params()
+                .map_err(|e| value(format!("source.{name}.corrector"), e.to_string()))?;
             resolved.push(ResolvedSource {
-                name: s.name.clone(),
+                name,
+                corrector: s.corrector,
                 params,
-                smoothing: s.smooth.then(Smoothing::default),
-                convention,
-                anchor,
-                match_mode,
+                convention: s.frame,
+                anchor: s.anchor,
                 pass_through: s.pass_through,
             });
         }
-        Ok((config, resolved))
+        Ok((namespace, resolved))
+    }
+
+    /// Refuses a tile whose lane geometry a source's method was not designed for.
+    pub fn check_tile(
+        &self,
+        path: &Path,
+        sources: &[ResolvedSource],
+        tile: &TileInfo,
+    ) -> Result<(), ConfigError> {
+        for s in sources.iter().filter(|s| !s.pass_through) {
+            s.corrector
+                .check_geometry(&tile.geometry)
+                .map_err(|e| ConfigError::Value {
+                    path: path.to_path_buf(),
+                    key: format!("source.{}.corrector", s.name),
+                    message: format!("tile {}: {e}", self.tile.display()),
+                })?;
+        }
+        Ok(())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use lanealign_core::params::{Method, Preset};
 
     const GOOD: &str = r#"
 tile = "maps/00.tile"
 [[source]]
 name = "lidar"
-preset = "kiss-icp"
 frame = "kitti-camera"
 anchor = { lat = 48.98, lon = 8.39, yaw_deg = 59.5 }
-overrides = { max_window = 800 }
+corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
 "#;
+
+    fn resolve(text: &str) -> Result<(Namespace, Vec<ResolvedSource>), ConfigError> {
+        let p = Path::new("/etc/lanealign/d.toml");
+        Config::parse(text, p)?.resolve(p)
+    }
 
     #[test]
     fn a_good_config_resolves() {
-        let (c, s) = Config::parse(GOOD, Path::new("/etc/lanealign/d.toml")).unwrap();
+        let p = Path::new("/etc/lanealign/d.toml");
+        let c = Config::parse(GOOD, p).unwrap();
         assert_eq!(c.tile, Path::new("/etc/lanealign/maps/00.tile"));
+        let (ns, s) = c.resolve(p).unwrap();
+        assert_eq!(ns, Namespace::default());
         assert_eq!(s[0].params.max_window, 800);
+        assert_eq!(s[0].corrector.method, Method::Robust);
         assert_eq!(s[0].convention, AxisConvention::KittiCamera);
         assert_eq!(c.metrics_interval_s, 5.0);
     }
@@ -294,38 +277,55 @@ overrides = { max_window = 800 }
     #[test]
     fn the_shipped_config_is_valid() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/lanealignd.toml");
-        let (config, sources) = Config::load(&path).unwrap();
+        let config = Config::load(&path).unwrap();
+        let (_, sources) = config.resolve(&path).unwrap();
         assert!(config.tile.ends_with("kitti_00.tile"));
-        assert_eq!(sources[0].name, "lidar");
+        assert_eq!(sources[0].name.as_str(), "lidar");
         assert_eq!(sources[0].convention, AxisConvention::KittiCamera);
+        assert_eq!(sources[0].corrector.preset, Preset::KissIcp);
+    }
+
+    #[test]
+    fn a_config_written_by_serde_reads_back() {
+        let p = Path::new("/x/d.toml");
+        let c = Config::parse(GOOD, p).unwrap();
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(Config::parse(&text, p).unwrap(), c);
     }
 
     #[test]
     fn bad_configs_name_the_key() {
-        let p = Path::new("d.toml");
         let cases = [
-            (
-                GOOD.replace("preset = \"kiss-icp\"", "preset = \"kiss\""),
-                "source.lidar.preset",
-            ),
+            (GOOD.replace("\"kiss-icp\"", "\"kiss\""), "kiss-icp"),
             (
                 GOOD.replace("max_window = 800", "max_windw = 800"),
-                "source.lidar.overrides.max_windw",
+                "max_windw",
             ),
             (
                 GOOD.replace("max_window = 800", "max_window = 3"),
-                "source.lidar.overrides.max_window",
+                "source.lidar.corrector: max_window = 3",
             ),
             (GOOD.replace("tile =", "tiles ="), "tiles"),
-            (GOOD.replace("preset = \"kiss-icp\"\n", ""), "preset"),
+            (GOOD.replace("preset = \"kiss-icp\", ", ""), "preset"),
             (
                 GOOD.replace("frame = \"kitti-camera\"", "frame = \"kitti\""),
-                "source.lidar.frame",
+                "kitti-camera",
             ),
             (format!("{GOOD}\ncolour = 1\n"), "colour"),
+            (GOOD.replace("lat = 48.98", "lat = 91.0"), "latitude 91"),
+            (
+                format!("metrics_interval_s = 1e300\n{GOOD}"),
+                "metrics_interval_s",
+            ),
+            (GOOD.replace("\"lidar\"", &format!("\"{}\"", "x".repeat(300))), "longer than 64"),
+            (format!("namespace = \"a b\"\n{GOOD}"), "namespace"),
+            (
+                format!("{GOOD}\n[[source]]\nname = \"lidar\"\nanchor = {{ lat = 1.0, lon = 1.0, yaw_deg = 0.0 }}\ncorrector = {{ preset = \"basalt\" }}\n"),
+                "configured twice",
+            ),
         ];
         for (text, key) in cases {
-            let e = Config::parse(&text, p).unwrap_err().to_string();
+            let e = resolve(&text).unwrap_err().to_string();
             assert!(e.contains(key), "{key}: {e}");
         }
     }

@@ -4,7 +4,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
-use lanealign_service::config::{Config, LogFormat};
+use lanealign_service::config::LogFormat;
 use lanealign_service::daemon;
 use tracing_subscriber::EnvFilter;
 
@@ -12,22 +12,22 @@ use tracing_subscriber::EnvFilter;
 #[command(
     name = "lanealignd",
     version,
-    about = "Odometry drift correction daemon (iceoryx2)"
+    about = "Odometry drift correction daemon (iceoryx2 shared memory)"
 )]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
-    /// The configuration file.
+    /// The configuration file (configs/lanealignd.toml documents every key).
     #[arg(long, global = true)]
     config: Option<PathBuf>,
     /// Log format, overriding the configuration: text or json.
     #[arg(long, global = true)]
-    log_format: Option<String>,
+    log_format: Option<LogFormat>,
 }
 
 #[derive(Subcommand)]
 enum Command {
-    /// Validate the configuration and the tile, then exit.
+    /// Check the configuration and the tile with every rule the daemon applies, then exit.
     Check,
 }
 
@@ -37,13 +37,8 @@ fn main() -> anyhow::Result<()> {
     let Some(path) = cli.config else {
         anyhow::bail!("--config FILE is required");
     };
-    let (config, sources) = Config::load(&path)?;
-    let format = match cli.log_format.as_deref() {
-        None => config.log_format,
-        Some("text") => LogFormat::Text,
-        Some("json") => LogFormat::Json,
-        Some(other) => anyhow::bail!("--log-format {other}: expected text or json"),
-    };
+    let prepared = daemon::prepare(&path)?;
+    let format = cli.log_format.unwrap_or(prepared.config.log_format);
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
@@ -55,18 +50,19 @@ fn main() -> anyhow::Result<()> {
     }
     match cli.command {
         Some(Command::Check) => {
-            let (_, info) = lanealign_core::tile::load(&config.tile)?;
             println!(
-                "{}: ok: {} sources, tile {} ({} lanes, {} points)",
+                "{}: ok: {} sources, namespace {}, tile {} ({} lanes, {} points; {})",
                 path.display(),
-                sources.len(),
-                config.tile.display(),
-                info.lanes,
-                info.points
+                prepared.sources.len(),
+                prepared.namespace,
+                prepared.config.tile.display(),
+                prepared.tile.lanes,
+                prepared.tile.points,
+                prepared.tile.geometry,
             );
         }
         None => {
-            let summaries = daemon::run(&config, sources)?;
+            let summaries = daemon::run(prepared)?;
             for (name, s) in summaries {
                 tracing::info!(source = %name, received = s.received, published = s.published, "final");
             }

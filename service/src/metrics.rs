@@ -1,17 +1,25 @@
 //! Per-source latency and outcome counts, reported through `tracing` every metrics interval.
 
 use hdrhistogram::Histogram;
+use lanealign_core::corrector::{Status, StepTiming};
+
+/// What the daemon did with one input, as the metrics count it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Outcome {
+    /// The corrector ran and said this.
+    Corrected(Status),
+    /// The input was refused (non-finite pose, duplicate or out-of-order sequence number).
+    Flagged,
+    /// The source echoes without correcting.
+    PassThrough,
+}
 
 /// Counts and latency histograms of one source since the last report.
 pub struct SourceMetrics {
-    /// Poses processed.
-    pub count: u64,
-    /// Accepted corrections.
-    pub accepted: u64,
-    /// Rejected or reset steps.
-    pub rejected: u64,
-    /// Inputs flagged (non-finite, duplicate or out-of-order sequence numbers).
-    pub flagged: u64,
+    count: u64,
+    accepted: u64,
+    rejected: u64,
+    flagged: u64,
     /// Client send to daemon publish (nanoseconds).
     end_to_end: Histogram<u64>,
     /// Daemon receive to daemon publish (nanoseconds).
@@ -55,15 +63,29 @@ impl Default for SourceMetrics {
 }
 
 impl SourceMetrics {
-    /// Records one processed pose's latencies (nanoseconds).
+    /// Records one answered input: what happened, its latencies (nanoseconds) and where the
+    /// corrector's time went.
     pub fn record(
         &mut self,
+        outcome: &Outcome,
         end_to_end_ns: u64,
         in_daemon_ns: u64,
-        matching_ns: u64,
-        icp_ns: u64,
-        bookkeeping_ns: u64,
+        timing: &StepTiming,
     ) {
+        match outcome {
+            Outcome::Corrected(Status::Accepted { .. }) => self.accepted += 1,
+            Outcome::Corrected(Status::Rejected { .. } | Status::Reset { .. }) => {
+                self.rejected += 1
+            }
+            Outcome::Flagged => self.flagged += 1,
+            Outcome::Corrected(_) | Outcome::PassThrough => {}
+        }
+        let matching_ns = timing.matching.as_nanos() as u64;
+        let icp_ns = timing.icp.as_nanos() as u64;
+        let bookkeeping_ns = timing
+            .total
+            .saturating_sub(timing.matching + timing.icp)
+            .as_nanos() as u64;
         self.count += 1;
         // Saturating: values beyond the range are clamped, never an error.
         self.end_to_end.saturating_record(end_to_end_ns.max(1));
@@ -118,8 +140,37 @@ impl SourceMetrics {
             &mut self.in_daemon,
             &mut self.matching,
             &mut self.icp,
+            &mut self.bookkeeping,
         ] {
             h.reset();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn every_histogram_starts_over_after_a_report() {
+        let mut m = SourceMetrics::default();
+        let timing = StepTiming {
+            matching: Duration::from_micros(5),
+            icp: Duration::from_micros(7),
+            total: Duration::from_micros(100),
+        };
+        m.record(&Outcome::Flagged, 1000, 500, &timing);
+        m.report("test");
+        assert_eq!((m.count, m.flagged), (0, 0));
+        for h in [
+            &m.end_to_end,
+            &m.in_daemon,
+            &m.matching,
+            &m.icp,
+            &m.bookkeeping,
+        ] {
+            assert_eq!(h.len(), 0);
         }
     }
 }

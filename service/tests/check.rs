@@ -1,11 +1,12 @@
-//! `lanealignd check`: a good configuration passes; bad ones fail naming what is wrong.
-//! (These tests also make `cargo test` build `lanealignd`, which the client's end-to-end tests
-//! start as a process.)
+//! `lanealignd check`: a good configuration passes; bad ones fail naming what is wrong, with
+//! exactly the rules the daemon applies. (These tests also make `cargo test` build `lanealignd`,
+//! which the end-to-end tests start as a process.)
 
 use std::path::Path;
 use std::process::{Command, Output};
 
 use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::{Lane, LaneMap};
 
 fn check(config: &Path) -> Output {
@@ -17,89 +18,104 @@ fn check(config: &Path) -> Output {
         .expect("run lanealignd")
 }
 
-fn write_tile(dir: &Path) {
-    let lanes = vec![Lane {
-        id: 1,
-        points: (0..10).map(|i| [i as f64 * 3.0, 0.0]).collect(),
-    }];
+/// A one-lane tile derived with unmarked-street offset scale `scale`.
+fn write_tile(path: &Path, scale: f64) {
+    let lanes = vec![Lane::new(
+        1,
+        (0..10).map(|i| [i as f64 * 3.0, 0.0]).collect(),
+    )];
     let map = LaneMap::new(&lanes).unwrap();
-    lanealign_core::tile::write(
-        &dir.join("t.tile"),
-        &map,
-        &MapPlane::new(Projection::Tangent, 49.0, 8.4),
-        3.0,
-    )
-    .unwrap();
+    let geometry = LaneGeometry {
+        unmarked_offset_scale: Some(scale),
+        ..LaneGeometry::default()
+    };
+    let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+    lanealign_core::tile::write(path, &map, &plane, 3.0, &geometry).unwrap();
 }
 
 const CONFIG: &str = r#"
 tile = "t.tile"
 [[source]]
 name = "wheel"
-preset = "orb-slam3"
 anchor = { lat = 49.0, lon = 8.4, yaw_deg = 0 }
+corrector = { preset = "orb-slam3" }
 "#;
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).to_string()
+}
 
 #[test]
 fn a_good_config_and_tile_pass() {
     let dir = tempfile::tempdir().unwrap();
-    write_tile(dir.path());
+    write_tile(&dir.path().join("t.tile"), 0.5);
+    write_tile(&dir.path().join("paper.tile"), 1.0);
     let config = dir.path().join("d.toml");
     std::fs::write(&config, CONFIG).unwrap();
     let out = check(&config);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", stderr(&out));
     assert!(String::from_utf8_lossy(&out.stdout).contains("ok: 1 sources"));
-    // Both methods and smoothing are accepted.
-    let paper = CONFIG.replace(
+    // The paper's method, smoothed, on a tile of the paper's lane geometry.
+    let paper = CONFIG.replace("t.tile", "paper.tile").replace(
         "preset = \"orb-slam3\"",
-        "preset = \"orb-slam3\"\nmethod = \"paper\"\nsmooth = true",
+        "preset = \"orb-slam3\", method = \"paper\", smooth = true",
     );
     std::fs::write(&config, paper).unwrap();
     let out = check(&config);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", stderr(&out));
 }
 
 #[test]
 fn bad_configs_and_tiles_fail_naming_the_problem() {
     let dir = tempfile::tempdir().unwrap();
-    write_tile(dir.path());
+    write_tile(&dir.path().join("t.tile"), 0.5);
     let config = dir.path().join("d.toml");
     let cases = [
         (
-            CONFIG.replace("preset = \"orb-slam3\"\n", ""),
-            "missing field `preset`",
+            CONFIG.replace("corrector = { preset = \"orb-slam3\" }\n", ""),
+            "missing field `corrector`",
         ),
         (
             CONFIG.replace("yaw_deg = 0", "yaw_deg = 0, height = 3"),
             "height",
         ),
+        (CONFIG.replace("orb-slam3", "orbslam"), "orb-slam3"),
         (
-            CONFIG.replace("orb-slam3", "orbslam"),
-            "source.wheel.preset",
+            CONFIG.replace("t.tile", "missing.tile"),
+            "lanealign-map compile INPUT.osm",
         ),
-        (CONFIG.replace("t.tile", "missing.tile"), "missing.tile"),
         (
             CONFIG.replace(
                 "preset = \"orb-slam3\"",
-                "preset = \"orb-slam3\"\nmethod = \"best\"",
+                "preset = \"orb-slam3\", method = \"best\"",
             ),
-            "source.wheel.method",
+            "unknown variant `best`",
+        ),
+        // The paper's method on a tile of lanealign's geometry: refused, with the fix.
+        (
+            CONFIG.replace(
+                "preset = \"orb-slam3\"",
+                "preset = \"orb-slam3\", method = \"paper\"",
+            ),
+            "--unmarked-offset-scale 1",
+        ),
+        (
+            CONFIG.replace(
+                "name = \"wheel\"",
+                &format!("name = \"{}\"", "w".repeat(300)),
+            ),
+            "longer than 64",
+        ),
+        (
+            format!("metrics_interval_s = 1e300\n{CONFIG}"),
+            "metrics_interval_s",
         ),
     ];
     for (text, what) in cases {
         std::fs::write(&config, text).unwrap();
         let out = check(&config);
-        let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{what}: must fail");
-        assert!(err.contains(what), "{what}: {err}");
+        assert!(stderr(&out).contains(what), "{what}: {}", stderr(&out));
     }
     // A damaged tile is refused with the reason.
     std::fs::write(&config, CONFIG).unwrap();
@@ -108,6 +124,6 @@ fn bad_configs_and_tiles_fail_naming_the_problem() {
     let last = bytes.len() - 1;
     bytes[last] ^= 0x40;
     std::fs::write(&tile, bytes).unwrap();
-    let err = String::from_utf8_lossy(&check(&config).stderr).to_string();
+    let err = stderr(&check(&config));
     assert!(err.contains("checksum mismatch"), "{err}");
 }

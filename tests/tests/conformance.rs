@@ -16,10 +16,10 @@ use lanealign_core::corrector::MatchMode;
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::metrics::{ape_2d, Ape2d};
-use lanealign_core::offline::{correct, counts, Source};
 use lanealign_core::params::Preset;
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
+use lanealign_core::source_corrector::{correct_trajectory, counts, Placement};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 
@@ -55,20 +55,24 @@ fn run(
 ) -> ((usize, usize, usize), Ape2d) {
     let cam = AxisConvention::KittiCamera;
     let map = Arc::new(LaneMap::new(lanes).expect("map"));
-    let out = correct(
+    let out = correct_trajectory(
         map,
         preset.params(),
         MatchMode::Fast,
-        Source {
+        Placement {
             convention: cam,
-            plane_from_odom: Se2::IDENTITY,
+            anchored_from_odom: Se2::IDENTITY,
             smoothing: None,
         },
         odom,
     );
     let est: Vec<Pose3> = out.iter().map(|c| cam.to_planar(&c.pose)).collect();
     let gt: Vec<Pose3> = gt.iter().map(|p| cam.to_planar(p)).collect();
-    (counts(&out), ape_2d(&gt, &est).expect("paired"))
+    let c = counts(&out);
+    (
+        (c.attempts, c.accepted, c.resets),
+        ape_2d(&gt, &est).expect("paired"),
+    )
 }
 
 #[test]

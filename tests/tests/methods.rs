@@ -4,13 +4,13 @@
 use std::sync::Arc;
 
 use lanealign_core::corrector::MatchMode;
-use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::{ape_2d, output_jumps, Ape2d, OutputJumps};
-use lanealign_core::offline::{correct, Source};
 use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::smoothing::Smoothing;
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -23,6 +23,8 @@ struct Sequence {
     /// Lanes in lanealign's default geometry.
     map: Arc<LaneMap>,
     anchor: Anchor,
+    /// The plane both maps are in (the anchor's origin, KITTI's projection).
+    plane: MapPlane,
     gt: Vec<Pose3>,
 }
 
@@ -48,12 +50,11 @@ fn sequences(data: &std::path::Path) -> Vec<Sequence> {
             let osm = data.join(format!("osm/kitti_{name}.osm"));
             let lanes = |lanes: LaneOptions| {
                 let options = CompileOptions {
-                    origin: Some((anchor.lat, anchor.lon)),
+                    origin: Some((anchor.lat(), anchor.lon())),
                     projection: Projection::Kitti,
                     lanes,
                 };
-                let (map, _, _) = compile(std::slice::from_ref(&osm), &options).unwrap();
-                Arc::new(map)
+                Arc::new(compile(std::slice::from_ref(&osm), &options).unwrap().map)
             };
             let gt = read(&data.join(format!("kitti/poses/{name}.txt")), Format::Kitti).unwrap();
             Sequence {
@@ -61,6 +62,7 @@ fn sequences(data: &std::path::Path) -> Vec<Sequence> {
                 paper_map: lanes(LaneOptions::for_method(Method::Paper)),
                 map: lanes(LaneOptions::for_method(Method::Robust)),
                 anchor,
+                plane: MapPlane::new(Projection::Kitti, anchor.lat(), anchor.lon()),
                 gt: gt.poses,
             }
         })
@@ -81,20 +83,20 @@ fn run(
         Format::Kitti,
     )
     .unwrap();
-    let source = Source {
+    let placement = Placement {
         convention: cam,
-        plane_from_odom: s.anchor.plane_from_odom(),
+        anchored_from_odom: s.anchor.anchored_from_odom(&s.plane),
         smoothing,
     };
     let map = match method {
         Method::Paper => &s.paper_map,
         Method::Robust => &s.map,
     };
-    let out = correct(
+    let out = correct_trajectory(
         map.clone(),
         method.params(preset),
         MatchMode::Fast,
-        source,
+        placement,
         &odom.poses,
     );
     let planar = |v: &[Pose3]| v.iter().map(|p| cam.to_planar(p)).collect::<Vec<_>>();

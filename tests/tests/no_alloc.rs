@@ -11,7 +11,7 @@ use lanealign_core::corrector::{Corrector, Status};
 use lanealign_core::lane_csv;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{Method, Preset};
-use lanealign_core::pose::{planar_position, AxisConvention};
+use lanealign_core::pose::AxisConvention;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 
@@ -51,7 +51,7 @@ fn steady_state_corrections_do_not_allocate() {
     let positions: Vec<[f64; 2]> = odom
         .poses
         .iter()
-        .map(|p| planar_position(&cam.to_planar(p)))
+        .map(|p| cam.to_planar(p).planar_position())
         .collect();
     for (preset, method) in [
         (Preset::KissIcp, Method::Paper),

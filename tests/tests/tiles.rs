@@ -6,9 +6,9 @@ use std::process::Command;
 
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::offline::{correct, Source};
 use lanealign_core::params::Preset;
 use lanealign_core::pose::AxisConvention;
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
@@ -23,7 +23,7 @@ fn kitti_00_anchor() -> Anchor {
 
 fn kitti_options(anchor: &Anchor) -> CompileOptions {
     CompileOptions {
-        origin: Some((anchor.lat, anchor.lon)),
+        origin: Some((anchor.lat(), anchor.lon())),
         projection: Projection::Kitti,
         ..CompileOptions::default()
     }
@@ -39,8 +39,8 @@ fn every_shared_map_compiles_into_a_valid_tile() {
         .collect();
     inputs.push(data.join("lanelet2/mapping_example.osm"));
     for input in inputs {
-        let (map, plane, _) =
-            compile(std::slice::from_ref(&input), &CompileOptions::default()).unwrap();
+        let compiled = compile(std::slice::from_ref(&input), &CompileOptions::default()).unwrap();
+        let (map, plane) = (&compiled.map, compiled.plane);
         assert!(
             map.lane_count() > 50,
             "{}: {} lanes",
@@ -48,10 +48,11 @@ fn every_shared_map_compiles_into_a_valid_tile() {
             map.lane_count()
         );
         let out = dir.path().join("t.tile");
-        tile::write(&out, &map, &plane, 3.0).unwrap();
+        tile::write_bytes(&out, &compiled.tile_bytes(3.0)).unwrap();
         let (loaded, info) = tile::load(&out).unwrap();
-        assert_eq!(loaded.image(), map.image());
+        assert!(&loaded == map);
         assert_eq!(info.plane, plane);
+        assert_eq!(info.geometry, compiled.geometry);
     }
 }
 
@@ -78,10 +79,14 @@ fn pbf_gives_the_same_tile_as_xml() {
             .unwrap();
         assert!(status.success(), "osmium cat {name}");
         let options = CompileOptions::default();
-        let (from_xml, plane_xml, _) = compile(&[xml], &options).unwrap();
-        let (from_pbf, plane_pbf, _) = compile(&[pbf], &options).unwrap();
+        let from_xml = compile(&[xml], &options).unwrap();
+        let from_pbf = compile(&[pbf], &options).unwrap();
+        let (plane_xml, plane_pbf) = (from_xml.plane, from_pbf.plane);
         assert_eq!(plane_xml, plane_pbf, "{name}: same origin");
-        assert!(from_xml.image() == from_pbf.image(), "{name}: tiles differ");
+        assert!(
+            from_xml.tile_bytes(3.0) == from_pbf.tile_bytes(3.0),
+            "{name}: tiles differ"
+        );
     }
 }
 
@@ -90,29 +95,29 @@ fn a_tile_corrects_exactly_like_its_osm() {
     let Some(data) = shared_data() else { return };
     let anchor = kitti_00_anchor();
     let osm = data.join("osm/kitti_00.osm");
-    let (map, plane, _) = compile(std::slice::from_ref(&osm), &kitti_options(&anchor)).unwrap();
+    let compiled = compile(std::slice::from_ref(&osm), &kitti_options(&anchor)).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("00.tile");
-    tile::write(&path, &map, &plane, 3.0).unwrap();
+    tile::write_bytes(&path, &compiled.tile_bytes(3.0)).unwrap();
     let (tile_map, info) = tile::load(&path).unwrap();
     let odom = read(&data.join("odometry/lidar/00.txt"), Format::Kitti).unwrap();
     let cam = AxisConvention::KittiCamera;
-    let run = |m, plane_from_odom| {
-        let source = Source {
+    let run = |m, anchored_from_odom| {
+        let placement = Placement {
             convention: cam,
-            plane_from_odom,
+            anchored_from_odom,
             smoothing: None,
         };
-        correct(
+        correct_trajectory(
             std::sync::Arc::new(m),
             Preset::KissIcp.params(),
             MatchMode::Fast,
-            source,
+            placement,
             &odom.poses,
         )
     };
-    let from_osm = run(map, anchor.plane_from_odom());
-    let from_tile = run(tile_map, anchor.plane_from_odom_in(&info.plane));
+    let from_osm = run(compiled.map, anchor.anchored_from_odom(&compiled.plane));
+    let from_tile = run(tile_map, anchor.anchored_from_odom(&info.plane));
     assert_eq!(from_osm, from_tile);
     assert!(from_osm.iter().filter(|c| c.status.attempted()).count() > 4000);
 }
@@ -127,9 +132,13 @@ fn lanelet2_lanes_run_in_their_lanelets_direction() {
     let Some(data) = shared_data() else { return };
     let path = data.join("lanelet2/mapping_example.osm");
     let osm = read_xml_file(&path).unwrap();
-    let (map, plane, _) = compile(std::slice::from_ref(&path), &CompileOptions::default()).unwrap();
-    let lanes: std::collections::HashMap<u64, Vec<[f64; 2]>> =
-        map.lanes().map(|(id, p)| (id, p.to_vec())).collect();
+    let compiled = compile(std::slice::from_ref(&path), &CompileOptions::default()).unwrap();
+    let plane = compiled.plane;
+    let lanes: std::collections::HashMap<u64, Vec<[f64; 2]>> = compiled
+        .map
+        .lanes()
+        .map(|(id, _, p)| (id, p.to_vec()))
+        .collect();
     let bound = |rel: &lanealign_map::osm::Relation, role: &str| -> Vec<[f64; 2]> {
         let id = rel.members.iter().find(|m| m.role == role).unwrap().id;
         let way = osm.ways.iter().find(|w| w.id == id).unwrap();
@@ -182,7 +191,8 @@ fn lanelet2_lanes_run_in_their_lanelets_direction() {
 fn known_lanelets_start_and_end_between_their_bounds() {
     let Some(data) = shared_data() else { return };
     let path = data.join("lanelet2/mapping_example.osm");
-    let (map, plane, _) = compile(std::slice::from_ref(&path), &CompileOptions::default()).unwrap();
+    let compiled = compile(std::slice::from_ref(&path), &CompileOptions::default()).unwrap();
+    let (map, plane) = (&compiled.map, compiled.plane);
     let osm = read_xml_file(&path).unwrap();
     let p = |node: i64| {
         let (lat, lon) = osm.position(node).unwrap();
@@ -200,8 +210,8 @@ fn known_lanelets_start_and_end_between_their_bounds() {
     ] {
         let lane = map
             .lanes()
-            .find(|(id, _)| *id == lanelet as u64 * 2)
-            .map(|(_, pts)| pts.to_vec())
+            .find(|(id, _, _)| *id == lanelet as u64 * 2)
+            .map(|(_, _, pts)| pts.to_vec())
             .unwrap();
         let (l0, l1) = first_last(left);
         let (r0, r1) = first_last(right);

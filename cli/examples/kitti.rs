@@ -3,7 +3,7 @@
 //! the paper pipeline's reference lanes, and the reference implementation's figure
 //! (`reference/results.csv`). The robust method's figures come from the `ablation` example.
 //!
-//! `cargo run --release -p lanealign-client --example kitti [-- --data DIR] [-- --all-presets]`
+//! `cargo run --release -p lanealign-cli --example kitti [-- --data DIR] [-- --all-presets]`
 //!
 //! By default it runs `lidar` with kiss-icp and `stereo_vo` with orb-slam3 (as the paper pairs
 //! them); `--all-presets` adds liodom and basalt (the four pairs of `results.csv`).
@@ -14,14 +14,14 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use anyhow::Context;
-use lanealign_client::kitti::{anchors, data_dir_from_args, SEQUENCES};
-use lanealign_client::maps::MapSource;
+use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
+use lanealign_cli::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, Ape2d};
-use lanealign_core::offline::{correct, counts, Source};
 use lanealign_core::params::Preset;
 use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::source_corrector::{correct_trajectory, counts, Counts, Placement};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
 
@@ -34,7 +34,7 @@ struct Job {
 struct Row {
     raw: Ape2d,
     osm: Ape2d,
-    osm_counts: (usize, usize, usize),
+    osm_counts: Counts,
     reference_lanes: Ape2d,
 }
 
@@ -56,16 +56,21 @@ fn corrected(
     preset: Preset,
     odom: &[Pose3],
     gt: &[Pose3],
-) -> anyhow::Result<(Ape2d, (usize, usize, usize))> {
+) -> anyhow::Result<(Ape2d, Counts)> {
     let cam = AxisConvention::KittiCamera;
     let loaded = map_source.load()?;
-    let (map, plane_from_odom) = (loaded.map, loaded.plane_from_odom);
-    let source = Source {
+    let placement = Placement {
         convention: cam,
-        plane_from_odom,
+        anchored_from_odom: loaded.anchored_from_odom,
         smoothing: None,
     };
-    let run = correct(map, preset.params(), MatchMode::Fast, source, odom);
+    let run = correct_trajectory(
+        loaded.map,
+        preset.params(),
+        MatchMode::Fast,
+        placement,
+        odom,
+    );
     let est: Vec<Pose3> = run.iter().map(|c| cam.to_planar(&c.pose)).collect();
     Ok((ape_2d(gt, &est)?, counts(&run)))
 }
@@ -148,7 +153,11 @@ fn main() -> anyhow::Result<()> {
             ))
             .copied()
             .unwrap_or(f64::NAN);
-        let (a, b, c) = r.osm_counts;
+        let (a, b, c) = (
+            r.osm_counts.attempts,
+            r.osm_counts.accepted,
+            r.osm_counts.resets,
+        );
         println!(
             "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {a} / {b} / {c} |",
             job.odometry,

@@ -9,7 +9,7 @@ use lanealign_core::geo::Anchor;
 /// The KITTI odometry sequences with ground truth in the shared data (03 has no OSM extract).
 pub const SEQUENCES: [&str; 10] = ["00", "01", "02", "04", "05", "06", "07", "08", "09", "10"];
 
-/// `$LANEALIGN_DATA` when set, else `../shared/data` as seen from the workspace root.
+/// `$LANEALIGN_DATA` when set, else `../shared/data` beside the workspace this was built in.
 pub fn default_data_dir() -> PathBuf {
     std::env::var_os("LANEALIGN_DATA")
         .map(PathBuf::from)

@@ -3,21 +3,26 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use anyhow::Context;
-use lanealign_core::geo::{Anchor, Projection};
+use anyhow::{bail, Context};
+use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_csv;
+use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::se2::Se2;
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::osm_lanes::LaneOptions;
 
-/// A loaded map, the source's placement on it, and what reading road data reported.
+/// A loaded map, the source's placement on it, and what is known about its lanes.
 pub struct LoadedMap {
     /// The lane map.
     pub map: Arc<LaneMap>,
-    /// `plane_from_odom`: where the source's planar odometry frame lies in the map plane.
-    pub plane_from_odom: Se2,
+    /// Where the source's anchor places its planar odometry frame in the map plane.
+    pub anchored_from_odom: Se2,
+    /// The map's plane (`None` for lanes given in the odometry frame).
+    pub plane: Option<MapPlane>,
+    /// How the lanes were derived (`None` for lanes given as CSV).
+    pub geometry: Option<LaneGeometry>,
     /// For road data compiled on the fly, what the reader did (skipped ways, missing nodes).
     pub report: Option<InputReport>,
 }
@@ -36,12 +41,14 @@ pub enum MapSource {
         /// Lane derivation options.
         options: LaneOptions,
     },
-    /// A compiled tile, memory-mapped.
+    /// A compiled tile.
     Tile {
         /// The tile file.
         path: PathBuf,
         /// Where the odometry frame lies on Earth.
         anchor: Anchor,
+        /// The projection the anchor was measured in, when given: it must be the tile's.
+        projection: Option<Projection>,
     },
     /// Lane polylines already in the source's planar odometry frame (`lane_id,x,y`).
     LanesCsv(PathBuf),
@@ -58,22 +65,38 @@ impl MapSource {
                 options,
             } => {
                 let compile_options = CompileOptions {
-                    origin: Some((anchor.lat, anchor.lon)),
+                    origin: Some((anchor.lat(), anchor.lon())),
                     projection: *projection,
                     lanes: options.clone(),
                 };
-                let (map, _, mut reports) = compile(std::slice::from_ref(path), &compile_options)?;
+                let mut compiled = compile(std::slice::from_ref(path), &compile_options)?;
                 Ok(LoadedMap {
-                    map: Arc::new(map),
-                    plane_from_odom: anchor.plane_from_odom(),
-                    report: reports.pop(),
+                    anchored_from_odom: anchor.anchored_from_odom(&compiled.plane),
+                    plane: Some(compiled.plane),
+                    geometry: Some(compiled.geometry),
+                    report: compiled.reports.pop(),
+                    map: Arc::new(compiled.map),
                 })
             }
-            MapSource::Tile { path, anchor } => {
+            MapSource::Tile {
+                path,
+                anchor,
+                projection,
+            } => {
                 let (map, info) = tile::load(path)?;
+                if let Some(p) = projection.filter(|&p| p != info.plane.projection) {
+                    bail!(
+                        "{}: the tile's plane uses the {} projection, the anchor was given for {}",
+                        path.display(),
+                        info.plane.projection.name(),
+                        p.name()
+                    );
+                }
                 Ok(LoadedMap {
                     map: Arc::new(map),
-                    plane_from_odom: anchor.plane_from_odom_in(&info.plane),
+                    anchored_from_odom: anchor.anchored_from_odom(&info.plane),
+                    plane: Some(info.plane),
+                    geometry: Some(info.geometry),
                     report: None,
                 })
             }
@@ -83,7 +106,9 @@ impl MapSource {
                     .with_context(|| format!("building the lane map of {}", path.display()))?;
                 Ok(LoadedMap {
                     map: Arc::new(map),
-                    plane_from_odom: Se2::IDENTITY,
+                    anchored_from_odom: Se2::IDENTITY,
+                    plane: None,
+                    geometry: None,
                     report: None,
                 })
             }

@@ -1,6 +1,6 @@
 //! Per-pose cost of the corrector on real KITTI runs, fast vs reference matching, one table.
 //!
-//! `cargo bench -p lanealign-client --bench corrector [-- OPTIONS]`
+//! `cargo bench -p lanealign-cli --bench corrector [-- OPTIONS]`
 //!
 //! - `--sequences 00,02,08` (default), `--presets all` (default) or a comma list;
 //! - `--methods paper,robust` (default: both, each on its own lane geometry);
@@ -16,13 +16,13 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
-use lanealign_client::kitti::{anchors, default_data_dir};
-use lanealign_client::maps::MapSource;
+use lanealign_cli::kitti::{anchors, default_data_dir};
+use lanealign_cli::maps::MapSource;
 use lanealign_core::corrector::{Corrector, MatchMode, Status, Step};
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{Method, Params, Preset};
-use lanealign_core::pose::{planar_position, AxisConvention};
+use lanealign_core::pose::AxisConvention;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
 
@@ -66,7 +66,7 @@ fn identical(a: &[Step], b: &[Step]) -> bool {
     a.iter().zip(b).all(|(x, y)| {
         x.status == y.status
             && x.position_in_map == y.position_in_map
-            && x.map_from_odom == y.map_from_odom
+            && x.map_from_anchored == y.map_from_anchored
     })
 }
 
@@ -87,7 +87,7 @@ fn load(
         options: lanes,
     }
     .load()?;
-    let (map, plane_from_odom) = (loaded.map, loaded.plane_from_odom);
+    let (map, anchored_from_odom) = (loaded.map, loaded.anchored_from_odom);
     let odom = read(
         &data.join(format!("odometry/{odometry}/{seq}.txt")),
         Format::Kitti,
@@ -96,7 +96,7 @@ fn load(
     let positions = odom
         .poses
         .iter()
-        .map(|p| plane_from_odom.apply(planar_position(&cam.to_planar(p))))
+        .map(|p| anchored_from_odom.apply(cam.to_planar(p).planar_position()))
         .collect();
     Ok((map, positions))
 }

@@ -3,7 +3,7 @@
 //! method with each of its changes switched off in turn, and the smoothed output. Prints the
 //! ablation table of `docs/method.md` and, with `--per-sequence`, every sequence.
 //!
-//! `cargo run --release -p lanealign-client --example ablation [-- --data DIR]
+//! `cargo run --release -p lanealign-cli --example ablation [-- --data DIR]
 //!  [-- --per-sequence] [-- --variant NAME:key=value,key=value]...`
 //!
 //! A `--variant` replaces the built-in list: it is the robust method with the given overrides
@@ -17,17 +17,17 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::Context;
-use lanealign_client::kitti::{anchors, data_dir_from_args, SEQUENCES};
-use lanealign_client::maps::MapSource;
+use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
+use lanealign_cli::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::{ape_2d, output_jumps};
-use lanealign_core::offline::{correct, Source};
-use lanealign_core::params::{Method, Preset};
+use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::smoothing::Smoothing;
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
 
@@ -48,7 +48,7 @@ const PAIRS: [(&str, Preset); 8] = [
 struct Variant {
     name: String,
     method: Method,
-    overrides: Vec<String>,
+    overrides: Overrides,
     smooth: bool,
     /// The lane geometry: [`LaneOptions::unmarked_offset_scale`].
     unmarked: f64,
@@ -57,7 +57,7 @@ struct Variant {
 impl Variant {
     fn parse(spec: &str) -> anyhow::Result<Variant> {
         let (name, list) = spec.split_once(':').unwrap_or((spec, ""));
-        let mut overrides = Vec::new();
+        let mut pairs = String::new();
         let mut smooth = false;
         let method = if name.starts_with("paper") {
             Method::Paper
@@ -71,9 +71,11 @@ impl Variant {
             } else if let Some(v) = item.strip_prefix("unmarked_offset_scale=") {
                 unmarked = v.parse()?;
             } else {
-                overrides.push(item.to_string());
+                let (key, value) = item.split_once('=').context("KEY=VALUE")?;
+                pairs.push_str(&format!("{key} = {value}\n"));
             }
         }
+        let overrides: Overrides = toml::from_str(&pairs)?;
         Ok(Variant {
             name: name.to_string(),
             method,
@@ -107,7 +109,7 @@ struct Sequence {
 
 struct Map {
     lanes: Arc<LaneMap>,
-    plane_from_odom: Se2,
+    anchored_from_odom: Se2,
 }
 
 struct Outcome {
@@ -149,22 +151,29 @@ fn load_map(data: &std::path::Path, seq: &str, unmarked: f64) -> anyhow::Result<
     .load()?;
     Ok(Map {
         lanes: loaded.map,
-        plane_from_odom: loaded.plane_from_odom,
+        anchored_from_odom: loaded.anchored_from_odom,
     })
 }
 
 fn run(s: &Sequence, map: &Map, preset: Preset, v: &Variant) -> anyhow::Result<Outcome> {
     let cam = AxisConvention::KittiCamera;
-    let mut params = v.method.params(preset);
-    for o in &v.overrides {
-        params.set_pair(o)?;
+    let params = CorrectorConfig {
+        overrides: v.overrides,
+        ..CorrectorConfig::new(preset, v.method)
     }
-    let source = Source {
+    .params()?;
+    let placement = Placement {
         convention: cam,
-        plane_from_odom: map.plane_from_odom,
+        anchored_from_odom: map.anchored_from_odom,
         smoothing: v.smooth.then(Smoothing::default),
     };
-    let out = correct(map.lanes.clone(), params, MatchMode::Fast, source, &s.odom);
+    let out = correct_trajectory(
+        map.lanes.clone(),
+        params,
+        MatchMode::Fast,
+        placement,
+        &s.odom,
+    );
     let planar = |p: &[Pose3]| -> Vec<Pose3> { p.iter().map(|p| cam.to_planar(p)).collect() };
     let gt = planar(&s.gt);
     let raw = planar(&s.odom);

@@ -2,6 +2,8 @@
 //! right-hand lanes, a route looping through it, the true poses along the route and a drifting
 //! odometry run of them. Everything is generated from a fixed seed.
 
+use lanealign_core::geo::{Anchor, MapPlane, Projection};
+use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses, Traffic};
 use lanealign_core::lane_map::Lane;
 use lanealign_core::pose::Pose3;
 
@@ -56,10 +58,7 @@ pub fn town_lanes() -> Vec<Lane> {
         let right = [dy / len * LANE_OFFSET_M, -dx / len * LANE_OFFSET_M];
         let shifted = |p: [f64; 2]| [p[0] + right[0], p[1] + right[1]];
         id += 1;
-        lanes.push(Lane {
-            id,
-            points: line(shifted(from), shifted(to)),
-        });
+        lanes.push(Lane::new(id, line(shifted(from), shifted(to))));
     };
     for k in 0..STREETS {
         let c = k as f64 * BLOCK_M;
@@ -74,6 +73,25 @@ pub fn town_lanes() -> Vec<Lane> {
     lanes
 }
 
+/// Where the town lies: an East-North tangent plane at 49 N, 8.4 E (metres).
+pub fn town_plane() -> MapPlane {
+    MapPlane::new(Projection::Tangent, 49.0, 8.4)
+}
+
+/// The anchor of the town's odometry: its frame is the map plane itself.
+pub fn town_anchor() -> Anchor {
+    Anchor::new(49.0, 8.4, 0.0, 0.0, 0.0).expect("constant, valid anchor")
+}
+
+/// What a tile of the town records about its lanes: drawn directly, not derived from OSM ways.
+pub fn town_geometry() -> LaneGeometry {
+    LaneGeometry {
+        traffic: Traffic::Right,
+        classes: RoadClasses::EMPTY,
+        unmarked_offset_scale: None,
+    }
+}
+
 /// The route's corners (street intersections), driven in order and then back to the start.
 const ROUTE: [(usize, usize); 8] = [
     (0, 0),
@@ -85,11 +103,6 @@ const ROUTE: [(usize, usize); 8] = [
     (5, 1),
     (0, 1),
 ];
-
-fn pose(x: f64, y: f64, yaw: f64) -> Pose3 {
-    let (s, c) = yaw.sin_cos();
-    [[c, -s, 0.0, x], [s, c, 0.0, y], [0.0, 0.0, 1.0, 0.0]]
-}
 
 /// True poses (flu, map plane) every metre along the route, `laps` times, driving in the right
 /// lane; and an odometry run of them with a heading drift, a scale error and noise from `seed`,
@@ -106,20 +119,23 @@ pub fn drive(laps: usize, seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
             let right = [dy / len * LANE_OFFSET_M, -dx / len * LANE_OFFSET_M];
             for i in 0..len as usize {
                 let t = i as f64 / len;
-                truth.push(pose(
+                truth.push(Pose3::planar(
                     a[0] + t * dx + right[0],
                     a[1] + t * dy + right[1],
                     yaw,
+                    0.0,
                 ));
             }
         }
     }
     let mut rng = Lcg(seed);
-    let yaw_of = |p: &Pose3| p[1][0].atan2(p[0][0]);
-    let (mut x, mut y, mut yaw) = (truth[0][0][3], truth[0][1][3], yaw_of(&truth[0]));
+    let yaw_of = |p: &Pose3| p.planar_heading();
+    let [x0, y0] = truth[0].planar_position();
+    let (mut x, mut y, mut yaw) = (x0, y0, yaw_of(&truth[0]));
     let mut odometry = vec![truth[0]];
     for w in truth.windows(2) {
-        let (dx, dy) = (w[1][0][3] - w[0][0][3], w[1][1][3] - w[0][1][3]);
+        let ([ax, ay], [bx, by]) = (w[0].planar_position(), w[1].planar_position());
+        let (dx, dy) = (bx - ax, by - ay);
         let (s0, c0) = yaw_of(&w[0]).sin_cos();
         // The step in the vehicle frame, measured with 1 % scale error and noise.
         let forward = (c0 * dx + s0 * dy) * 1.01 + 0.01 * rng.normal();
@@ -132,7 +148,7 @@ pub fn drive(laps: usize, seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
         let (s, c) = yaw.sin_cos();
         x += c * forward - s * left;
         y += s * forward + c * left;
-        odometry.push(pose(x, y, yaw));
+        odometry.push(Pose3::planar(x, y, yaw, 0.0));
     }
     (truth, odometry)
 }
@@ -143,29 +159,31 @@ mod tests {
     use lanealign_core::corrector::MatchMode;
     use lanealign_core::lane_map::LaneMap;
     use lanealign_core::metrics::ape_2d;
-    use lanealign_core::offline::{correct, counts, Source};
     use lanealign_core::params::{Method, Preset};
     use lanealign_core::pose::AxisConvention;
     use lanealign_core::se2::Se2;
+    use lanealign_core::source_corrector::{correct_trajectory, counts, Placement};
     use std::sync::Arc;
 
     #[test]
     fn the_town_drive_drifts_and_lanealign_removes_most_of_it() {
         let (truth, odometry) = drive(3, 42);
         let map = Arc::new(LaneMap::new(&town_lanes()).unwrap());
-        let source = Source {
+        let placement = Placement {
             convention: AxisConvention::Flu,
-            plane_from_odom: Se2::IDENTITY,
+            anchored_from_odom: Se2::IDENTITY,
             smoothing: None,
         };
         let raw = ape_2d(&truth, &odometry).unwrap();
         assert!(raw.mean_m > 5.0, "the odometry must drift: {}", raw.mean_m);
         for method in Method::ALL {
             let params = method.params(Preset::KissIcp);
-            let run = correct(map.clone(), params, MatchMode::Fast, source, &odometry);
+            let run =
+                correct_trajectory(map.clone(), params, MatchMode::Fast, placement, &odometry);
             let corrected: Vec<_> = run.iter().map(|c| c.pose).collect();
             let fixed = ape_2d(&truth, &corrected).unwrap();
-            let (attempts, accepted, _) = counts(&run);
+            let c = counts(&run);
+            let (attempts, accepted) = (c.attempts, c.accepted);
             assert!(
                 fixed.mean_m < raw.mean_m / 3.0,
                 "{}: raw {} corrected {} ({accepted}/{attempts} accepted)",

@@ -1,23 +1,15 @@
 //! The `lanealign` command line: evaluation against evo, and bad input.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
+
+use lanealign_tests::shared_data;
 
 fn lanealign(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_lanealign"))
         .args(args)
         .output()
         .expect("run lanealign")
-}
-
-fn data() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    if dir.join("kitti/poses/00.txt").is_file() {
-        Some(dir)
-    } else {
-        eprintln!("SKIPPED: no shared data at {}", dir.display());
-        None
-    }
 }
 
 fn s(p: &Path) -> &str {
@@ -49,7 +41,7 @@ fn eval_json(gt: &Path, est: &Path) -> serde_json::Value {
 /// mean 4.008812199526548, rmse 4.968945055378295, max 14.595055131424358.
 #[test]
 fn eval_equals_evo_on_kitti_00() {
-    let Some(d) = data() else { return };
+    let Some(d) = shared_data() else { return };
     let v = eval_json(
         &d.join("kitti/poses/00.txt"),
         &d.join("odometry/lidar/00.txt"),
@@ -71,7 +63,7 @@ fn eval_equals_evo_on_kitti_00() {
 /// default (robust) method does better on the same input.
 #[test]
 fn method_paper_keeps_the_published_figures_on_kitti_00() {
-    let Some(d) = data() else { return };
+    let Some(d) = shared_data() else { return };
     let dir = tempfile::tempdir().unwrap();
     let mean_of = |method: &str| {
         let output = dir.path().join(format!("{method}.txt"));

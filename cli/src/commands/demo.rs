@@ -7,29 +7,31 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
-use lanealign_client::connection::Connection;
-use lanealign_client::daemon_process::DaemonProcess;
-use lanealign_client::kitti::{anchors, default_data_dir};
-use lanealign_client::replay::{replay, Rate};
-use lanealign_client::synthetic;
-use lanealign_client::wire::{pose_from_wire, WireStatus};
-use lanealign_core::corrector::MatchMode;
+use lanealign_cli::daemon_config;
+use lanealign_cli::daemon_process::DaemonProcess;
+use lanealign_cli::kitti::{anchors, default_data_dir};
+use lanealign_cli::replay::{replay, Rate};
+use lanealign_cli::synthetic;
+use lanealign_client::Connection;
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
+use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::ape_2d;
-use lanealign_core::offline::{correct, Source};
-use lanealign_core::params::{Method, Preset};
+use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
+use lanealign_wire::payload::StatusCode;
 
-use super::{percentile_us, write_config};
+use super::percentile_us;
 
 struct Scenario {
     name: String,
     map: LaneMap,
     plane: MapPlane,
+    geometry: LaneGeometry,
     anchor: Anchor,
     convention: AxisConvention,
     truth: Vec<Pose3>,
@@ -39,15 +41,16 @@ struct Scenario {
 fn kitti(data: &Path) -> anyhow::Result<Scenario> {
     let anchor = *anchors(data)?.get("00").context("no anchor for KITTI 00")?;
     let options = CompileOptions {
-        origin: Some((anchor.lat, anchor.lon)),
+        origin: Some((anchor.lat(), anchor.lon())),
         projection: Projection::Kitti,
         ..CompileOptions::default()
     };
-    let (map, plane, _) = compile(&[data.join("osm/kitti_00.osm")], &options)?;
+    let compiled = compile(&[data.join("osm/kitti_00.osm")], &options)?;
     Ok(Scenario {
         name: "KITTI 00, real LiDAR odometry, lanes from OpenStreetMap".into(),
-        map,
-        plane,
+        map: compiled.map,
+        plane: compiled.plane,
+        geometry: compiled.geometry,
         anchor,
         convention: AxisConvention::KittiCamera,
         truth: read(&data.join("kitti/poses/00.txt"), Format::Kitti)?.poses,
@@ -60,14 +63,9 @@ fn town() -> anyhow::Result<Scenario> {
     Ok(Scenario {
         name: "synthetic town (no ../shared/data), drifting odometry from a fixed seed".into(),
         map: LaneMap::new(&synthetic::town_lanes())?,
-        plane: MapPlane::new(Projection::Tangent, 49.0, 8.4),
-        anchor: Anchor {
-            lat: 49.0,
-            lon: 8.4,
-            yaw_deg: 0.0,
-            east_m: 0.0,
-            north_m: 0.0,
-        },
+        plane: synthetic::town_plane(),
+        geometry: synthetic::town_geometry(),
+        anchor: synthetic::town_anchor(),
         convention: AxisConvention::Flu,
         truth,
         odometry,
@@ -85,7 +83,7 @@ pub fn run() -> anyhow::Result<()> {
     println!("lanealign demo: {}", s.name);
     let dir = tempfile::tempdir()?;
     let tile_path = dir.path().join("map.tile");
-    tile::write(&tile_path, &s.map, &s.plane, 3.0)?;
+    tile::write(&tile_path, &s.map, &s.plane, 3.0, &s.geometry)?;
     println!(
         "  map: {} lanes, {} points -> {}",
         s.map.lane_count(),
@@ -93,18 +91,23 @@ pub fn run() -> anyhow::Result<()> {
         tile_path.display()
     );
     let source = format!("demo-{}", std::process::id());
-    let frame = match s.convention {
-        AxisConvention::Flu => "flu",
-        AxisConvention::KittiCamera => "kitti-camera",
-    };
+    let namespace = format!("demo-{}", std::process::id());
+    let corrector = CorrectorConfig::new(Preset::KissIcp, Method::Robust);
     let config = dir.path().join("lanealignd.toml");
-    write_config(
+    daemon_config::write(
         &config,
-        &tile_path,
-        &[(source.clone(), false)],
-        "kiss-icp",
-        frame,
-        &s.anchor,
+        &daemon_config::config(
+            &tile_path,
+            &namespace,
+            5.0,
+            &[daemon_config::Source {
+                name: source.clone(),
+                corrector,
+                frame: s.convention,
+                anchor: s.anchor,
+                pass_through: false,
+            }],
+        ),
     )?;
     let daemon = DaemonProcess::start(&config, &dir.path().join("lanealignd.log"))?;
     println!(
@@ -112,7 +115,11 @@ pub fn run() -> anyhow::Result<()> {
         daemon.id(),
         s.odometry.len()
     );
-    let conn = Connection::connect(&source)?;
+    let conn = Connection::connect_in(
+        &namespace.parse()?,
+        &source.parse()?,
+        lanealign_client::connection::new_session_id(),
+    )?;
     let result = replay(
         &conn,
         &source,
@@ -129,7 +136,7 @@ pub fn run() -> anyhow::Result<()> {
     let corrected: Vec<Pose3> = result
         .answers
         .iter()
-        .map(|a| pose_from_wire(&a.pose))
+        .map(|a| Pose3::from_row_major(&a.pose))
         .collect();
     let planar = |v: &[Pose3]| {
         v.iter()
@@ -142,15 +149,15 @@ pub fn run() -> anyhow::Result<()> {
     let accepted = result
         .answers
         .iter()
-        .filter(|a| a.status == WireStatus::Accepted as u32)
+        .filter(|a| a.status() == Some(StatusCode::Accepted))
         .count();
-    let offline = correct(
+    let offline = correct_trajectory(
         Arc::new(s.map),
-        Method::Robust.params(Preset::KissIcp),
-        MatchMode::Fast,
-        Source {
+        corrector.params()?,
+        corrector.match_mode,
+        Placement {
             convention: s.convention,
-            plane_from_odom: s.anchor.plane_from_odom_in(&s.plane),
+            anchored_from_odom: s.anchor.anchored_from_odom(&s.plane),
             smoothing: None,
         },
         &s.odometry,

@@ -2,10 +2,10 @@
 
 use std::time::{Duration, Instant};
 
+use lanealign_client::{Connection, PublishError, ReceiveError};
 use lanealign_core::pose::Pose3;
-
-use crate::connection::{monotonic_ns, Connection, ConnectionError};
-use crate::wire::{pose_to_wire, CorrectedPose, OdomPose};
+use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::payload::CorrectedPose;
 
 /// How fast to publish.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -35,9 +35,12 @@ impl std::str::FromStr for Rate {
 /// A replay that did not complete.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
-    /// Talking to the daemon failed.
+    /// Publishing failed.
     #[error(transparent)]
-    Connection(#[from] ConnectionError),
+    Publish(#[from] PublishError),
+    /// Receiving failed.
+    #[error(transparent)]
+    Receive(#[from] ReceiveError),
     /// No daemon subscribed to the source in time.
     #[error("no daemon is serving source '{0}' (waited {1:?})")]
     NoDaemon(String, Duration),
@@ -123,12 +126,8 @@ pub fn replay(
                 }
             }
         }
-        conn.publish(&OdomPose {
-            seq: first_seq + i as u64,
-            stamp_ns: stamps_ns.get(i).copied().unwrap_or(i as i64),
-            sent_mono_ns: monotonic_ns(),
-            pose: pose_to_wire(pose),
-        })?;
+        let stamp_ns = stamps_ns.get(i).copied().unwrap_or(i as i64);
+        conn.publish(first_seq + i as u64, stamp_ns, &pose.to_row_major())?;
         while let Some(a) = conn.try_recv()? {
             take(a, &mut received);
         }

@@ -6,15 +6,32 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
-use lanealign_client::connection::Connection;
-use lanealign_client::daemon_process::DaemonProcess;
-use lanealign_client::replay::{replay, Rate, ReplayError};
-use lanealign_client::synthetic;
-use lanealign_core::geo::{Anchor, MapPlane, Projection};
+use clap::Args;
+use lanealign_cli::daemon_config;
+use lanealign_cli::daemon_process::DaemonProcess;
+use lanealign_cli::replay::{replay, Rate, ReplayError};
+use lanealign_cli::synthetic;
+use lanealign_client::Connection;
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::{CorrectorConfig, Method, Preset};
+use lanealign_core::pose::AxisConvention;
 use lanealign_core::tile;
 
-use super::{percentile_us, write_config};
+use super::percentile_us;
+
+/// The `lanealign soak` arguments.
+#[derive(Args)]
+pub struct SoakArgs {
+    /// Number of sources.
+    #[arg(long, default_value_t = 8)]
+    sources: usize,
+    /// Poses per second per source.
+    #[arg(long, default_value_t = 100.0)]
+    rate: f64,
+    /// Seconds per mode.
+    #[arg(long, default_value_t = 10.0)]
+    duration: f64,
+}
 
 /// One source's outcome: round trips (ns) and lost poses.
 struct SourceResult {
@@ -35,15 +52,22 @@ fn run_phase(
         .map(|k| format!("soak-{}-{tag}-{k}", std::process::id()))
         .collect();
     let config = dir.join(format!("{tag}.toml"));
-    let anchor = Anchor {
-        lat: 49.0,
-        lon: 8.4,
-        yaw_deg: 0.0,
-        east_m: 0.0,
-        north_m: 0.0,
-    };
-    let entries: Vec<(String, bool)> = names.iter().map(|n| (n.clone(), pass_through)).collect();
-    write_config(&config, tile_path, &entries, "kiss-icp", "flu", &anchor)?;
+    let anchor = synthetic::town_anchor();
+    let entries: Vec<daemon_config::Source> = names
+        .iter()
+        .map(|n| daemon_config::Source {
+            name: n.clone(),
+            corrector: CorrectorConfig::new(Preset::KissIcp, Method::Robust),
+            frame: AxisConvention::Flu,
+            anchor,
+            pass_through,
+        })
+        .collect();
+    let namespace = format!("soak-{}", std::process::id());
+    daemon_config::write(
+        &config,
+        &daemon_config::config(tile_path, &namespace, 5.0, &entries),
+    )?;
     let daemon = DaemonProcess::start(&config, &dir.join(format!("{tag}.log")))?;
     let (_, odometry) = synthetic::drive(3, 7);
     let odometry = Arc::new(odometry);
@@ -52,8 +76,13 @@ fn run_phase(
         .into_iter()
         .map(|name| {
             let odometry = odometry.clone();
+            let namespace = namespace.clone();
             std::thread::spawn(move || -> anyhow::Result<SourceResult> {
-                let conn = Connection::connect(&name)?;
+                let conn = Connection::connect_in(
+                    &namespace.parse()?,
+                    &name.parse()?,
+                    lanealign_client::connection::new_session_id(),
+                )?;
                 let poses: Vec<_> = (0..count).map(|i| odometry[i % odometry.len()]).collect();
                 match replay(
                     &conn,
@@ -90,7 +119,8 @@ fn run_phase(
 }
 
 /// Runs the soak and prints the table.
-pub fn run(sources: usize, rate: f64, duration: f64) -> anyhow::Result<()> {
+pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
+    let (sources, rate, duration) = (args.sources, args.rate, args.duration);
     anyhow::ensure!(
         sources > 0 && rate > 0.0 && duration > 0.0,
         "sources, rate and duration must be positive"
@@ -101,8 +131,9 @@ pub fn run(sources: usize, rate: f64, duration: f64) -> anyhow::Result<()> {
     tile::write(
         &tile_path,
         &map,
-        &MapPlane::new(Projection::Tangent, 49.0, 8.4),
+        &synthetic::town_plane(),
         3.0,
+        &synthetic::town_geometry(),
     )?;
     println!("soak: {sources} sources x {rate} Hz x {duration} s, synthetic town, kiss-icp; round trip = client send to client receive");
     println!("| mode | source | poses | lost | p50 (us) | p99 (us) | max (us) |");

@@ -1,90 +1,44 @@
-//! End to end through the real daemon process and shared memory, on real KITTI data: answers
-//! identical to offline correction, nothing lost, faults survived, bad input flagged.
+//! End to end through the real daemon process and shared memory: answers identical to offline
+//! correction, nothing lost, faults survived, bad input flagged. On the synthetic town always,
+//! on real KITTI data where `../shared/data` is present.
 //!
-//! Needs `lanealignd` next to the test binaries (`cargo test --workspace` builds it) and
-//! `../shared/data`. The tests share /dev/shm, so they run one at a time.
+//! Needs `lanealignd` next to the test binaries (`cargo test --workspace` builds it). Every test
+//! runs in its own iceoryx2 namespace; they still run one at a time, to keep timing honest.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use lanealign_client::connection::{monotonic_ns, Connection};
-use lanealign_client::daemon_process::DaemonProcess;
-use lanealign_client::kitti::anchors;
-use lanealign_client::replay::{replay, Rate};
-use lanealign_client::wire::{pose_from_wire, pose_to_wire, OdomPose, WireStatus};
-use lanealign_core::corrector::MatchMode;
+use lanealign_cli::daemon_config;
+use lanealign_cli::daemon_process::DaemonProcess;
+use lanealign_cli::kitti::anchors;
+use lanealign_cli::replay::{replay, Rate};
+use lanealign_cli::synthetic;
+use lanealign_client::connection::new_session_id;
+use lanealign_client::Connection;
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::offline::{correct, Source};
-use lanealign_core::params::{Method, Preset};
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
-use lanealign_core::smoothing::Smoothing;
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
+use lanealign_tests::shared_data;
+use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::payload::StatusCode;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
-fn data() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    if dir.join("osm/kitti_07.osm").is_file() {
-        Some(dir)
-    } else {
-        eprintln!("SKIPPED: no shared data at {}", dir.display());
-        None
-    }
-}
-
-/// A tile of KITTI 07/08's map (one OSM extract) at 07's origin, a config with the given
-/// sources (name, sequence whose anchor to use), and the anchors.
+/// A tile, a config with the given sources (name, anchor), and what offline correction needs.
 struct Setup {
     dir: tempfile::TempDir,
     config: PathBuf,
     tile: PathBuf,
+    namespace: String,
+    convention: AxisConvention,
     anchors: Vec<(String, Anchor)>,
-}
-
-fn setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
-    let all = anchors(data).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let origin = all["07"];
-    let options = CompileOptions {
-        origin: Some((origin.lat, origin.lon)),
-        projection: Projection::Kitti,
-        ..CompileOptions::default()
-    };
-    let (map, plane, _) = compile(&[data.join("osm/kitti_07.osm")], &options).unwrap();
-    let tile_path = dir.path().join("07.tile");
-    tile::write(&tile_path, &map, &plane, 3.0).unwrap();
-    let mut text = format!(
-        "tile = {:?}\nmetrics_interval_s = 1.0\n",
-        tile_path.display().to_string()
-    );
-    let mut used = Vec::new();
-    for (name, seq) in sources {
-        let a = all[*seq];
-        text.push_str(&format!(
-            "\n[[source]]\nname = \"{name}\"\npreset = \"kiss-icp\"\nframe = \"kitti-camera\"\n\
-             smooth = {}\n\
-             anchor = {{ lat = {}, lon = {}, yaw_deg = {}, east_m = {}, north_m = {} }}\n",
-            smoothed(name),
-            a.lat,
-            a.lon,
-            a.yaw_deg,
-            a.east_m,
-            a.north_m
-        ));
-        used.push((name.to_string(), a));
-    }
-    let config = dir.path().join("lanealignd.toml");
-    std::fs::write(&config, text).unwrap();
-    Setup {
-        dir,
-        config,
-        tile: tile_path,
-        anchors: used,
-    }
 }
 
 fn unique(name: &str) -> String {
@@ -100,20 +54,101 @@ fn smoothed(name: &str) -> bool {
     name.starts_with("smooth")
 }
 
-/// What offline correction gives for `source`: the daemon's default (robust) method, smoothed
-/// when the source is.
+fn corrector(name: &str) -> CorrectorConfig {
+    CorrectorConfig {
+        smooth: smoothed(name),
+        ..CorrectorConfig::new(Preset::KissIcp, Method::Robust)
+    }
+}
+
+fn write_setup(
+    dir: tempfile::TempDir,
+    tile_path: PathBuf,
+    convention: AxisConvention,
+    sources: Vec<(String, Anchor)>,
+) -> Setup {
+    let namespace = unique("test");
+    let entries: Vec<daemon_config::Source> = sources
+        .iter()
+        .map(|(name, anchor)| daemon_config::Source {
+            name: name.clone(),
+            corrector: corrector(name),
+            frame: convention,
+            anchor: *anchor,
+            pass_through: false,
+        })
+        .collect();
+    let config = dir.path().join("lanealignd.toml");
+    daemon_config::write(
+        &config,
+        &daemon_config::config(&tile_path, &namespace, 1.0, &entries),
+    )
+    .unwrap();
+    Setup {
+        dir,
+        config,
+        tile: tile_path,
+        namespace,
+        convention,
+        anchors: sources,
+    }
+}
+
+/// A tile of KITTI 07/08's map (one OSM extract) at 07's origin, and sources (name, sequence
+/// whose anchor to use).
+fn kitti_setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
+    let all = anchors(data).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let origin = all["07"];
+    let options = CompileOptions {
+        origin: Some((origin.lat(), origin.lon())),
+        projection: Projection::Kitti,
+        ..CompileOptions::default()
+    };
+    let compiled = compile(&[data.join("osm/kitti_07.osm")], &options).unwrap();
+    let tile_path = dir.path().join("07.tile");
+    tile::write_bytes(&tile_path, &compiled.tile_bytes(3.0)).unwrap();
+    let sources = sources
+        .iter()
+        .map(|(name, seq)| (name.to_string(), all[*seq]))
+        .collect();
+    write_setup(dir, tile_path, AxisConvention::KittiCamera, sources)
+}
+
+/// A tile of the synthetic town and sources on it.
+fn town_setup(sources: &[&str]) -> Setup {
+    let dir = tempfile::tempdir().unwrap();
+    let tile_path = dir.path().join("town.tile");
+    let map = LaneMap::new(&synthetic::town_lanes()).unwrap();
+    tile::write(
+        &tile_path,
+        &map,
+        &synthetic::town_plane(),
+        3.0,
+        &synthetic::town_geometry(),
+    )
+    .unwrap();
+    let sources = sources
+        .iter()
+        .map(|name| (name.to_string(), synthetic::town_anchor()))
+        .collect();
+    write_setup(dir, tile_path, AxisConvention::Flu, sources)
+}
+
+/// What offline correction gives for `source`, configured as the daemon configures it.
 fn offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Vec<Pose3> {
     let (map, info) = tile::load(&setup.tile).unwrap();
     let anchor = setup.anchors.iter().find(|(n, _)| n == source).unwrap().1;
-    let placement = Source {
-        convention: AxisConvention::KittiCamera,
-        plane_from_odom: anchor.plane_from_odom_in(&info.plane),
-        smoothing: smoothed(source).then(Smoothing::default),
+    let config = corrector(source);
+    let placement = Placement {
+        convention: setup.convention,
+        anchored_from_odom: anchor.anchored_from_odom(&info.plane),
+        smoothing: config.smoothing(),
     };
-    correct(
+    correct_trajectory(
         Arc::new(map),
-        Method::Robust.params(Preset::KissIcp),
-        MatchMode::Fast,
+        config.params().unwrap(),
+        config.match_mode,
         placement,
         poses,
     )
@@ -126,6 +161,23 @@ fn start(setup: &Setup) -> DaemonProcess {
     DaemonProcess::start(&setup.config, &setup.dir.path().join(format!("d-{}.log", monotonic_ns()))).expect(
         "lanealignd must be built next to the tests: run `cargo test --workspace` or `cargo build -p lanealign-service` first",
     )
+}
+
+fn connect(setup: &Setup, source: &str) -> Connection {
+    Connection::connect_in(
+        &setup.namespace.parse().unwrap(),
+        &source.parse().unwrap(),
+        new_session_id(),
+    )
+    .unwrap()
+}
+
+fn wait_for_daemon(conn: &Connection) {
+    let until = Instant::now() + Duration::from_secs(10);
+    while !conn.daemon_connected() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(conn.daemon_connected(), "the daemon did not come up");
 }
 
 fn shm_entries() -> std::collections::BTreeSet<String> {
@@ -145,18 +197,77 @@ fn shm_entries() -> std::collections::BTreeSet<String> {
     out
 }
 
+/// Always runs, data or not: two sessions on one source of the synthetic town, concurrently;
+/// each gets every answer once, only its own, and equal to offline correction bit for bit.
+#[test]
+fn the_synthetic_town_through_the_daemon_equals_offline() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("town");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(2, 42);
+    let run = |poses: Vec<Pose3>| {
+        let (namespace, name) = (setup.namespace.clone(), name.clone());
+        std::thread::spawn(move || {
+            let conn = Connection::connect_in(
+                &namespace.parse().unwrap(),
+                &name.parse().unwrap(),
+                new_session_id(),
+            )
+            .unwrap();
+            replay(
+                &conn,
+                &name,
+                &poses,
+                &[],
+                1,
+                Rate::Max(16),
+                Duration::from_secs(10),
+            )
+            .unwrap()
+        })
+    };
+    // The second client drives the run backwards: its answers differ from the first's.
+    let reversed: Vec<Pose3> = odometry.iter().rev().copied().collect();
+    let (ha, hb) = (run(odometry.clone()), run(reversed.clone()));
+    let (ra, rb) = (ha.join().unwrap(), hb.join().unwrap());
+    assert!(daemon.stop().unwrap(), "clean exit");
+    for (poses, r) in [(&odometry, &ra), (&reversed, &rb)] {
+        let seqs: Vec<u64> = r.answers.iter().map(|x| x.seq).collect();
+        assert_eq!(seqs, (1..=poses.len() as u64).collect::<Vec<_>>());
+        let got: Vec<Pose3> = r
+            .answers
+            .iter()
+            .map(|x| Pose3::from_row_major(&x.pose))
+            .collect();
+        assert!(offline(&setup, &name, poses) == got, "bit for bit");
+        let accepted = r
+            .answers
+            .iter()
+            .filter(|x| x.status() == Some(StatusCode::Accepted))
+            .count();
+        assert!(accepted > 1000, "{accepted} accepted");
+    }
+}
+
 #[test]
 fn two_sources_at_once_match_offline_bit_for_bit_and_lose_nothing() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(data) = data() else { return };
+    let Some(data) = shared_data() else { return };
     let (a, b) = (unique("lidar07"), unique("smooth08"));
-    let setup = setup(&data, &[(&a, "07"), (&b, "08")]);
+    let setup = kitti_setup(&data, &[(&a, "07"), (&b, "08")]);
     let daemon = start(&setup);
     let run = |name: String, seq: &'static str| {
         let path = data.join(format!("odometry/lidar/{seq}.txt"));
+        let namespace = setup.namespace.clone();
         std::thread::spawn(move || {
             let poses = read(&path, Format::Kitti).unwrap().poses;
-            let conn = Connection::connect(&name).unwrap();
+            let conn = Connection::connect_in(
+                &namespace.parse().unwrap(),
+                &name.parse().unwrap(),
+                new_session_id(),
+            )
+            .unwrap();
             let r = replay(
                 &conn,
                 &name,
@@ -182,7 +293,11 @@ fn two_sources_at_once_match_offline_bit_for_bit_and_lose_nothing() {
             "{name}: every pose once, in order"
         );
         let want = offline(&setup, name, poses);
-        let got: Vec<Pose3> = r.answers.iter().map(|x| pose_from_wire(&x.pose)).collect();
+        let got: Vec<Pose3> = r
+            .answers
+            .iter()
+            .map(|x| Pose3::from_row_major(&x.pose))
+            .collect();
         assert!(
             want == got,
             "{name}: the daemon's poses equal offline correction bit for bit"
@@ -190,38 +305,27 @@ fn two_sources_at_once_match_offline_bit_for_bit_and_lose_nothing() {
         assert!(
             r.answers
                 .iter()
-                .filter(|x| x.status == WireStatus::Accepted as u32)
+                .filter(|x| x.status() == Some(StatusCode::Accepted))
                 .count()
                 > 500
         );
     }
 }
 
+/// Always runs: non-finite poses and duplicate or out-of-order sequence numbers come back
+/// flagged and change nothing; poses for an unconfigured source are refused and counted.
 #[test]
 fn bad_input_is_flagged_and_changes_nothing() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(data) = data() else { return };
     let name = unique("bad");
-    let setup = setup(&data, &[(&name, "07")]);
+    let setup = town_setup(&[&name]);
     let daemon = start(&setup);
-    let poses = read(&data.join("odometry/lidar/07.txt"), Format::Kitti)
-        .unwrap()
-        .poses;
-    let poses = &poses[..400];
-    let conn = Connection::connect(&name).unwrap();
-    let until = Instant::now() + Duration::from_secs(10);
-    while !conn.daemon_connected() && Instant::now() < until {
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    let flat = pose_to_wire;
+    let (_, odometry) = synthetic::drive(1, 42);
+    let poses = &odometry[..400];
+    let conn = connect(&setup, &name);
+    wait_for_daemon(&conn);
     let send = |seq: u64, pose: [f64; 12]| {
-        conn.publish(&OdomPose {
-            seq,
-            stamp_ns: 0,
-            sent_mono_ns: monotonic_ns(),
-            pose,
-        })
-        .unwrap();
+        conn.publish(seq, 0, &pose).unwrap();
         let answer = conn
             .recv(Duration::from_secs(5))
             .unwrap()
@@ -232,34 +336,27 @@ fn bad_input_is_flagged_and_changes_nothing() {
     let mut good = Vec::new();
     for (i, p) in poses.iter().enumerate() {
         let seq = 10 * (i as u64 + 1);
-        good.push(send(seq, flat(p)));
+        good.push(send(seq, p.to_row_major()));
         if i == 200 {
-            let mut nan = flat(p);
+            let mut nan = p.to_row_major();
             nan[3] = f64::NAN;
-            assert_eq!(send(seq + 1, nan).status, WireStatus::InvalidInput as u32);
-            let mut inf = flat(p);
+            assert_eq!(send(seq + 1, nan).status(), Some(StatusCode::InvalidInput));
+            let mut inf = p.to_row_major();
             inf[11] = f64::INFINITY;
-            assert_eq!(send(seq + 2, inf).status, WireStatus::InvalidInput as u32);
+            assert_eq!(send(seq + 2, inf).status(), Some(StatusCode::InvalidInput));
             assert_eq!(
-                send(seq + 2, flat(p)).status,
-                WireStatus::DuplicateSeq as u32
+                send(seq + 2, p.to_row_major()).status(),
+                Some(StatusCode::DuplicateSeq)
             );
             assert_eq!(
-                send(seq - 5, flat(p)).status,
-                WireStatus::OutOfOrderSeq as u32
+                send(seq - 5, p.to_row_major()).status(),
+                Some(StatusCode::OutOfOrderSeq)
             );
         }
     }
     // Poses for a source the daemon does not serve are refused and counted.
-    let stranger = Connection::connect(&unique("nobody")).unwrap();
-    stranger
-        .publish(&OdomPose {
-            seq: 1,
-            stamp_ns: 0,
-            sent_mono_ns: monotonic_ns(),
-            pose: flat(&poses[0]),
-        })
-        .unwrap();
+    let stranger = connect(&setup, &unique("nobody"));
+    stranger.publish(1, 0, &poses[0].to_row_major()).unwrap();
     let until = Instant::now() + Duration::from_secs(5);
     while !daemon.log().contains("refused") && Instant::now() < until {
         std::thread::sleep(Duration::from_millis(50));
@@ -297,21 +394,31 @@ fn bad_input_is_flagged_and_changes_nothing() {
     // The flagged inputs changed nothing: the good answers equal offline correction of the good
     // poses alone.
     let want = offline(&setup, &name, poses);
-    let got: Vec<Pose3> = good.iter().map(|x| pose_from_wire(&x.pose)).collect();
+    let got: Vec<Pose3> = good
+        .iter()
+        .map(|x| Pose3::from_row_major(&x.pose))
+        .collect();
     assert!(want == got);
 }
 
 #[test]
 fn a_killed_client_is_cleaned_up_and_others_are_unaffected() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(data) = data() else { return };
+    let Some(data) = shared_data() else { return };
     let (victim, survivor) = (unique("victim"), unique("survivor"));
-    let setup = setup(&data, &[(&victim, "07"), (&survivor, "08")]);
+    let setup = kitti_setup(&data, &[(&victim, "07"), (&survivor, "08")]);
     let daemon = start(&setup);
     let input = data.join("odometry/lidar/07.txt");
     let spawn_replay = |out: &str| {
         Command::new(env!("CARGO_BIN_EXE_lanealign"))
-            .args(["replay", "--source", &victim, "--rate", "300"])
+            .args([
+                "replay",
+                "--source",
+                &victim,
+                "--namespace",
+                &setup.namespace,
+            ])
+            .args(["--rate", "300"])
             .arg(&input)
             .arg("-o")
             .arg(setup.dir.path().join(out))
@@ -326,8 +433,14 @@ fn a_killed_client_is_cleaned_up_and_others_are_unaffected() {
         .poses;
     let survivor_name = survivor.clone();
     let poses = survivor_poses.clone();
+    let namespace = setup.namespace.clone();
     let other = std::thread::spawn(move || {
-        let conn = Connection::connect(&survivor_name).unwrap();
+        let conn = Connection::connect_in(
+            &namespace.parse().unwrap(),
+            &survivor_name.parse().unwrap(),
+            new_session_id(),
+        )
+        .unwrap();
         replay(
             &conn,
             &survivor_name,
@@ -353,7 +466,7 @@ fn a_killed_client_is_cleaned_up_and_others_are_unaffected() {
         want == r
             .answers
             .iter()
-            .map(|x| pose_from_wire(&x.pose))
+            .map(|x| Pose3::from_row_major(&x.pose))
             .collect::<Vec<_>>()
     );
     // The supervisor removes the dead client's node.
@@ -387,41 +500,28 @@ fn a_killed_client_is_cleaned_up_and_others_are_unaffected() {
 #[test]
 fn the_daemon_restarts_under_a_publishing_client_and_leaves_no_shared_memory() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(data) = data() else { return };
-    // iceoryx2 keeps machine-wide management state (created by the first node on a fresh
-    // machine, kept by design): create it before looking, so that only what this test's
-    // processes leave behind counts.
-    drop(
-        iceoryx2::prelude::NodeBuilder::new()
-            .create::<iceoryx2::prelude::ipc::Service>()
-            .unwrap(),
-    );
-    let before = shm_entries();
+    let Some(data) = shared_data() else { return };
     let name = unique("restart");
-    let setup = setup(&data, &[(&name, "07")]);
+    let setup = kitti_setup(&data, &[(&name, "07")]);
+    // iceoryx2 keeps per-namespace management state (created by the namespace's first node,
+    // kept by design): create it before looking, so that only what this test's processes leave
+    // behind counts.
+    let namespace: lanealign_wire::service::Namespace = setup.namespace.parse().unwrap();
+    drop(namespace.node().unwrap());
+    let before = shm_entries();
     let poses = read(&data.join("odometry/lidar/07.txt"), Format::Kitti)
         .unwrap()
         .poses;
     {
         let daemon = start(&setup);
-        let conn = Connection::connect(&name).unwrap();
-        let until = Instant::now() + Duration::from_secs(10);
-        while !conn.daemon_connected() && Instant::now() < until {
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        let conn = connect(&setup, &name);
+        wait_for_daemon(&conn);
         let mut answered_before = 0;
         let mut answered_after = 0;
         let mut answered_last_before_stop = false;
         let mut daemon = Some(daemon);
         for (i, p) in poses.iter().enumerate().take(600) {
-            let v = pose_to_wire(p);
-            conn.publish(&OdomPose {
-                seq: i as u64 + 1,
-                stamp_ns: 0,
-                sent_mono_ns: monotonic_ns(),
-                pose: v,
-            })
-            .unwrap();
+            conn.publish(i as u64 + 1, 0, &p.to_row_major()).unwrap();
             if i == 200 {
                 // Stop the daemon while the client goes on publishing, then start it again.
                 assert!(daemon.take().unwrap().stop().unwrap());

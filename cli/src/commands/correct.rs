@@ -1,0 +1,251 @@
+//! `lanealign correct`: corrects a recorded trajectory offline, exactly as the daemon would.
+
+use std::fmt::Write as _;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context};
+use clap::Args;
+use lanealign_cli::maps::{LoadedMap, MapSource};
+use lanealign_core::corrector::MatchMode;
+use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::lane_geometry::{RoadClasses, Traffic};
+use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
+use lanealign_core::pose::AxisConvention;
+use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
+use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_map::compile::InputReport;
+use lanealign_map::osm_lanes::LaneOptions;
+
+/// Where the lanes come from and where the odometry lies on them.
+#[derive(Args)]
+pub struct MapArgs {
+    /// Raw OSM or Lanelet2 road data (.osm, .osm.pbf) to derive lanes from (needs --anchor).
+    #[arg(long, conflicts_with_all = ["lanes", "map"], required_unless_present_any = ["lanes", "map"])]
+    osm: Option<PathBuf>,
+    /// A lane tile compiled by `lanealign-map compile` (needs --anchor).
+    #[arg(long, conflicts_with = "lanes")]
+    map: Option<PathBuf>,
+    /// Lane polylines (`lane_id,x,y`) already in the source's planar odometry frame.
+    #[arg(long)]
+    lanes: Option<PathBuf>,
+    /// Where the odometry frame lies: LAT,LON,YAW_DEG[,EAST_M,NORTH_M] (yaw from East, CCW).
+    #[arg(long, allow_hyphen_values = true)]
+    anchor: Option<Anchor>,
+    /// The projection the anchor was measured in: tangent (true scale) or kitti (spherical).
+    /// Default tangent for --osm; for --map, the tile's (a different one is an error).
+    #[arg(long)]
+    projection: Option<Projection>,
+    /// Traffic side for lanes derived from OSM: right or left.
+    #[arg(long, default_value = "right")]
+    traffic: Traffic,
+    /// Minimum spacing of derived lane points (metres).
+    #[arg(long, default_value_t = 3.0)]
+    spacing: f64,
+}
+
+/// What the corrector does.
+#[derive(Args)]
+pub struct CorrectorArgs {
+    /// Parameter preset: liodom, basalt, kiss-icp or orb-slam3.
+    #[arg(long)]
+    preset: Preset,
+    /// The correction method: `robust` (lanealign's, docs/method.md) or `paper` (the published
+    /// algorithm, docs/algorithm.md).
+    #[arg(long, default_value = "robust")]
+    method: Method,
+    /// Lane matching: fast (exact, incremental) or reference (the algorithm literally); both
+    /// give identical corrections.
+    #[arg(long, default_value = "fast")]
+    match_mode: MatchMode,
+    /// Smooth the output: each correction is spread over the following poses (at most 5 cm and
+    /// 0.1 degree per pose beyond the odometry's own motion). The status file's
+    /// `map_from_odom` stays the exact estimate.
+    #[arg(long)]
+    smooth: bool,
+    /// Override a parameter: --set key=value (repeatable; `lanealign params` lists them).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Lanes of unmarked two-way streets (residential, unclassified, living_street without a
+    /// lanes tag) at this fraction of their nominal offset from the way line. Default: the
+    /// method's (0.5 robust, 1 paper). With --map, the tile must have been compiled with it.
+    #[arg(long)]
+    unmarked_offset_scale: Option<f64>,
+}
+
+/// Parses `--set key=value` pairs into typed overrides: unknown keys, bad values and repeated
+/// keys are refused with the parser's message.
+pub fn parse_overrides(pairs: &[String]) -> anyhow::Result<Overrides> {
+    let mut doc = String::new();
+    for pair in pairs {
+        let (key, value) = pair
+            .split_once('=')
+            .ok_or_else(|| anyhow!("--set '{pair}': expected KEY=VALUE"))?;
+        let _ = writeln!(doc, "{} = {}", key.trim(), value.trim());
+    }
+    toml::from_str(&doc).map_err(|e| anyhow!("--set: {}", e.message().trim()))
+}
+
+impl CorrectorArgs {
+    /// The corrector configuration these flags describe, validated.
+    pub fn config(&self) -> anyhow::Result<CorrectorConfig> {
+        let config = CorrectorConfig {
+            preset: self.preset,
+            method: self.method,
+            match_mode: self.match_mode,
+            smooth: self.smooth,
+            unmarked_offset_scale: self.unmarked_offset_scale,
+            overrides: parse_overrides(&self.overrides)?,
+        };
+        config.params()?;
+        Ok(config)
+    }
+}
+
+impl MapArgs {
+    /// The map source; lanes derived from OSM follow `config`'s lane geometry.
+    fn source(&self, config: &CorrectorConfig) -> anyhow::Result<MapSource> {
+        if let Some(path) = &self.lanes {
+            return Ok(MapSource::LanesCsv(path.clone()));
+        }
+        let Some(anchor) = self.anchor else {
+            bail!("--osm and --map need --anchor LAT,LON,YAW_DEG[,EAST_M,NORTH_M]")
+        };
+        if let Some(path) = &self.map {
+            return Ok(MapSource::Tile {
+                path: path.clone(),
+                anchor,
+                projection: self.projection,
+            });
+        }
+        let Some(path) = &self.osm else {
+            bail!("give --osm, --map or --lanes")
+        };
+        if !(self.spacing.is_finite() && self.spacing > 0.0) {
+            bail!("--spacing must be a positive number of metres");
+        }
+        Ok(MapSource::Osm {
+            path: path.clone(),
+            anchor,
+            projection: self.projection.unwrap_or_default(),
+            options: LaneOptions {
+                classes: RoadClasses::DEFAULT,
+                traffic: self.traffic,
+                spacing_m: self.spacing,
+                unmarked_offset_scale: config.unmarked_offset_scale(),
+            },
+        })
+    }
+}
+
+/// The `lanealign correct` arguments.
+#[derive(Args)]
+pub struct CorrectArgs {
+    #[command(flatten)]
+    map: MapArgs,
+    #[command(flatten)]
+    corrector: CorrectorArgs,
+    /// Axis convention of the poses: flu or kitti-camera.
+    #[arg(long, default_value = "flu")]
+    frame: AxisConvention,
+    /// File format: kitti or tum.
+    #[arg(long, default_value = "kitti")]
+    format: Format,
+    /// The odometry trajectory to correct.
+    input: PathBuf,
+    /// Where to write the corrected trajectory (same format and convention).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Also write a CSV of what happened at each pose.
+    #[arg(long)]
+    status: Option<PathBuf>,
+}
+
+/// The status CSV: one row per pose, with the corrector's status names and `map_from_odom`.
+pub fn status_csv(run: &[CorrectedPose]) -> String {
+    let mut out = String::with_capacity(run.len() * 100);
+    out.push_str("index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw\n");
+    for (i, c) in run.iter().enumerate() {
+        let s = &c.status;
+        let [x, y] = c.map_from_odom.translation();
+        let _ = writeln!(
+            out,
+            "{i},{},{},{},{},{},{x},{y},{}",
+            s.name(),
+            s.reason().map_or("", |r| r.name()),
+            s.residual_m().unwrap_or(f64::NAN),
+            s.match_ratio().unwrap_or(f64::NAN),
+            s.window_len(),
+            c.map_from_odom.yaw()
+        );
+    }
+    out
+}
+
+fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
+    let mut f =
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    f.write_all(text.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Loads the map for `config` and refuses a tile whose lane geometry the method was not made
+/// for.
+pub fn load_map(source: &MapSource, config: &CorrectorConfig) -> anyhow::Result<LoadedMap> {
+    let loaded = source.load()?;
+    if let (Some(geometry), MapSource::Tile { path, .. }) = (&loaded.geometry, source) {
+        config
+            .check_geometry(geometry)
+            .with_context(|| format!("tile {}", path.display()))?;
+    }
+    Ok(loaded)
+}
+
+/// Runs `lanealign correct`.
+pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
+    let config = args.corrector.config()?;
+    let params = config.params()?;
+    let input = trajectory::read(&args.input, args.format)?;
+    if input.poses.is_empty() {
+        bail!("{}: no poses", args.input.display());
+    }
+    let loaded = load_map(&args.map.source(&config)?, &config)?;
+    if let Some(InputReport::Osm(r)) = &loaded.report {
+        if r.missing_node_refs > 0 || r.ways_without_geometry > 0 {
+            eprintln!(
+                "warning: {} node references missing, {} drivable ways without geometry (skipped)",
+                r.missing_node_refs, r.ways_without_geometry
+            );
+        }
+    }
+    let placement = Placement {
+        convention: args.frame,
+        anchored_from_odom: loaded.anchored_from_odom,
+        smoothing: config.smoothing(),
+    };
+    let run = correct_trajectory(
+        loaded.map,
+        params,
+        config.match_mode,
+        placement,
+        &input.poses,
+    );
+    let output = Trajectory {
+        stamps: input.stamps.clone(),
+        poses: run.iter().map(|c| c.pose).collect(),
+    };
+    trajectory::write(&args.output, &output, args.format)?;
+    if let Some(path) = &args.status {
+        write_text(path, &status_csv(&run))?;
+    }
+    let c = counts(&run);
+    eprintln!(
+        "{} poses, method {}: {} match attempts, {} accepted, {} resets",
+        run.len(),
+        config.method.name(),
+        c.attempts,
+        c.accepted,
+        c.resets
+    );
+    Ok(())
+}

@@ -1,0 +1,84 @@
+//! `lanealign replay`: streams a trajectory through a running lanealignd.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::Args;
+use lanealign_cli::replay::{replay, Rate};
+use lanealign_client::Connection;
+use lanealign_core::pose::Pose3;
+use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_wire::payload::StatusCode;
+use lanealign_wire::service::{Namespace, SourceName};
+
+use super::percentile_us;
+
+/// The `lanealign replay` arguments.
+#[derive(Args)]
+pub struct ReplayArgs {
+    /// The source name configured in lanealignd.
+    #[arg(long)]
+    source: SourceName,
+    /// The daemon's namespace (its config's `namespace`).
+    #[arg(long, default_value = "default")]
+    namespace: Namespace,
+    /// Poses per second, or max (flow-controlled, 64 in flight).
+    #[arg(long, default_value = "max")]
+    rate: Rate,
+    /// File format: kitti or tum.
+    #[arg(long, default_value = "kitti")]
+    format: Format,
+    /// The trajectory to stream (in the source's axis convention).
+    input: PathBuf,
+    /// Where to write the corrected trajectory.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// Runs `lanealign replay`.
+pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
+    let input = trajectory::read(&args.input, args.format)?;
+    let stamps: Vec<i64> = input
+        .stamps
+        .as_ref()
+        .map(|s| s.iter().map(|t| (t * 1e9).round() as i64).collect())
+        .unwrap_or_default();
+    let conn = Connection::connect_in(
+        &args.namespace,
+        &args.source,
+        lanealign_client::connection::new_session_id(),
+    )?;
+    let result = replay(
+        &conn,
+        args.source.as_str(),
+        &input.poses,
+        &stamps,
+        1,
+        args.rate,
+        Duration::from_secs(10),
+    )?;
+    let output = Trajectory {
+        stamps: input.stamps.clone(),
+        poses: result
+            .answers
+            .iter()
+            .map(|a| Pose3::from_row_major(&a.pose))
+            .collect(),
+    };
+    trajectory::write(&args.output, &output, args.format)?;
+    let mut rt = result.round_trip_ns.clone();
+    rt.sort_unstable();
+    let accepted = result
+        .answers
+        .iter()
+        .filter(|a| a.status() == Some(StatusCode::Accepted))
+        .count();
+    eprintln!(
+        "{} poses replayed, all answered, {accepted} accepted; round trip p50 {:.1} us, p99 {:.1} us, max {:.1} us",
+        result.answers.len(),
+        percentile_us(&rt, 0.5),
+        percentile_us(&rt, 0.99),
+        percentile_us(&rt, 1.0)
+    );
+    Ok(())
+}

@@ -1,0 +1,51 @@
+//! Writing daemon configurations (for `demo`, `soak` and the tests): the daemon's own typed
+//! [`Config`], serialised with `toml`, so a written config always reads back.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use lanealign_core::geo::Anchor;
+use lanealign_core::params::CorrectorConfig;
+use lanealign_core::pose::AxisConvention;
+use lanealign_service::config::{Config, LogFormat, SourceConfig};
+
+/// One source of a generated configuration.
+#[derive(Clone, Debug)]
+pub struct Source {
+    /// Its name.
+    pub name: String,
+    /// Its corrector.
+    pub corrector: CorrectorConfig,
+    /// Its axis convention.
+    pub frame: AxisConvention,
+    /// Its anchor.
+    pub anchor: Anchor,
+    /// Echo without correcting.
+    pub pass_through: bool,
+}
+
+/// A configuration for `tile` in `namespace` with `sources`, metrics every `metrics_interval_s`.
+pub fn config(tile: &Path, namespace: &str, metrics_interval_s: f64, sources: &[Source]) -> Config {
+    Config {
+        tile: PathBuf::from(tile),
+        namespace: namespace.to_string(),
+        metrics_interval_s,
+        log_format: LogFormat::Text,
+        sources: sources
+            .iter()
+            .map(|s| SourceConfig {
+                name: s.name.clone(),
+                frame: s.frame,
+                anchor: s.anchor,
+                pass_through: s.pass_through,
+                corrector: s.corrector,
+            })
+            .collect(),
+    }
+}
+
+/// Writes `config` to `path` as TOML.
+pub fn write(path: &Path, config: &Config) -> anyhow::Result<()> {
+    let text = toml::to_string(config).context("serialising the daemon configuration")?;
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}

@@ -1,0 +1,11 @@
+//! The building blocks of the `lanealign` command and its examples: where lane maps come from
+//! ([`maps`]), streaming a trajectory through the daemon ([`replay`]), running the daemon
+//! ([`daemon_process`], [`daemon_config`]), the synthetic town used when there is no data
+//! ([`synthetic`]), and the KITTI data of `../shared/data` ([`kitti`]).
+
+pub mod daemon_config;
+pub mod daemon_process;
+pub mod kitti;
+pub mod maps;
+pub mod replay;
+pub mod synthetic;

@@ -1,0 +1,44 @@
+//! `lanealign`: correct a recorded odometry run against lanes, evaluate trajectories, and talk
+//! to `lanealignd` (replay, soak, demo).
+
+mod commands;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "lanealign",
+    version,
+    about = "Odometry drift correction against OpenStreetMap lanes (docs/algorithm.md)"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Correct a recorded trajectory offline.
+    Correct(commands::correct::CorrectArgs),
+    /// APE-2D of an estimate against ground truth (no alignment).
+    Eval(commands::eval::EvalArgs),
+    /// Stream a trajectory through a running lanealignd and write the corrected one.
+    Replay(commands::replay::ReplayArgs),
+    /// Many sources through one daemon: latency and loss, corrected and pass-through.
+    Soak(commands::soak::SoakArgs),
+    /// Compile a map, start lanealignd, replay an odometry run through it, print the result.
+    Demo,
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    // iceoryx2 warns on stdout when it runs on its default configuration, which is intended here.
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    match &cli.command {
+        Command::Correct(args) => commands::correct::run(args),
+        Command::Eval(args) => commands::eval::run(args),
+        Command::Replay(args) => commands::replay::run(args),
+        Command::Soak(args) => commands::soak::run(args),
+        Command::Demo => commands::demo::run(),
+    }
+}

@@ -1,0 +1,175 @@
+//! One source's corrector with its placement on the map: takes poses in the source's own frame
+//! and axis convention and returns them corrected in the same. The daemon runs one per session;
+//! [`correct_trajectory`] runs one over a whole recorded file, so both give the same answers.
+//!
+//! Frames: `odom` is the source's planar odometry frame (after its axis convention is turned
+//! into `flu`); `anchored` is the map plane as the anchor places the odometry, before any
+//! correction; `map` is the corrected map plane. `map_from_odom = map_from_anchored *
+//! anchored_from_odom`.
+
+use std::sync::Arc;
+
+use crate::corrector::{Corrector, MatchMode, Status, StepTiming};
+use crate::lane_map::LaneMap;
+use crate::params::Params;
+use crate::pose::{apply_planar_correction, AxisConvention, Pose3};
+use crate::se2::Se2;
+use crate::smoothing::{Smoother, Smoothing};
+
+/// The per-pose record of a correction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CorrectedPose {
+    /// The corrected pose, in the input's frame and axis convention (smoothed when the source
+    /// asks for smooth output; the input unchanged for invalid input).
+    pub pose: Pose3,
+    /// The exact correction in force after this pose, never smoothed: maps planar odometry
+    /// coordinates onto the corrected map plane (the anchor's placement composed with the
+    /// accumulated correction).
+    pub map_from_odom: Se2,
+    /// What the corrector did.
+    pub status: Status,
+}
+
+/// How a source's poses are read and placed on the lane map.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Placement {
+    /// The poses' axis convention.
+    pub convention: AxisConvention,
+    /// Where the anchor places the source's planar odometry frame in the map plane (the
+    /// identity when the lanes are already in the odometry frame).
+    pub anchored_from_odom: Se2,
+    /// Publish smoothed poses within these limits instead of the exact ones (see
+    /// [`crate::smoothing`]); `None` publishes the exact correction.
+    pub smoothing: Option<Smoothing>,
+}
+
+/// A corrector for one source: converts, places, corrects and converts back.
+pub struct SourceCorrector {
+    corrector: Corrector,
+    placement: Placement,
+    odom_from_anchored: Se2,
+    smoother: Option<Smoother>,
+}
+
+impl SourceCorrector {
+    /// A corrector for a source placed by `placement` on `map`. `params` must pass
+    /// [`Params::validate`].
+    pub fn new(map: Arc<LaneMap>, params: Params, mode: MatchMode, placement: Placement) -> Self {
+        SourceCorrector {
+            corrector: Corrector::with_mode(map, params, mode),
+            odom_from_anchored: placement.anchored_from_odom.inverse(),
+            smoother: placement.smoothing.map(Smoother::new),
+            placement,
+        }
+    }
+
+    /// Corrects the next pose (`world_from_body` in the source's convention); returns the
+    /// step's timing too. A pose with any non-finite number is answered as invalid input and
+    /// changes nothing.
+    pub fn correct(&mut self, pose: &Pose3) -> (CorrectedPose, StepTiming) {
+        if !pose.is_finite() {
+            let record = CorrectedPose {
+                pose: *pose,
+                map_from_odom: self.corrector.map_from_anchored()
+                    * self.placement.anchored_from_odom,
+                status: Status::InvalidInput,
+            };
+            return (record, StepTiming::default());
+        }
+        let placement = &self.placement;
+        let anchored = apply_planar_correction(
+            &placement.anchored_from_odom,
+            &placement.convention.to_planar(pose),
+        );
+        let step = self.corrector.push(anchored.planar_position());
+        let corrected = match step.status {
+            Status::InvalidInput => *pose,
+            _ => {
+                let published = match &mut self.smoother {
+                    Some(smoother) => {
+                        smoother.next(step.map_from_anchored, anchored.planar_position())
+                    }
+                    None => step.map_from_anchored,
+                };
+                let in_map = apply_planar_correction(&published, &anchored);
+                placement
+                    .convention
+                    .from_planar(&apply_planar_correction(&self.odom_from_anchored, &in_map))
+            }
+        };
+        let record = CorrectedPose {
+            pose: corrected,
+            map_from_odom: step.map_from_anchored * placement.anchored_from_odom,
+            status: step.status,
+        };
+        (record, step.timing)
+    }
+}
+
+/// Corrects a whole recorded trajectory pose by pose, exactly as the online corrector sees it:
+/// the output is in the input's own frame and convention.
+pub fn correct_trajectory(
+    map: Arc<LaneMap>,
+    params: Params,
+    mode: MatchMode,
+    placement: Placement,
+    poses: &[Pose3],
+) -> Vec<CorrectedPose> {
+    let mut corrector = SourceCorrector::new(map, params, mode, placement);
+    poses.iter().map(|pose| corrector.correct(pose).0).collect()
+}
+
+/// Counts over a corrected run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Steps where matching ran (the reference figures' "attempts").
+    pub attempts: usize,
+    /// Accepted corrections.
+    pub accepted: usize,
+    /// Window resets.
+    pub resets: usize,
+}
+
+/// The counts of a corrected run.
+pub fn counts(run: &[CorrectedPose]) -> Counts {
+    let mut c = Counts::default();
+    for pose in run {
+        c.attempts += pose.status.attempted() as usize;
+        c.accepted += matches!(pose.status, Status::Accepted { .. }) as usize;
+        c.resets += matches!(pose.status, Status::Reset { .. }) as usize;
+    }
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lane_map::Lane;
+    use crate::params::Preset;
+
+    #[test]
+    fn any_non_finite_number_is_invalid_input_and_changes_nothing() {
+        let lane = Lane::new(1, (0..100).map(|i| [i as f64 * 3.0, 0.0]).collect());
+        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
+        let placement = Placement {
+            convention: AxisConvention::Flu,
+            anchored_from_odom: Se2::IDENTITY,
+            smoothing: None,
+        };
+        let mut c = SourceCorrector::new(map, Preset::KissIcp.params(), MatchMode::Fast, placement);
+        c.correct(&Pose3::planar(0.0, 0.5, 0.0, 0.0));
+        // Height and roll are not part of the planar position, yet must be finite too.
+        for (row, col, value) in [(2, 3, f64::INFINITY), (2, 1, f64::NAN), (0, 3, f64::NAN)] {
+            let mut v = Pose3::planar(1.0, 0.5, 0.0, 0.0).to_row_major();
+            v[row * 4 + col] = value;
+            let (record, _) = c.correct(&Pose3::from_row_major(&v));
+            assert_eq!(record.status, Status::InvalidInput);
+            assert_eq!(
+                record.pose.to_row_major()[row * 4 + col].to_bits(),
+                value.to_bits()
+            );
+        }
+        let (next, _) = c.correct(&Pose3::planar(1.0, 0.5, 0.0, 0.0));
+        assert_eq!(next.status, Status::WarmingUp { window_len: 2 });
+    }
+}

@@ -1,0 +1,18 @@
+//! The contract between odometry processes and `lanealignd`: what travels over shared memory
+//! ([`payload`]), under which service names and with which limits ([`service`]), and the clock
+//! both sides time it with ([`clock`]). An odometry process links this crate and
+//! `lanealign-client`, nothing else of lanealign; processes in other languages follow
+//! `docs/wire.md`, which this crate's tests pin.
+//!
+//! ```no_run
+//! use lanealign_wire::service::{Namespace, SourceServices};
+//!
+//! let node = Namespace::default().node()?;
+//! let services = SourceServices::open(&node, &"lidar".parse()?)?;
+//! let publisher = services.odom_publisher()?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+pub mod clock;
+pub mod payload;
+pub mod service;

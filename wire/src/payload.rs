@@ -1,0 +1,208 @@
+//! The payloads on the wire.
+//!
+//! Both are `#[repr(C)]`, fixed size and free of pointers, so that any language can read and
+//! write them in shared memory. Little-endian, natural alignment, no padding (every field is 8
+//! bytes, or a pair of 4-byte fields). Times are nanoseconds: `*_mono_ns` on `CLOCK_MONOTONIC`
+//! (shared by all processes of the machine), `stamp_ns` whatever the sensor uses. The layout is
+//! pinned by this module's tests and documented in `docs/wire.md`.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// A pose from an odometry source.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("lanealign::OdomPose")]
+#[repr(C)]
+pub struct OdomPose {
+    /// The session the client chose (any value but 0): the daemon keeps one corrector per
+    /// session and source, and echoes the session in every answer.
+    pub session: u64,
+    /// Strictly increasing within a session; duplicates and older numbers are flagged, not used.
+    pub seq: u64,
+    /// The sensor time stamp (nanoseconds), echoed back.
+    pub stamp_ns: i64,
+    /// `CLOCK_MONOTONIC` when the client published (nanoseconds), echoed back.
+    pub sent_mono_ns: u64,
+    /// Row-major 3x4 pose `[R | t]` (`world_from_body`) in the source's axis convention
+    /// (metres).
+    pub pose: [f64; 12],
+}
+
+/// What the daemon did with a pose. The first five are the corrector's statuses, with the same
+/// names; the rest are the daemon's own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum StatusCode {
+    /// Window still too short or too short a path: no matching yet.
+    WarmingUp = 0,
+    /// A correction was computed and applied.
+    Accepted = 1,
+    /// Matching ran, the correction was refused (see the reason).
+    Rejected = 2,
+    /// Too many failures: the window was cut back.
+    Reset = 3,
+    /// The pose was not finite: not used, state unchanged.
+    InvalidInput = 4,
+    /// The sequence number was already seen in this session: not used, state unchanged.
+    DuplicateSeq = 5,
+    /// The sequence number is older than one already seen in this session: not used, state
+    /// unchanged.
+    OutOfOrderSeq = 6,
+    /// The source is configured as pass-through: echoed without correction.
+    PassThrough = 7,
+}
+
+impl StatusCode {
+    /// Every code, in numeric order.
+    pub const ALL: [StatusCode; 8] = [
+        StatusCode::WarmingUp,
+        StatusCode::Accepted,
+        StatusCode::Rejected,
+        StatusCode::Reset,
+        StatusCode::InvalidInput,
+        StatusCode::DuplicateSeq,
+        StatusCode::OutOfOrderSeq,
+        StatusCode::PassThrough,
+    ];
+
+    /// Decodes a status code; `None` for a code this build does not know.
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.get(code as usize).copied()
+    }
+
+    /// Lowercase name (the corrector's status names for the first five).
+    pub fn name(self) -> &'static str {
+        match self {
+            StatusCode::WarmingUp => "warming_up",
+            StatusCode::Accepted => "accepted",
+            StatusCode::Rejected => "rejected",
+            StatusCode::Reset => "reset",
+            StatusCode::InvalidInput => "invalid_input",
+            StatusCode::DuplicateSeq => "duplicate_seq",
+            StatusCode::OutOfOrderSeq => "out_of_order_seq",
+            StatusCode::PassThrough => "pass_through",
+        }
+    }
+
+    /// True for inputs the daemon refused to use (invalid, duplicate or out of order).
+    pub fn is_flagged(self) -> bool {
+        matches!(
+            self,
+            StatusCode::InvalidInput | StatusCode::DuplicateSeq | StatusCode::OutOfOrderSeq
+        )
+    }
+}
+
+/// Why a matching attempt failed (rejected and reset steps).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum ReasonCode {
+    /// Not a failed attempt.
+    None = 0,
+    /// Too few window poses found a lane.
+    TooFewMatches = 1,
+    /// The ICP residual was too large.
+    ResidualTooLarge = 2,
+}
+
+impl ReasonCode {
+    /// Decodes a reason code.
+    pub fn from_code(code: u32) -> Option<Self> {
+        [
+            ReasonCode::None,
+            ReasonCode::TooFewMatches,
+            ReasonCode::ResidualTooLarge,
+        ]
+        .get(code as usize)
+        .copied()
+    }
+
+    /// Lowercase name (the corrector's reject reason names), empty for `None`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ReasonCode::None => "",
+            ReasonCode::TooFewMatches => "too_few_matches",
+            ReasonCode::ResidualTooLarge => "residual_too_large",
+        }
+    }
+}
+
+/// A corrected pose, with everything needed to use, audit and time it.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("lanealign::CorrectedPose")]
+#[repr(C)]
+pub struct CorrectedPose {
+    /// The input's session.
+    pub session: u64,
+    /// The input's sequence number.
+    pub seq: u64,
+    /// The input's sensor stamp.
+    pub stamp_ns: i64,
+    /// When the client published the input (`CLOCK_MONOTONIC`, ns).
+    pub sent_mono_ns: u64,
+    /// When the daemon received it (`CLOCK_MONOTONIC`, ns).
+    pub received_mono_ns: u64,
+    /// When the daemon published this (`CLOCK_MONOTONIC`, ns).
+    pub published_mono_ns: u64,
+    /// The corrected pose, row-major 3x4, in the source's frame and axis convention (metres).
+    /// For flagged inputs (invalid, duplicate, out of order) the input pose unchanged.
+    pub pose: [f64; 12],
+    /// `map_from_odom` as x (m), y (m), yaw (rad): maps planar odometry coordinates onto the
+    /// lane map's plane. NaN for flagged and pass-through inputs.
+    pub map_from_odom: [f64; 3],
+    /// Mean ICP residual of the step (metres); NaN when no matching ran, infinite when too few
+    /// poses matched.
+    pub residual_m: f64,
+    /// Matched fraction of the window; NaN when no matching ran.
+    pub match_ratio: f64,
+    /// Poses in the window after the step.
+    pub window_len: u32,
+    /// [`StatusCode`].
+    pub status: u32,
+    /// [`ReasonCode`].
+    pub reason: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
+impl CorrectedPose {
+    /// The status, if this build knows its code.
+    pub fn status(&self) -> Option<StatusCode> {
+        StatusCode::from_code(self.status)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::{align_of, offset_of, size_of};
+
+    /// The layout documented in docs/wire.md, which C++ and Python clients rely on.
+    #[test]
+    fn layout_is_the_documented_contract() {
+        assert_eq!((size_of::<OdomPose>(), align_of::<OdomPose>()), (128, 8));
+        assert_eq!(offset_of!(OdomPose, seq), 8);
+        assert_eq!(offset_of!(OdomPose, pose), 32);
+        assert_eq!(
+            (size_of::<CorrectedPose>(), align_of::<CorrectedPose>()),
+            (200, 8)
+        );
+        assert_eq!(offset_of!(CorrectedPose, published_mono_ns), 40);
+        assert_eq!(offset_of!(CorrectedPose, pose), 48);
+        assert_eq!(offset_of!(CorrectedPose, map_from_odom), 144);
+        assert_eq!(offset_of!(CorrectedPose, residual_m), 168);
+        assert_eq!(offset_of!(CorrectedPose, match_ratio), 176);
+        assert_eq!(offset_of!(CorrectedPose, window_len), 184);
+        assert_eq!(offset_of!(CorrectedPose, status), 188);
+        assert_eq!(offset_of!(CorrectedPose, reason), 192);
+    }
+
+    #[test]
+    fn codes_decode_to_themselves() {
+        for s in StatusCode::ALL {
+            assert_eq!(StatusCode::from_code(s as u32), Some(s));
+        }
+        assert_eq!(StatusCode::from_code(8), None);
+        assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
+        assert_eq!(ReasonCode::from_code(3), None);
+    }
+}

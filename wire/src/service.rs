@@ -1,0 +1,457 @@
+//! Where the payloads travel: a deployment's namespace, each source's services, the limits both
+//! sides open them with, and the ports on them.
+//!
+//! Per source `NAME`: `lanealign/NAME/odom` (publish-subscribe of [`OdomPose`], client to
+//! daemon) and `lanealign/NAME/corrected` ([`CorrectedPose`], daemon to its clients), each with
+//! an event service of the same name that is notified after every sample. A [`Namespace`] is
+//! an iceoryx2 file prefix: daemons and clients of different namespaces never see each other.
+
+use std::fmt;
+use std::str::FromStr;
+
+use iceoryx2::node::{Node, NodeBuilder, NodeCreationFailure};
+use iceoryx2::port::listener::{Listener, ListenerCreateError};
+use iceoryx2::port::notifier::{Notifier, NotifierCreateError};
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
+use iceoryx2::prelude::{ipc, FileName, SemanticString, ServiceName};
+use iceoryx2::service::builder::event::EventOpenOrCreateError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
+use iceoryx2::service::port_factory::{event, publish_subscribe, PortFactory as _};
+use iceoryx2::service::service_name::ServiceNameError;
+
+use crate::payload::{CorrectedPose, OdomPose};
+
+/// Samples a subscriber holds before the oldest is overwritten (per source and direction).
+pub const BUFFER_SIZE: usize = 4096;
+/// Subscribers of one service at most.
+pub const MAX_SUBSCRIBERS: usize = 16;
+/// Publishers of one service at most (clients of one source, and restarted processes that
+/// briefly overlap their old ports).
+pub const MAX_PUBLISHERS: usize = 16;
+/// Nodes per service at most.
+pub const MAX_NODES: usize = 64;
+/// Notifiers and listeners of one event service at most.
+pub const MAX_EVENT_PORTS: usize = 32;
+/// Longest source name (characters).
+pub const MAX_SOURCE_NAME_LEN: usize = 64;
+/// Longest namespace (characters).
+pub const MAX_NAMESPACE_LEN: usize = 32;
+
+/// A name that cannot be a source name or a namespace.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{what} '{name}': {problem}")]
+pub struct NameError {
+    /// `source name` or `namespace`.
+    pub what: &'static str,
+    /// The name given (at most 80 characters of it).
+    pub name: String,
+    /// What is wrong with it.
+    pub problem: String,
+}
+
+fn check_name(what: &'static str, s: &str, max: usize) -> Result<(), NameError> {
+    let error = |problem: String| NameError {
+        what,
+        name: s.chars().take(80).collect(),
+        problem,
+    };
+    if s.is_empty() {
+        return Err(error("must not be empty".into()));
+    }
+    if s.chars().count() > max {
+        return Err(error(format!("longer than {max} characters")));
+    }
+    if let Some(c) = s
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '-' || *c == '_'))
+    {
+        return Err(error(format!(
+            "'{c}' is not allowed: use letters, digits, '-' and '_'"
+        )));
+    }
+    Ok(())
+}
+
+/// An odometry source's name: 1 to 64 ASCII letters, digits, `-` and `_`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SourceName(String);
+
+impl FromStr for SourceName {
+    type Err = NameError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        check_name("source name", s, MAX_SOURCE_NAME_LEN)?;
+        Ok(SourceName(s.to_string()))
+    }
+}
+
+impl fmt::Display for SourceName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl SourceName {
+    /// The name.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    /// The source's pose service, `lanealign/NAME/odom`.
+    pub fn odom_service(&self) -> String {
+        format!("lanealign/{}/odom", self.0)
+    }
+
+    /// The source's answer service, `lanealign/NAME/corrected`.
+    pub fn corrected_service(&self) -> String {
+        format!("lanealign/{}/corrected", self.0)
+    }
+
+    /// The source whose pose service is `service`, if it is one.
+    pub fn of_odom_service(service: &str) -> Option<SourceName> {
+        service
+            .strip_prefix("lanealign/")
+            .and_then(|r| r.strip_suffix("/odom"))
+            .and_then(|name| name.parse().ok())
+    }
+}
+
+/// A deployment's namespace: 1 to 32 ASCII letters, digits, `-` and `_`; `default` unless
+/// configured. Its iceoryx2 file prefix is `lanealign_<namespace>_`.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Namespace(String);
+
+impl Default for Namespace {
+    fn default() -> Self {
+        Namespace("default".into())
+    }
+}
+
+impl FromStr for Namespace {
+    type Err = NameError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        check_name("namespace", s, MAX_NAMESPACE_LEN)?;
+        Ok(Namespace(s.to_string()))
+    }
+}
+
+impl fmt::Display for Namespace {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// An iceoryx2 node could not be created.
+#[derive(Debug, thiserror::Error)]
+#[error("creating an iceoryx2 node in namespace '{namespace}' failed{hint}")]
+pub struct NodeCreateError {
+    /// The namespace.
+    pub namespace: String,
+    /// What to check, when something can be said (permissions on the shared-memory files).
+    pub hint: String,
+    /// iceoryx2's error.
+    #[source]
+    pub source: NodeCreationFailure,
+}
+
+impl Namespace {
+    /// The name.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    /// The iceoryx2 file prefix of this namespace.
+    pub fn prefix(&self) -> String {
+        format!("lanealign_{}_", self.0)
+    }
+
+    /// iceoryx2's configuration for this namespace: its defaults with this namespace's prefix.
+    pub fn config(&self) -> iceoryx2::config::Config {
+        let mut config = iceoryx2::config::Config::default();
+        // Checked names are short and plain, so the prefix is always a valid file name.
+        if let Ok(prefix) = FileName::new(self.prefix().as_bytes()) {
+            config.global.prefix = prefix;
+        }
+        config
+    }
+
+    /// A new node in this namespace.
+    pub fn node(&self) -> Result<Node<ipc::Service>, NodeCreateError> {
+        NodeBuilder::new()
+            .config(&self.config())
+            .create::<ipc::Service>()
+            .map_err(|source| NodeCreateError {
+                namespace: self.0.clone(),
+                hint: String::new(),
+                source,
+            })
+    }
+}
+
+/// A source's service could not be opened or created.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceOpenError {
+    /// The service name is not valid for iceoryx2.
+    #[error("'{service}' is not a valid service name")]
+    Name {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: ServiceNameError,
+    },
+    /// A publish-subscribe service could not be opened or created (for example because it
+    /// exists with other settings, written by a build with another wire layout).
+    #[error("opening publish-subscribe service '{service}' failed")]
+    PublishSubscribe {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: PublishSubscribeOpenOrCreateError,
+    },
+    /// An event service could not be opened or created.
+    #[error("opening event service '{service}' failed")]
+    Event {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: EventOpenOrCreateError,
+    },
+}
+
+/// A port could not be created on a source's service.
+#[derive(Debug, thiserror::Error)]
+pub enum PortCreateError {
+    /// A publisher.
+    #[error("creating a publisher on '{service}' failed")]
+    Publisher {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: PublisherCreateError,
+    },
+    /// A subscriber.
+    #[error("creating a subscriber on '{service}' failed")]
+    Subscriber {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: SubscriberCreateError,
+    },
+    /// A notifier.
+    #[error("creating a notifier on '{service}' failed")]
+    Notifier {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: NotifierCreateError,
+    },
+    /// A listener.
+    #[error("creating a listener on '{service}' failed")]
+    Listener {
+        /// The service name.
+        service: String,
+        /// iceoryx2's error.
+        #[source]
+        source: ListenerCreateError,
+    },
+}
+
+/// A publish-subscribe service of payload `T`.
+pub type PubSubService<T> = publish_subscribe::PortFactory<ipc::Service, T, ()>;
+/// An event service.
+pub type EventService = event::PortFactory<ipc::Service>;
+
+fn service_name(service: &str) -> Result<ServiceName, ServiceOpenError> {
+    ServiceName::new(service).map_err(|source| ServiceOpenError::Name {
+        service: service.to_string(),
+        source,
+    })
+}
+
+fn pubsub<T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
+    node: &Node<ipc::Service>,
+    service: &str,
+) -> Result<PubSubService<T>, ServiceOpenError> {
+    node.service_builder(&service_name(service)?)
+        .publish_subscribe::<T>()
+        .subscriber_max_buffer_size(BUFFER_SIZE)
+        .max_subscribers(MAX_SUBSCRIBERS)
+        .max_publishers(MAX_PUBLISHERS)
+        .max_nodes(MAX_NODES)
+        .open_or_create()
+        .map_err(|source| ServiceOpenError::PublishSubscribe {
+            service: service.to_string(),
+            source,
+        })
+}
+
+fn events(node: &Node<ipc::Service>, service: &str) -> Result<EventService, ServiceOpenError> {
+    node.service_builder(&service_name(service)?)
+        .event()
+        .max_nodes(MAX_NODES)
+        .max_notifiers(MAX_EVENT_PORTS)
+        .max_listeners(MAX_EVENT_PORTS)
+        .open_or_create()
+        .map_err(|source| ServiceOpenError::Event {
+            service: service.to_string(),
+            source,
+        })
+}
+
+/// The four services of one source, opened (or created) with the settings both sides agree on,
+/// so either side may come up first.
+pub struct SourceServices {
+    source: SourceName,
+    odom: PubSubService<OdomPose>,
+    odom_events: EventService,
+    corrected: PubSubService<CorrectedPose>,
+    corrected_events: EventService,
+}
+
+impl SourceServices {
+    /// Opens or creates `source`'s services on `node`.
+    pub fn open(node: &Node<ipc::Service>, source: &SourceName) -> Result<Self, ServiceOpenError> {
+        let (odom, corrected) = (source.odom_service(), source.corrected_service());
+        Ok(SourceServices {
+            source: source.clone(),
+            odom: pubsub(node, &odom)?,
+            odom_events: events(node, &odom)?,
+            corrected: pubsub(node, &corrected)?,
+            corrected_events: events(node, &corrected)?,
+        })
+    }
+
+    /// The source.
+    pub fn source(&self) -> &SourceName {
+        &self.source
+    }
+
+    /// True when a daemon serves the source: its worker creates the answer publisher after
+    /// every port that receives, so poses published from then on are all seen.
+    pub fn daemon_serving(&self) -> bool {
+        self.corrected.dynamic_config().number_of_publishers() > 0
+    }
+
+    /// Client side: publishes poses.
+    pub fn odom_publisher(&self) -> Result<Publisher<ipc::Service, OdomPose, ()>, PortCreateError> {
+        self.odom
+            .publisher_builder()
+            .create()
+            .map_err(|source| PortCreateError::Publisher {
+                service: self.source.odom_service(),
+                source,
+            })
+    }
+
+    /// Client side: wakes the daemon after a pose.
+    pub fn odom_notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
+        self.odom_events
+            .notifier_builder()
+            .create()
+            .map_err(|source| PortCreateError::Notifier {
+                service: self.source.odom_service(),
+                source,
+            })
+    }
+
+    /// Client side: receives answers.
+    pub fn corrected_subscriber(
+        &self,
+    ) -> Result<Subscriber<ipc::Service, CorrectedPose, ()>, PortCreateError> {
+        self.corrected
+            .subscriber_builder()
+            .create()
+            .map_err(|source| PortCreateError::Subscriber {
+                service: self.source.corrected_service(),
+                source,
+            })
+    }
+
+    /// Client side: waits for answers.
+    pub fn corrected_listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
+        self.corrected_events
+            .listener_builder()
+            .create()
+            .map_err(|source| PortCreateError::Listener {
+                service: self.source.corrected_service(),
+                source,
+            })
+    }
+
+    /// Daemon side: receives poses.
+    pub fn odom_subscriber(
+        &self,
+    ) -> Result<Subscriber<ipc::Service, OdomPose, ()>, PortCreateError> {
+        self.odom
+            .subscriber_builder()
+            .create()
+            .map_err(|source| PortCreateError::Subscriber {
+                service: self.source.odom_service(),
+                source,
+            })
+    }
+
+    /// Daemon side: waits for poses.
+    pub fn odom_listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
+        self.odom_events
+            .listener_builder()
+            .create()
+            .map_err(|source| PortCreateError::Listener {
+                service: self.source.odom_service(),
+                source,
+            })
+    }
+
+    /// Daemon side: publishes answers. Create it last: clients take its existence as the sign
+    /// that the daemon is ready.
+    pub fn corrected_publisher(
+        &self,
+    ) -> Result<Publisher<ipc::Service, CorrectedPose, ()>, PortCreateError> {
+        self.corrected
+            .publisher_builder()
+            .create()
+            .map_err(|source| PortCreateError::Publisher {
+                service: self.source.corrected_service(),
+                source,
+            })
+    }
+
+    /// Daemon side: wakes clients after an answer.
+    pub fn corrected_notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
+        self.corrected_events
+            .notifier_builder()
+            .create()
+            .map_err(|source| PortCreateError::Notifier {
+                service: self.source.corrected_service(),
+                source,
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_checked_and_map_to_services() {
+        let s: SourceName = "lidar_front-1".parse().unwrap();
+        assert_eq!(s.odom_service(), "lanealign/lidar_front-1/odom");
+        assert_eq!(SourceName::of_odom_service(&s.odom_service()), Some(s));
+        assert_eq!(SourceName::of_odom_service("lanealign/x/corrected"), None);
+        assert!("".parse::<SourceName>().is_err());
+        assert!("a/b".parse::<SourceName>().is_err());
+        let long = "x".repeat(300);
+        let e = long.parse::<SourceName>().unwrap_err().to_string();
+        assert!(e.contains("longer than 64") && e.len() < 200, "{e}");
+        assert_eq!(Namespace::default().prefix(), "lanealign_default_");
+        assert!("a b".parse::<Namespace>().is_err());
+    }
+}
