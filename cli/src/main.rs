@@ -22,6 +22,8 @@ enum Command {
     Correct(commands::correct::CorrectArgs),
     /// APE-2D of an estimate against ground truth (no alignment).
     Eval(commands::eval::EvalArgs),
+    /// Print the effective corrector parameters of a preset, method and overrides as TOML.
+    Params(commands::params::ParamsArgs),
     /// Stream a trajectory through a running lanealignd and write the corrected one.
     Replay(commands::replay::ReplayArgs),
     /// Many sources through one daemon: latency and loss, corrected and pass-through.
@@ -30,13 +32,18 @@ enum Command {
     Demo,
 }
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     // iceoryx2 warns on stdout when it runs on its default configuration, which is intended here.
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    lanealign_core::report::exit_code(run(&cli))
+}
+
+fn run(cli: &Cli) -> anyhow::Result<()> {
     match &cli.command {
         Command::Correct(args) => commands::correct::run(args),
         Command::Eval(args) => commands::eval::run(args),
+        Command::Params(args) => commands::params::run(args),
         Command::Replay(args) => commands::replay::run(args),
         Command::Soak(args) => commands::soak::run(args),
         Command::Demo => commands::demo::run(),

@@ -4,7 +4,7 @@
 //! One corrector serves one odometry source. It works in the lane map's plane: positions come in
 //! as the source's anchor places them (frame `anchored`: the odometry placed in the map plane,
 //! before any correction) and go out corrected (frame `map`). The accumulated correction is
-//! `map_from_anchored` (SPEC's `T_acc`); [`crate::source_corrector`] composes it with the
+//! `map_from_anchored` (the paper's `T_acc`); [`crate::source_corrector`] composes it with the
 //! anchor into the source's `map_from_odom`.
 
 use std::sync::Arc;
@@ -167,7 +167,7 @@ pub struct StepTiming {
 pub struct Step {
     /// The corrected position (metres, map plane).
     pub position_in_map: [f64; 2],
-    /// The accumulated correction after this step (SPEC's `T_acc`): apply it to an anchored
+    /// The accumulated correction after this step (the paper's `T_acc`): apply it to an anchored
     /// position for the corrected one.
     pub map_from_anchored: Se2,
     /// What happened.
@@ -266,7 +266,8 @@ impl Window {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum MatchMode {
-    /// SPEC section 2 literally: every window pose, every step, `N` nearest from the KD-tree.
+    /// The algorithm literally (docs/algorithm.md, section 2): every window pose, every step, `N`
+    /// nearest from the KD-tree.
     Reference,
     /// Exact incremental matching with per-pose candidate caches (see [`crate::match_cache`]).
     #[default]
@@ -343,7 +344,12 @@ impl Corrector {
         &self.params
     }
 
-    /// The current correction (SPEC's `T_acc`).
+    /// The window's corrected positions, oldest first (metres, map plane).
+    pub fn window(&self) -> &[[f64; 2]] {
+        self.window.as_slice()
+    }
+
+    /// The current correction (the paper's `T_acc`).
     pub fn map_from_anchored(&self) -> Se2 {
         self.map_from_anchored
     }

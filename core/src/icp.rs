@@ -1,4 +1,4 @@
-//! Trimmed ICP on fixed correspondences (SPEC section 3, step 3).
+//! Trimmed ICP on fixed correspondences (docs/algorithm.md, section 3, step 3).
 //!
 //! The pairs are not re-matched: each iteration keeps the `k` smallest residuals of the currently
 //! transformed sources, fits a rigid transform to them (closed-form 2D Kabsch) and applies it to
@@ -138,7 +138,7 @@ fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut 
 ///
 /// With a tolerance band `b > 0` each iteration fits the kept sources to their nearest points of
 /// the discs of radius `b` around the targets, which is alternating minimisation of the summed
-/// squared band residuals: the objective never grows. With `b = 0` it is exactly SPEC section 3.
+/// squared band residuals: the objective never grows. With `b = 0` it is exactly the paper's (docs/algorithm.md, section 3).
 pub fn trimmed_icp(
     pairs: &[Correspondence],
     params: &IcpParams,

@@ -39,6 +39,7 @@ pub mod metrics;
 pub mod names;
 pub mod params;
 pub mod pose;
+pub mod report;
 pub mod se2;
 pub mod smoothing;
 pub mod source_corrector;

@@ -1,4 +1,4 @@
-//! Lane matching (SPEC section 2): for each window pose, the first nearby lane segment that runs
+//! Lane matching (docs/algorithm.md, section 2): for each window pose, the first nearby lane segment that runs
 //! in the direction of travel and that the pose's normal hits.
 //!
 //! Positions and directions are metres / unit vectors in the map plane.
@@ -96,7 +96,8 @@ pub fn match_pose(
         .find_map(|&(_, j)| try_candidate(map, j, x, dir, params.min_direction_cos))
 }
 
-/// Matches every pose of the window exactly as SPEC section 2 describes (the reference work).
+/// Matches every pose of the window exactly as docs/algorithm.md section 2 describes (the
+/// reference work).
 /// `out` is cleared and receives the correspondences in window order.
 pub fn match_window(
     map: &LaneMap,

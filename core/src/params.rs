@@ -1,4 +1,4 @@
-//! The corrector's configuration: the parameters (SPEC section 3, docs/algorithm.md), the paper's
+//! The corrector's configuration: the parameters (docs/algorithm.md, section 3), the paper's
 //! presets per odometry backend, the two methods, typed overrides, and [`CorrectorConfig`], the
 //! one configuration the command line, the daemon's TOML and the tests all use.
 

@@ -2,6 +2,12 @@
 //!
 //! A transform is named `b_from_a`: it maps a point expressed in frame `a` into frame `b`, so
 //! `point_in_map = map_from_odom.apply(point_in_odom)` and `map_from_a = map_from_b * b_from_a`.
+//!
+//! Hand-written rather than nalgebra's `Isometry2` (which the 3D pose code uses): this is the
+//! corrector's hot path, applied to the whole window on every accepted step, and measured with
+//! criterion (2026-11-22) applying it to a 1000-pose window takes 1.04 us against 1.23 us for
+//! `Isometry2` (composition: 4.0 ns both). It also keeps the order of floating-point operations
+//! the conformance and acceptance figures were produced with.
 
 use std::ops::Mul;
 

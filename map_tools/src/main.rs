@@ -105,8 +105,12 @@ fn lane_properties(id: u64, info: LaneInfo, points: usize) -> serde_json::Value 
     p
 }
 
-fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
+fn main() -> std::process::ExitCode {
+    lanealign_core::report::exit_code(run(Cli::parse()))
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Compile {
             inputs,
             origin,

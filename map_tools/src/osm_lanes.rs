@@ -1,4 +1,4 @@
-//! Lanes derived from raw OSM ways and their tags (SPEC section 1, item 2).
+//! Lanes derived from raw OSM ways and their tags (docs/algorithm.md, section 1).
 //!
 //! Each drivable way yields one centerline per lane: the way line offset sideways to the lane's
 //! centre and pointing in the lane's direction of travel. Coordinates are metres in the map plane.

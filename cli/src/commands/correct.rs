@@ -45,7 +45,7 @@ pub struct MapArgs {
 }
 
 /// What the corrector does.
-#[derive(Args)]
+#[derive(Args, Clone)]
 pub struct CorrectorArgs {
     /// Parameter preset: liodom, basalt, kiss-icp or orb-slam3.
     #[arg(long)]

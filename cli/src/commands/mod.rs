@@ -3,6 +3,7 @@
 pub mod correct;
 pub mod demo;
 pub mod eval;
+pub mod params;
 pub mod replay;
 pub mod soak;
 

@@ -1,0 +1,68 @@
+//! How lanealign's commands report an error to a person: the message and each cause on a line
+//! of its own, never a backtrace, whatever `RUST_BACKTRACE` says; the error's full debug form
+//! (with anyhow's backtrace when one was captured) only when `LANEALIGN_BACKTRACE=1`.
+
+use std::error::Error;
+use std::fmt::Write as _;
+use std::process::ExitCode;
+
+/// `error: <message>` followed by `  caused by: <cause>` for each source in the chain (a cause
+/// whose text its parent already shows is not repeated).
+pub fn error_chain(error: &(dyn Error + 'static)) -> String {
+    let mut out = format!("error: {error}");
+    let mut shown = error.to_string();
+    let mut cause = error.source();
+    while let Some(e) = cause {
+        let text = e.to_string();
+        if !shown.contains(&text) {
+            let _ = write!(out, "\n  caused by: {text}");
+        }
+        shown = text;
+        cause = e.source();
+    }
+    out
+}
+
+/// True when the person asked for backtraces with `LANEALIGN_BACKTRACE=1`.
+pub fn backtrace_requested() -> bool {
+    std::env::var("LANEALIGN_BACKTRACE").is_ok_and(|v| v == "1")
+}
+
+/// A command's exit: success, or the error reported on stderr ([`error_chain`]) and failure.
+pub fn exit_code<E>(result: Result<(), E>) -> ExitCode
+where
+    E: std::fmt::Debug + AsRef<dyn Error + Send + Sync + 'static>,
+{
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let error: &(dyn Error + 'static) = e.as_ref();
+            eprintln!("{}", error_chain(error));
+            if backtrace_requested() {
+                eprintln!("{e:?}");
+            }
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("outer")]
+    struct Outer(#[source] std::io::Error);
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("file.txt: {0}")]
+    struct Shows(#[source] std::io::Error);
+
+    #[test]
+    fn every_cause_gets_a_line_once() {
+        let e = Outer(std::io::Error::other("inner"));
+        assert_eq!(error_chain(&e), "error: outer\n  caused by: inner");
+        let e = Shows(std::io::Error::other("inner"));
+        assert_eq!(error_chain(&e), "error: file.txt: inner");
+    }
+}
