@@ -4,8 +4,11 @@
 
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses, Traffic};
-use lanealign_core::lane_map::Lane;
+use std::path::Path;
+
+use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::pose::Pose3;
+use lanealign_core::tile::{self, TileError};
 
 /// Street spacing (metres) and count per axis.
 const BLOCK_M: f64 = 120.0;
@@ -90,6 +93,15 @@ pub fn town_geometry() -> LaneGeometry {
         classes: RoadClasses::EMPTY,
         unmarked_offset_scale: None,
     }
+}
+
+/// Writes the town's tile to `path`.
+pub fn write_town_tile(path: &Path) -> Result<(), TileError> {
+    let map = LaneMap::new(&town_lanes()).map_err(|source| TileError::Map {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    tile::write(path, &map, &town_plane(), SPACING_M, &town_geometry())
 }
 
 /// The route's corners (street intersections), driven in order and then back to the start.

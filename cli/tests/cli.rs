@@ -165,20 +165,24 @@ fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
     let line = |x: f64| format!("1 0 0 {x} 0 1 0 0 0 0 1 0\n");
     std::fs::write(&poses, (0..20).map(|i| line(i as f64)).collect::<String>()).unwrap();
     let anchor = "49.0,8.4,0";
+    let output = dir.path().join("o.txt");
+    let correct_with = |osm: &Path| {
+        lanealign(&[
+            "correct",
+            "--osm",
+            s(osm),
+            "--anchor",
+            anchor,
+            "--preset",
+            "kiss-icp",
+            s(&poses),
+            "-o",
+            s(&output),
+        ])
+    };
     let not_xml = dir.path().join("not.osm");
     std::fs::write(&not_xml, "PK\u{3}\u{4} this is a zip, not OSM").unwrap();
-    let out = lanealign(&[
-        "correct",
-        "--osm",
-        s(&not_xml),
-        "--anchor",
-        anchor,
-        "--preset",
-        "kiss-icp",
-        s(&poses),
-        "-o",
-        s(&dir.path().join("o.txt")),
-    ]);
+    let out = correct_with(&not_xml);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
@@ -193,18 +197,7 @@ fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
         <way id="3"><nd ref="1"/><nd ref="2"/><nd ref="404"/><tag k="highway" v="primary"/></way></osm>"#,
     )
     .unwrap();
-    let out = lanealign(&[
-        "correct",
-        "--osm",
-        s(&missing),
-        "--anchor",
-        anchor,
-        "--preset",
-        "kiss-icp",
-        s(&poses),
-        "-o",
-        s(&dir.path().join("o.txt")),
-    ]);
+    let out = correct_with(&missing);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("1 node references missing"), "{err}");

@@ -18,7 +18,6 @@ use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
@@ -119,15 +118,7 @@ fn kitti_setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
 fn town_setup(sources: &[&str]) -> Setup {
     let dir = tempfile::tempdir().unwrap();
     let tile_path = dir.path().join("town.tile");
-    let map = LaneMap::new(&synthetic::town_lanes()).unwrap();
-    tile::write(
-        &tile_path,
-        &map,
-        &synthetic::town_plane(),
-        3.0,
-        &synthetic::town_geometry(),
-    )
-    .unwrap();
+    synthetic::write_town_tile(&tile_path).unwrap();
     let sources = sources
         .iter()
         .map(|name| (name.to_string(), synthetic::town_anchor()))

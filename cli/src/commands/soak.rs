@@ -12,10 +12,8 @@ use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::replay::{replay, Rate, ReplayError};
 use lanealign_cli::synthetic;
 use lanealign_client::Connection;
-use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::AxisConvention;
-use lanealign_core::tile;
 
 use super::percentile_us;
 
@@ -127,14 +125,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     );
     let dir = tempfile::tempdir().context("creating a temporary folder")?;
     let tile_path = dir.path().join("town.tile");
-    let map = LaneMap::new(&synthetic::town_lanes())?;
-    tile::write(
-        &tile_path,
-        &map,
-        &synthetic::town_plane(),
-        3.0,
-        &synthetic::town_geometry(),
-    )?;
+    synthetic::write_town_tile(&tile_path)?;
     println!("soak: {sources} sources x {rate} Hz x {duration} s, synthetic town, kiss-icp; round trip = client send to client receive");
     println!("| mode | source | poses | lost | p50 (us) | p99 (us) | max (us) |");
     println!("|---|---|---|---|---|---|---|");
