@@ -24,12 +24,23 @@ pub struct Source {
     pub pass_through: bool,
 }
 
-/// A configuration for `tile` in `namespace` with `sources`, metrics every `metrics_interval_s`.
-pub fn config(tile: &Path, namespace: &str, metrics_interval_s: f64, sources: &[Source]) -> Config {
+/// A configuration for `tile` in `namespace` with `sources`, metrics every
+/// `metrics_interval_s`, sessions journaled below `state_dir`.
+pub fn config(
+    tile: &Path,
+    namespace: &str,
+    metrics_interval_s: f64,
+    state_dir: &Path,
+    sources: &[Source],
+) -> Config {
     Config {
         tile: PathBuf::from(tile),
         namespace: namespace.to_string(),
         metrics_interval_s,
+        state_dir: Some(state_dir.to_path_buf()),
+        journal: true,
+        session_timeout_s: 600.0,
+        max_sessions: 16,
         log_format: LogFormat::Text,
         sources: sources
             .iter()

@@ -1,7 +1,8 @@
 //! Running `lanealignd` as a child process (for `demo`, `soak` and tests).
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
 
 /// The daemon process could not be found, started or stopped.
 #[derive(Debug, thiserror::Error)]
@@ -16,6 +17,14 @@ pub enum DaemonProcessError {
         what: String,
         /// The error.
         source: std::io::Error,
+    },
+    /// It exited or did not become ready in time.
+    #[error("lanealignd did not become ready ({status}); its log:\n{log}")]
+    NotReady {
+        /// How it ended, or that it is still starting.
+        status: String,
+        /// Its log.
+        log: String,
     },
 }
 
@@ -67,6 +76,53 @@ impl DaemonProcess {
             child,
             log: log.to_path_buf(),
         })
+    }
+
+    /// Starts it and waits until it says it is ready (every worker up, sessions restored).
+    pub fn start_ready(
+        config: &Path,
+        log: &Path,
+        timeout: Duration,
+    ) -> Result<Self, DaemonProcessError> {
+        let mut daemon = Self::start(config, log)?;
+        daemon.wait_ready(timeout)?;
+        Ok(daemon)
+    }
+
+    /// Waits until the daemon logs that it is ready; an error with its log when it exits first
+    /// or takes longer than `timeout`.
+    pub fn wait_ready(&mut self, timeout: Duration) -> Result<(), DaemonProcessError> {
+        let until = Instant::now() + timeout;
+        loop {
+            if self.log().contains(" ready") {
+                return Ok(());
+            }
+            if let Some(status) = self.child.try_wait().map_err(io("polling lanealignd"))? {
+                return Err(DaemonProcessError::NotReady {
+                    status: status.to_string(),
+                    log: self.log(),
+                });
+            }
+            if Instant::now() > until {
+                return Err(DaemonProcessError::NotReady {
+                    status: format!("still starting after {timeout:?}"),
+                    log: self.log(),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// Kills it with SIGKILL (no clean-up at all) and reaps it.
+    pub fn kill(mut self) -> Result<(), DaemonProcessError> {
+        self.child.kill().map_err(io("killing lanealignd"))?;
+        self.child.wait().map_err(io("waiting for lanealignd"))?;
+        Ok(())
+    }
+
+    /// Waits for it to exit on its own.
+    pub fn wait(mut self) -> Result<ExitStatus, DaemonProcessError> {
+        self.child.wait().map_err(io("waiting for lanealignd"))
     }
 
     /// The process id.

@@ -2,6 +2,7 @@
 
 use std::time::{Duration, Instant};
 
+use lanealign_client::connection::ConnectionEvents;
 use lanealign_client::{Connection, PublishError, ReceiveError};
 use lanealign_core::pose::Pose3;
 use lanealign_wire::clock::monotonic_ns;
@@ -41,42 +42,58 @@ pub enum ReplayError {
     /// Receiving failed.
     #[error(transparent)]
     Receive(#[from] ReceiveError),
-    /// No daemon subscribed to the source in time.
+    /// No daemon serves the source.
     #[error("no daemon is serving source '{0}' (waited {1:?})")]
     NoDaemon(String, Duration),
-    /// Some poses never came back.
-    #[error("{missing} of {sent} poses did not come back within {timeout:?} (first missing: seq {first})")]
+    /// Some poses never came back: which, and everything that did.
+    #[error("{} of {sent} poses were not answered within {timeout:?} of the last answer (sequence numbers {})", missing.len(), summarize(missing))]
     Lost {
-        /// How many are missing.
-        missing: usize,
-        /// How many were sent.
+        /// The poses not answered.
+        missing: Vec<u64>,
+        /// How many were published.
         sent: usize,
-        /// The first missing sequence number.
-        first: u64,
-        /// How long the replay waited after the last pose.
+        /// How long the replay waited without progress.
         timeout: Duration,
+        /// What did come back.
+        partial: Box<Replay>,
     },
 }
 
-/// Every answer, in sequence order (`answers[i]` has `seq = first_seq + i`).
-#[derive(Debug, Clone)]
-pub struct Replay {
-    /// The corrected poses.
-    pub answers: Vec<CorrectedPose>,
-    /// Round-trip latency per pose (client send to client receive), nanoseconds.
-    pub round_trip_ns: Vec<u64>,
+/// The first few of a list of sequence numbers.
+fn summarize(seqs: &[u64]) -> String {
+    let shown: Vec<String> = seqs.iter().take(10).map(u64::to_string).collect();
+    let more = seqs.len().saturating_sub(10);
+    if more > 0 {
+        format!("{}, and {more} more", shown.join(", "))
+    } else {
+        shown.join(", ")
+    }
 }
 
-/// Publishes `poses` as `seq = first_seq..` with the given stamps (nanoseconds) and collects
-/// every answer; an answer to a sequence number this replay did not send is ignored.
+/// Every answer, in sequence order (`answers[i]` has `seq = i + 1`), and how the connection
+/// fared.
+#[derive(Debug, Clone)]
+pub struct Replay {
+    /// The answers (for a complete replay, one per pose).
+    pub answers: Vec<CorrectedPose>,
+    /// Round-trip latency per answer (its last send to its receipt), nanoseconds.
+    pub round_trip_ns: Vec<u64>,
+    /// Restarts, re-sent poses, gaps, fresh starts.
+    pub events: ConnectionEvents,
+}
+
+/// Publishes `poses` (with `stamps_ns`, or their index) as the session's poses 1, 2, ... and
+/// collects every answer. Waits up to `wait_for_daemon` for a daemon at the start, and fails
+/// naming the missing poses when no answer arrives for `stall` (a daemon restarting in between
+/// is fine: the connection sends again what it did not answer).
 pub fn replay(
-    conn: &Connection,
+    conn: &mut Connection,
     source: &str,
     poses: &[Pose3],
     stamps_ns: &[i64],
-    first_seq: u64,
     rate: Rate,
     wait_for_daemon: Duration,
+    stall: Duration,
 ) -> Result<Replay, ReplayError> {
     let until = Instant::now() + wait_for_daemon;
     while !conn.daemon_connected() {
@@ -86,70 +103,94 @@ pub fn replay(
         std::thread::sleep(Duration::from_millis(10));
     }
     let n = poses.len();
+    let first_seq = conn.next_seq();
     let mut answers: Vec<Option<CorrectedPose>> = vec![None; n];
     let mut round_trip_ns = vec![0u64; n];
     let mut received = 0usize;
-    let mut take = |answer: CorrectedPose, received: &mut usize| {
-        let now = monotonic_ns();
-        let Some(i) = answer
-            .seq
-            .checked_sub(first_seq)
-            .map(|i| i as usize)
-            .filter(|&i| i < n)
-        else {
-            return;
-        };
-        if answers[i].is_none() {
-            round_trip_ns[i] = now.saturating_sub(answer.sent_mono_ns);
+    let mut last_progress = Instant::now();
+    let mut take = |answer: CorrectedPose, received: &mut usize, last_progress: &mut Instant| {
+        let i = answer.seq.wrapping_sub(first_seq) as usize;
+        if i < n && answers[i].is_none() {
+            round_trip_ns[i] = monotonic_ns().saturating_sub(answer.sent_mono_ns);
             answers[i] = Some(answer);
             *received += 1;
+            *last_progress = Instant::now();
         }
     };
     let start = Instant::now();
     for (i, pose) in poses.iter().enumerate() {
-        match rate {
-            Rate::Hz(hz) => {
-                let due = start + Duration::from_secs_f64(i as f64 / hz);
-                while let Some(left) = due.checked_duration_since(Instant::now()) {
-                    match conn.recv(left)? {
-                        Some(a) => take(a, &mut received),
-                        None => break,
-                    }
-                }
-            }
-            Rate::Max(in_flight) => {
-                while i - received >= in_flight {
-                    match conn.recv(Duration::from_secs(5))? {
-                        Some(a) => take(a, &mut received),
-                        None => break,
-                    }
+        if let Rate::Hz(hz) = rate {
+            let due = start + Duration::from_secs_f64(i as f64 / hz);
+            while let Some(left) = due.checked_duration_since(Instant::now()) {
+                match conn.recv(left)? {
+                    Some(a) => take(a, &mut received, &mut last_progress),
+                    None => break,
                 }
             }
         }
-        let stamp_ns = stamps_ns.get(i).copied().unwrap_or(i as i64);
-        conn.publish(first_seq + i as u64, stamp_ns, &pose.to_row_major())?;
+        let stamp = stamps_ns.get(i).copied().unwrap_or(i as i64);
+        loop {
+            let limit = match rate {
+                Rate::Max(k) => k,
+                Rate::Hz(_) => usize::MAX,
+            };
+            let full = i - received >= limit;
+            if !full {
+                match conn.publish(stamp, &pose.to_row_major()) {
+                    Ok(_) => break,
+                    Err(PublishError::Full { .. }) => {}
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            match conn.recv(Duration::from_millis(100))? {
+                Some(a) => take(a, &mut received, &mut last_progress),
+                None if last_progress.elapsed() > stall => {
+                    return Err(lost(&answers, first_seq, &round_trip_ns, conn, stall));
+                }
+                None => {}
+            }
+        }
         while let Some(a) = conn.try_recv()? {
-            take(a, &mut received);
+            take(a, &mut received, &mut last_progress);
         }
     }
-    let timeout = Duration::from_secs(10);
-    let until = Instant::now() + timeout;
-    while received < n && Instant::now() < until {
-        if let Some(a) = conn.recv(Duration::from_millis(100))? {
-            take(a, &mut received);
+    while received < n {
+        match conn.recv(Duration::from_millis(100))? {
+            Some(a) => take(a, &mut received, &mut last_progress),
+            None if last_progress.elapsed() > stall => {
+                return Err(lost(&answers, first_seq, &round_trip_ns, conn, stall));
+            }
+            None => {}
         }
-    }
-    if received < n {
-        let first = answers.iter().position(Option::is_none).unwrap_or(0) as u64 + first_seq;
-        return Err(ReplayError::Lost {
-            missing: n - received,
-            sent: n,
-            first,
-            timeout,
-        });
     }
     Ok(Replay {
         answers: answers.into_iter().flatten().collect(),
         round_trip_ns,
+        events: conn.events(),
     })
+}
+
+fn lost(
+    answers: &[Option<CorrectedPose>],
+    first_seq: u64,
+    round_trip_ns: &[u64],
+    conn: &Connection,
+    timeout: Duration,
+) -> ReplayError {
+    let missing = answers
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| a.is_none())
+        .map(|(i, _)| first_seq + i as u64)
+        .collect();
+    ReplayError::Lost {
+        missing,
+        sent: answers.len(),
+        timeout,
+        partial: Box::new(Replay {
+            answers: answers.iter().flatten().copied().collect(),
+            round_trip_ns: round_trip_ns.to_vec(),
+            events: conn.events(),
+        }),
+    }
 }

@@ -16,13 +16,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let source = std::env::args()
         .nth(1)
         .unwrap_or_else(|| "lidar".to_string());
-    let conn = Connection::connect(&source)?;
+    let mut conn = Connection::connect(&source)?;
     println!("session {:016x} on source '{source}'", conn.session());
     for i in 0..500u64 {
         let pose = [
             1.0, 0.0, 0.0, i as f64, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0,
         ];
-        conn.publish(i + 1, i as i64 * 100_000_000, &pose)?;
+        conn.publish(i as i64 * 100_000_000, &pose)?;
         match conn.recv(Duration::from_millis(200))? {
             Some(c) if c.seq % 50 == 0 => {
                 let status = c.status().map_or("unknown", StatusCode::name);

@@ -1,6 +1,17 @@
-//! A connection to one source of the daemon: one session, its poses out, its answers in.
+//! A connection to one source of the daemon: one session, its poses out, its answers in, and
+//! nothing lost on the way.
+//!
+//! The connection numbers the session's poses 1, 2, 3, ... and keeps every pose until its answer
+//! arrives. It keeps at most [`MAX_IN_FLIGHT`] in flight (so no buffer on the way can overflow):
+//! beyond that [`Connection::publish`] says the connection is full instead of blocking the
+//! odometry thread. While it waits for answers it checks every 100 ms that the daemon is alive
+//! (iceoryx2 sees a killed process at once); when a daemon comes back (or another replaces it)
+//! it sends every unanswered pose again, in order. The daemon answers each pose of a session
+//! once and sends the same answer again for a pose sent twice; answers the connection already
+//! has are dropped, so each pose is answered exactly once.
 
 use std::collections::hash_map::RandomState;
+use std::collections::BTreeMap;
 use std::hash::{BuildHasher, Hasher};
 use std::time::{Duration, Instant};
 
@@ -12,15 +23,19 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{ReceiveError as PortReceiveError, SendError};
 use iceoryx2::prelude::ipc;
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::payload::{CorrectedPose, OdomPose};
+use lanealign_wire::payload::{
+    CorrectedPose, OdomPose, StatusCode, FLAG_FRESH_START, MAX_IN_FLIGHT,
+};
 use lanealign_wire::service::{
-    NameError, Namespace, NodeCreateError, PortCreateError, ServiceOpenError, SourceName,
-    SourceServices,
+    NameError, Namespace, NodeCreateError, NodeListError, PortCreateError, PoseServices,
+    ServiceOpenError, SessionServices, SourceName,
 };
 
 /// Shortest wait handed to iceoryx2: a shorter remainder is not waited for at all (a wait that
 /// rounds to zero at the socket would block until the next event).
 const MIN_WAIT: Duration = Duration::from_micros(10);
+/// How often the daemon's liveness is checked while waiting for answers.
+const LIVENESS_PERIOD: Duration = Duration::from_millis(100);
 
 /// Connecting failed.
 #[derive(Debug, thiserror::Error)]
@@ -37,11 +52,20 @@ pub enum ConnectError {
     /// A port could not be created.
     #[error(transparent)]
     Port(#[from] PortCreateError),
+    /// Looking for the daemon failed.
+    #[error(transparent)]
+    Liveness(#[from] NodeListError),
 }
 
 /// Publishing a pose failed.
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
+    /// [`MAX_IN_FLIGHT`] poses are unanswered: receive answers (or wait for the daemon) first.
+    #[error("{in_flight} poses are waiting for answers: receive some before publishing more")]
+    Full {
+        /// Poses in flight.
+        in_flight: u64,
+    },
     /// The sample could not be sent.
     #[error("sending a pose failed")]
     Send(#[source] SendError),
@@ -59,6 +83,29 @@ pub enum ReceiveError {
     /// Waiting for an answer failed.
     #[error("waiting for an answer failed")]
     Wait(#[source] ListenerWaitError),
+    /// Sending unanswered poses again failed.
+    #[error(transparent)]
+    Resend(#[from] PublishError),
+    /// Checking whether the daemon is alive failed.
+    #[error(transparent)]
+    Liveness(#[from] NodeListError),
+}
+
+/// What happened to a connection beyond plain answers: what a caller reports.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ConnectionEvents {
+    /// Times a daemon appeared for this connection after another (a restart): all unanswered
+    /// poses were sent again.
+    pub daemon_restarts: u64,
+    /// Poses sent more than once.
+    pub resent: u64,
+    /// Gap answers (poses that reached a daemon before earlier ones did) followed.
+    pub gaps: u64,
+    /// Times the daemon no longer had the session and it was started afresh (its corrector
+    /// from scratch) at the oldest unanswered pose.
+    pub fresh_starts: u64,
+    /// Answers received twice (dropped).
+    pub duplicate_answers: u64,
 }
 
 /// A fresh session id: non-zero, random per call (from the standard library's per-process
@@ -70,17 +117,43 @@ pub fn new_session_id() -> u64 {
     h.finish().max(1)
 }
 
+/// A pose waiting for its answer.
+#[derive(Clone, Copy)]
+struct Pending {
+    stamp_ns: i64,
+    pose: [f64; 12],
+}
+
 /// An odometry process's connection to one source of the daemon, in one session: the daemon
-/// runs a fresh corrector for a new session, and only this session's answers are returned.
-/// Not `Send`: create it on the thread that uses it (iceoryx2 ports are bound to their thread).
+/// runs a fresh corrector for a new session, and only this session's answers come here. Not
+/// `Send`: create it on the thread that uses it (iceoryx2 ports are bound to their thread).
 pub struct Connection {
+    namespace: Namespace,
     session: u64,
-    // Ports first: they must be dropped before the node that owns them.
+    next_seq: u64,
+    pending: BTreeMap<u64, Pending>,
+    /// The oldest pending pose not (known to be) delivered: sending resumes there.
+    unsent_from: u64,
+    /// Send this pose with [`FLAG_FRESH_START`].
+    fresh_at: Option<u64>,
+    /// The highest pose ever delivered to a daemon.
+    highest_sent: u64,
+    /// The last rewind: sending resumed at `.0` with poses up to `.1` already sent. A gap
+    /// answer to one of those, asking for `.0` or later, is covered by it.
+    rewound: (u64, u64),
+    /// The living daemon's process, if one is (a daemon has several nodes, one process).
+    daemon: Option<i32>,
+    /// The last daemon process seen alive: a different one appearing is a restart.
+    last_daemon: Option<i32>,
+    last_check: Option<Instant>,
+    events: ConnectionEvents,
+    // Ports first: they must be dropped before the services and the node that own them.
     publisher: Publisher<ipc::Service, OdomPose, ()>,
     notifier: Notifier<ipc::Service>,
     subscriber: Subscriber<ipc::Service, CorrectedPose, ()>,
     listener: Listener<ipc::Service>,
-    services: SourceServices,
+    poses: PoseServices,
+    _answers: SessionServices,
     _node: Node<ipc::Service>,
 }
 
@@ -90,23 +163,48 @@ impl Connection {
         Self::connect_in(&Namespace::default(), &source.parse()?, new_session_id())
     }
 
-    /// Connects to `source` in `namespace`, in session `session` (a new one from
-    /// [`new_session_id`], or an earlier one to resume its corrector). Works whether the daemon
-    /// is up yet or not.
+    /// Connects to `source` in `namespace`, in a new session `session` (from
+    /// [`new_session_id`]), whose first pose is 1. Works whether the daemon is up yet or not.
     pub fn connect_in(
         namespace: &Namespace,
         source: &SourceName,
         session: u64,
     ) -> Result<Self, ConnectError> {
+        Self::resume(namespace, source, session, 1)
+    }
+
+    /// Continues session `session` on `source` at pose `next_seq` (a process restarted after
+    /// `next_seq - 1` answered poses: the daemon still has the session's corrector).
+    pub fn resume(
+        namespace: &Namespace,
+        source: &SourceName,
+        session: u64,
+        next_seq: u64,
+    ) -> Result<Self, ConnectError> {
         let node = namespace.node()?;
-        let services = SourceServices::open(&node, source)?;
+        let poses = PoseServices::open(&node, source)?;
+        let session = session.max(1);
+        let answers = SessionServices::open(&node, source, session)?;
+        let daemon = namespace.daemons()?.first().map(|d| d.pid);
         Ok(Connection {
-            session: session.max(1),
-            publisher: services.odom_publisher()?,
-            notifier: services.odom_notifier()?,
-            subscriber: services.corrected_subscriber()?,
-            listener: services.corrected_listener()?,
-            services,
+            namespace: namespace.clone(),
+            session,
+            next_seq: next_seq.max(1),
+            pending: BTreeMap::new(),
+            unsent_from: next_seq.max(1),
+            fresh_at: None,
+            highest_sent: 0,
+            rewound: (0, 0),
+            daemon,
+            last_daemon: daemon,
+            last_check: Some(Instant::now()),
+            events: ConnectionEvents::default(),
+            publisher: poses.publisher()?,
+            notifier: poses.notifier()?,
+            subscriber: answers.subscriber()?,
+            listener: answers.listener()?,
+            poses,
+            _answers: answers,
             _node: node,
         })
     }
@@ -116,56 +214,181 @@ impl Connection {
         self.session
     }
 
-    /// True when a daemon serves this source.
-    pub fn daemon_connected(&self) -> bool {
-        self.services.daemon_serving()
+    /// The sequence number the next pose gets.
+    pub fn next_seq(&self) -> u64 {
+        self.next_seq
     }
 
-    /// Publishes pose `seq` of this session (row-major 3x4 `[R | t]` in the source's axis
-    /// convention, metres; `stamp_ns` the sensor time) and wakes the daemon.
-    pub fn publish(&self, seq: u64, stamp_ns: i64, pose: &[f64; 12]) -> Result<(), PublishError> {
-        self.publisher
-            .send_copy(OdomPose {
-                session: self.session,
-                seq,
+    /// Poses published and not answered yet, oldest first.
+    pub fn in_flight(&self) -> Vec<u64> {
+        self.pending.keys().copied().collect()
+    }
+
+    /// What happened beyond plain answers.
+    pub fn events(&self) -> ConnectionEvents {
+        self.events
+    }
+
+    /// True when a living daemon serves this source.
+    pub fn daemon_connected(&mut self) -> bool {
+        let _ = self.check_daemon();
+        self.daemon.is_some() && self.poses.subscribers() > 0
+    }
+
+    /// Publishes the session's next pose (row-major 3x4 `[R | t]` in the source's axis
+    /// convention, metres; `stamp_ns` the sensor time) and returns its sequence number. The
+    /// pose is kept until its answer arrives and sent again if the daemon restarts.
+    pub fn publish(&mut self, stamp_ns: i64, pose: &[f64; 12]) -> Result<u64, PublishError> {
+        let oldest = self.pending.keys().next().copied().unwrap_or(self.next_seq);
+        if self.next_seq - oldest >= MAX_IN_FLIGHT {
+            return Err(PublishError::Full {
+                in_flight: self.pending.len() as u64,
+            });
+        }
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        self.pending.insert(
+            seq,
+            Pending {
                 stamp_ns,
-                sent_mono_ns: monotonic_ns(),
                 pose: *pose,
-            })
-            .map_err(PublishError::Send)?;
-        self.notifier.notify().map_err(PublishError::Notify)?;
+            },
+        );
+        self.flush()?;
+        Ok(seq)
+    }
+
+    /// Sends the pending poses not yet delivered, in order; stops at the first no daemon took.
+    fn flush(&mut self) -> Result<(), PublishError> {
+        let mut woke = false;
+        let unsent: Vec<(u64, Pending)> = self
+            .pending
+            .range(self.unsent_from..)
+            .map(|(&s, &p)| (s, p))
+            .collect();
+        for (seq, p) in unsent {
+            let flags = if self.fresh_at == Some(seq) {
+                FLAG_FRESH_START
+            } else {
+                0
+            };
+            let delivered = self
+                .publisher
+                .send_copy(OdomPose {
+                    session: self.session,
+                    seq,
+                    stamp_ns: p.stamp_ns,
+                    sent_mono_ns: monotonic_ns(),
+                    pose: p.pose,
+                    flags,
+                    reserved: 0,
+                })
+                .map_err(PublishError::Send)?;
+            if delivered == 0 {
+                break;
+            }
+            if flags != 0 {
+                self.fresh_at = None;
+            }
+            if seq <= self.highest_sent {
+                self.events.resent += 1;
+            }
+            self.highest_sent = self.highest_sent.max(seq);
+            self.unsent_from = seq + 1;
+            woke = true;
+        }
+        if woke {
+            self.notifier.notify().map_err(PublishError::Notify)?;
+        }
         Ok(())
     }
 
-    /// The next answer of this session if one is waiting (answers of other sessions on the
-    /// same source are skipped).
-    pub fn try_recv(&self) -> Result<Option<CorrectedPose>, ReceiveError> {
-        loop {
-            match self.subscriber.receive().map_err(ReceiveError::Receive)? {
-                Some(sample) if sample.session == self.session => return Ok(Some(*sample)),
-                Some(_) => continue,
-                None => return Ok(None),
+    /// Sends again from pose `from` on (everything unanswered from there).
+    fn rewind(&mut self, from: u64) {
+        self.unsent_from = self.unsent_from.min(from);
+        self.rewound = (from, self.next_seq - 1);
+    }
+
+    /// Checks (at most every 100 ms) which daemon is alive; when one appeared or replaced
+    /// another, everything unanswered goes to it again.
+    fn check_daemon(&mut self) -> Result<(), ReceiveError> {
+        if self
+            .last_check
+            .is_some_and(|t| t.elapsed() < LIVENESS_PERIOD)
+        {
+            return Ok(());
+        }
+        self.last_check = Some(Instant::now());
+        let now = self.namespace.daemons()?.first().map(|d| d.pid);
+        if now.is_some() && now != self.daemon {
+            if self.last_daemon.is_some() && now != self.last_daemon {
+                self.events.daemon_restarts += 1;
             }
+            self.last_daemon = now;
+            let oldest = self.pending.keys().next().copied().unwrap_or(self.next_seq);
+            self.rewind(oldest);
+        }
+        self.daemon = now;
+        Ok(())
+    }
+
+    /// The next answer of this session if one is waiting.
+    pub fn try_recv(&mut self) -> Result<Option<CorrectedPose>, ReceiveError> {
+        loop {
+            let Some(sample) = self.subscriber.receive().map_err(ReceiveError::Receive)? else {
+                return Ok(None);
+            };
+            let answer = *sample;
+            drop(sample);
+            if answer.session != self.session {
+                continue;
+            }
+            if answer.status() == Some(StatusCode::Gap) {
+                self.events.gaps += 1;
+                let (from, upto) = self.rewound;
+                if answer.seq <= upto && answer.expected_seq >= from {
+                    // Sent before the last rewind, which already covers what it asks for.
+                    continue;
+                }
+                match self.pending.keys().next().copied() {
+                    // The daemon needs a pose this connection still has: send from there.
+                    Some(o) if answer.expected_seq >= o => self.rewind(answer.expected_seq),
+                    // It needs one already answered: it lost the session; start it afresh.
+                    Some(o) => {
+                        self.events.fresh_starts += 1;
+                        self.fresh_at = Some(o);
+                        self.rewind(o);
+                    }
+                    None => {}
+                }
+                self.flush()?;
+                continue;
+            }
+            if self.pending.remove(&answer.seq).is_some() {
+                return Ok(Some(answer));
+            }
+            self.events.duplicate_answers += 1;
         }
     }
 
     /// The next answer of this session, waiting (without polling) up to `timeout` for one.
-    pub fn recv(&self, timeout: Duration) -> Result<Option<CorrectedPose>, ReceiveError> {
-        if let Some(pose) = self.try_recv()? {
-            return Ok(Some(pose));
-        }
+    /// While waiting it checks the daemon's liveness and sends unanswered poses again when a
+    /// daemon comes back.
+    pub fn recv(&mut self, timeout: Duration) -> Result<Option<CorrectedPose>, ReceiveError> {
         let deadline = Instant::now() + timeout;
         loop {
+            if let Some(answer) = self.try_recv()? {
+                return Ok(Some(answer));
+            }
+            self.check_daemon()?;
+            self.flush()?;
             let left = deadline.saturating_duration_since(Instant::now());
             if left < MIN_WAIT {
                 return self.try_recv();
             }
             self.listener
-                .timed_wait(|_| {}, left)
+                .timed_wait(|_| {}, left.min(LIVENESS_PERIOD))
                 .map_err(ReceiveError::Wait)?;
-            if let Some(pose) = self.try_recv()? {
-                return Ok(Some(pose));
-            }
         }
     }
 }

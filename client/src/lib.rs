@@ -1,14 +1,14 @@
 //! What an odometry process links to talk to `lanealignd`: [`Connection`] connects to one
-//! source, publishes poses in a session of its own and receives that session's corrections.
-//! It depends on `lanealign-wire` and iceoryx2 only.
+//! source, publishes poses in a session of its own and receives that session's corrections,
+//! each exactly once, across daemon restarts. It depends on `lanealign-wire` and iceoryx2 only.
 //!
 //! ```no_run
 //! use std::time::Duration;
 //! use lanealign_client::Connection;
 //!
-//! let conn = Connection::connect("lidar")?;
+//! let mut conn = Connection::connect("lidar")?;
 //! let identity = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
-//! conn.publish(1, 0, &identity)?;
+//! conn.publish(0, &identity)?;
 //! if let Some(corrected) = conn.recv(Duration::from_millis(100))? {
 //!     println!("seq {} corrected to {:?}", corrected.seq, corrected.pose);
 //! }

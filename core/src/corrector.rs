@@ -297,6 +297,26 @@ enum Matcher {
     Fast(Box<MatchCache>),
 }
 
+/// Everything a corrector's future answers depend on: saved with [`Corrector::state`] and given
+/// back to [`Corrector::restore`], it continues exactly, bit for bit. (The fast matcher's caches
+/// are not part of it: they change how much work matching takes, never its answers.)
+#[derive(Clone, Debug, PartialEq)]
+pub struct CorrectorState {
+    /// The accumulated correction.
+    pub map_from_anchored: Se2,
+    /// The window's corrected positions, oldest first (metres, map plane).
+    pub window: Vec<[f64; 2]>,
+    /// The window's path length as the corrector keeps it (metres; kept, not re-summed, so that
+    /// its rounding is the same).
+    pub window_path_m: f64,
+    /// Consecutive failures.
+    pub failures: u32,
+    /// Odometry path length since the last accepted step (metres).
+    pub travelled_m: f64,
+    /// The last position pushed (metres, frame `anchored`).
+    pub last_position_in_anchored: Option<[f64; 2]>,
+}
+
 /// One odometry source's corrector.
 pub struct Corrector {
     map: Arc<LaneMap>,
@@ -347,6 +367,43 @@ impl Corrector {
     /// The window's corrected positions, oldest first (metres, map plane).
     pub fn window(&self) -> &[[f64; 2]] {
         self.window.as_slice()
+    }
+
+    /// The state to continue from later (see [`CorrectorState`]).
+    pub fn state(&self) -> CorrectorState {
+        CorrectorState {
+            map_from_anchored: self.map_from_anchored,
+            window: self.window.as_slice().to_vec(),
+            window_path_m: self.window.path_m,
+            failures: self.failures,
+            travelled_m: self.travelled_m,
+            last_position_in_anchored: self.last_position_in_anchored,
+        }
+    }
+
+    /// A corrector that continues from `state`, exactly as the one it was saved from would.
+    pub fn restore(
+        map: Arc<LaneMap>,
+        params: Params,
+        mode: MatchMode,
+        state: CorrectorState,
+    ) -> Self {
+        let mut c = Self::with_mode(map, params, mode);
+        if let Matcher::Fast(cache) = &mut c.matcher {
+            for _ in 0..state.window.len() {
+                cache.push();
+            }
+        }
+        c.window = Window {
+            buf: state.window,
+            start: 0,
+            path_m: state.window_path_m,
+        };
+        c.map_from_anchored = state.map_from_anchored;
+        c.failures = state.failures;
+        c.travelled_m = state.travelled_m;
+        c.last_position_in_anchored = state.last_position_in_anchored;
+        c
     }
 
     /// The current correction (the paper's `T_acc`).
@@ -658,6 +715,35 @@ mod tests {
             assert!(length <= 100.0 + 1e-9 || w.len() <= params.min_window);
         }
         assert_eq!(c.window.len(), 51, "50 steps of 2 m");
+    }
+
+    #[test]
+    fn a_restored_corrector_continues_bit_for_bit() {
+        let drive = l_drive([0.3, 1.0]);
+        for mode in [MatchMode::Fast, MatchMode::Reference] {
+            let run = |c: &mut Corrector, from: usize| -> Vec<Step> {
+                drive[from..]
+                    .iter()
+                    .map(|&p| {
+                        let mut s = c.push(p);
+                        s.timing = StepTiming::default();
+                        s
+                    })
+                    .collect()
+            };
+            let mut whole = Corrector::with_mode(l_shaped_map(), small_params(), mode);
+            let uninterrupted = run(&mut whole, 0);
+            for cut in [5, 30, 120, 200] {
+                let mut first = Corrector::with_mode(l_shaped_map(), small_params(), mode);
+                let before: Vec<Step> = drive[..cut].iter().map(|&p| first.push(p)).collect();
+                assert!(before.len() == cut);
+                let mut restored =
+                    Corrector::restore(l_shaped_map(), small_params(), mode, first.state());
+                assert_eq!(restored.state(), first.state());
+                let after = run(&mut restored, cut);
+                assert_eq!(after, uninterrupted[cut..], "{mode:?}, cut at {cut}");
+            }
+        }
     }
 
     #[test]

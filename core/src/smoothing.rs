@@ -42,6 +42,19 @@ impl Smoother {
         }
     }
 
+    /// The last published correction (`None` before the first): the smoother's whole state.
+    pub fn output_from_odom(&self) -> Option<Se2> {
+        self.output_from_odom
+    }
+
+    /// A smoother that continues from a saved [`Smoother::output_from_odom`].
+    pub fn restore(limits: Smoothing, output_from_odom: Option<Se2>) -> Self {
+        Smoother {
+            limits,
+            output_from_odom,
+        }
+    }
+
     /// The correction to publish for the pose at `position_in_odom` (metres, the frame
     /// `map_from_odom` maps from), moved from the previous one toward the exact `map_from_odom`:
     /// the pose's output position moves by at most `max_step_m` and its yaw by at most

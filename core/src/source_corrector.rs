@@ -9,7 +9,7 @@
 
 use std::sync::Arc;
 
-use crate::corrector::{Corrector, MatchMode, Status, StepTiming};
+use crate::corrector::{Corrector, CorrectorState, MatchMode, Status, StepTiming};
 use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::{apply_planar_correction, AxisConvention, Pose3};
@@ -43,6 +43,15 @@ pub struct Placement {
     pub smoothing: Option<Smoothing>,
 }
 
+/// Everything a source corrector's future answers depend on (see [`CorrectorState`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourceState {
+    /// The corrector's state.
+    pub corrector: CorrectorState,
+    /// The last published (smoothed) correction, when the source smooths.
+    pub smoothed: Option<Se2>,
+}
+
 /// A corrector for one source: converts, places, corrects and converts back.
 pub struct SourceCorrector {
     corrector: Corrector,
@@ -59,6 +68,32 @@ impl SourceCorrector {
             corrector: Corrector::with_mode(map, params, mode),
             odom_from_anchored: placement.anchored_from_odom.inverse(),
             smoother: placement.smoothing.map(Smoother::new),
+            placement,
+        }
+    }
+
+    /// The state to continue from later.
+    pub fn state(&self) -> SourceState {
+        SourceState {
+            corrector: self.corrector.state(),
+            smoothed: self.smoother.as_ref().and_then(Smoother::output_from_odom),
+        }
+    }
+
+    /// A source corrector that continues from `state`, exactly as the saved one would.
+    pub fn restore(
+        map: Arc<LaneMap>,
+        params: Params,
+        mode: MatchMode,
+        placement: Placement,
+        state: SourceState,
+    ) -> Self {
+        SourceCorrector {
+            corrector: Corrector::restore(map, params, mode, state.corrector),
+            odom_from_anchored: placement.anchored_from_odom.inverse(),
+            smoother: placement
+                .smoothing
+                .map(|limits| Smoother::restore(limits, state.smoothed)),
             placement,
         }
     }

@@ -25,6 +25,22 @@ pub struct Config {
     /// Seconds between two metrics reports per source (0.1 to 3600).
     #[serde(default = "default_metrics_interval")]
     pub metrics_interval_s: f64,
+    /// Where sessions are journaled (a folder per namespace below it); relative to the config
+    /// file. Default: see [`default_state_dir`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub state_dir: Option<PathBuf>,
+    /// Journal every session, so that a restarted daemon continues each exactly where it was.
+    /// Default true.
+    #[serde(default = "default_true")]
+    pub journal: bool,
+    /// A session with no pose for this many seconds ends and its journal is removed (1 to
+    /// 604800). Default 600.
+    #[serde(default = "default_session_timeout")]
+    pub session_timeout_s: f64,
+    /// Sessions per source at most (1 to 64); a new one beyond ends the least recently active.
+    /// Default 16.
+    #[serde(default = "default_max_sessions")]
+    pub max_sessions: usize,
     /// `text` or `json` log lines.
     #[serde(default)]
     pub log_format: LogFormat,
@@ -39,6 +55,39 @@ fn default_namespace() -> String {
 
 fn default_metrics_interval() -> f64 {
     5.0
+}
+
+fn default_true() -> bool {
+    true
+}
+
+fn default_session_timeout() -> f64 {
+    600.0
+}
+
+fn default_max_sessions() -> usize {
+    16
+}
+
+/// The state folder when the configuration names none: `$LANEALIGN_STATE_DIR`, else
+/// `$STATE_DIRECTORY` (systemd's `StateDirectory=`, e.g. `/var/lib/lanealign`), else
+/// `$XDG_STATE_HOME/lanealign`, else `$HOME/.local/state/lanealign`. All survive a reboot.
+pub fn default_state_dir() -> Option<PathBuf> {
+    let var = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    var("LANEALIGN_STATE_DIR")
+        .or_else(|| {
+            // systemd may list several folders separated by ':'; the first is ours.
+            var("STATE_DIRECTORY").map(|v| {
+                let text = v.to_string_lossy().into_owned();
+                PathBuf::from(text.split(':').next().unwrap_or_default())
+            })
+        })
+        .or_else(|| var("XDG_STATE_HOME").map(|d| d.join("lanealign")))
+        .or_else(|| var("HOME").map(|h| h.join(".local/state/lanealign")))
 }
 
 /// Log line format.
@@ -76,6 +125,17 @@ pub struct SourceConfig {
     pub pass_through: bool,
     /// The corrector: preset, method, matching, smoothing, overrides.
     pub corrector: CorrectorConfig,
+}
+
+/// Everything the configuration resolves to.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Resolved {
+    /// The deployment's namespace.
+    pub namespace: Namespace,
+    /// The namespace's state folder (journals and the instance lock), when journaling.
+    pub state_dir: Option<PathBuf>,
+    /// The sources.
+    pub sources: Vec<ResolvedSource>,
 }
 
 /// A source ready to run.
@@ -163,7 +223,7 @@ impl Config {
     /// Checks every rule the daemon applies before it starts a worker, and resolves each
     /// source's parameters. The one validation: `lanealignd check` runs exactly this (and
     /// [`Config::check_tile`]).
-    pub fn resolve(&self, path: &Path) -> Result<(Namespace, Vec<ResolvedSource>), ConfigError> {
+    pub fn resolve(&self, path: &Path) -> Result<Resolved, ConfigError> {
         let value = |key: String, message: String| ConfigError::Value {
             path: path.to_path_buf(),
             key,
@@ -186,6 +246,38 @@ impl Config {
                 ),
             ));
         }
+        if !(self.session_timeout_s.is_finite()
+            && (1.0..=604_800.0).contains(&self.session_timeout_s))
+        {
+            return Err(value(
+                "session_timeout_s".into(),
+                format!(
+                    "{}: must be between 1 and 604800 seconds",
+                    self.session_timeout_s
+                ),
+            ));
+        }
+        if !(1..=64).contains(&self.max_sessions) {
+            return Err(value(
+                "max_sessions".into(),
+                format!("{}: must be between 1 and 64", self.max_sessions),
+            ));
+        }
+        let state_dir = if self.journal {
+            let dir = match &self.state_dir {
+                Some(d) if d.is_relative() => path.parent().unwrap_or(Path::new(".")).join(d),
+                Some(d) => d.clone(),
+                None => default_state_dir().ok_or_else(|| {
+                    value(
+                        "state_dir".into(),
+                        "no default: set state_dir, or LANEALIGN_STATE_DIR, or HOME".into(),
+                    )
+                })?,
+            };
+            Some(dir.join(namespace.as_str()))
+        } else {
+            None
+        };
         if self.sources.is_empty() {
             return Err(value(
                 "source".into(),
@@ -219,7 +311,11 @@ impl Config {
                 pass_through: s.pass_through,
             });
         }
-        Ok((namespace, resolved))
+        Ok(Resolved {
+            namespace,
+            state_dir,
+            sources: resolved,
+        })
     }
 
     /// Refuses a tile whose lane geometry a source's method was not designed for.
@@ -256,7 +352,7 @@ anchor = { lat = 48.98, lon = 8.39, yaw_deg = 59.5 }
 corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
 "#;
 
-    fn resolve(text: &str) -> Result<(Namespace, Vec<ResolvedSource>), ConfigError> {
+    fn resolve(text: &str) -> Result<Resolved, ConfigError> {
         let p = Path::new("/etc/lanealign/d.toml");
         Config::parse(text, p)?.resolve(p)
     }
@@ -266,8 +362,9 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
         let p = Path::new("/etc/lanealign/d.toml");
         let c = Config::parse(GOOD, p).unwrap();
         assert_eq!(c.tile, Path::new("/etc/lanealign/maps/00.tile"));
-        let (ns, s) = c.resolve(p).unwrap();
-        assert_eq!(ns, Namespace::default());
+        let r = c.resolve(&p.with_file_name("x.toml")).unwrap();
+        let s = r.sources;
+        assert_eq!(r.namespace, Namespace::default());
         assert_eq!(s[0].params.max_window, 800);
         assert_eq!(s[0].corrector.method, Method::Robust);
         assert_eq!(s[0].convention, AxisConvention::KittiCamera);
@@ -278,7 +375,7 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
     fn the_shipped_config_is_valid() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/lanealignd.toml");
         let config = Config::load(&path).unwrap();
-        let (_, sources) = config.resolve(&path).unwrap();
+        let sources = config.resolve(&path).unwrap().sources;
         assert!(config.tile.ends_with("kitti_00.tile"));
         assert_eq!(sources[0].name.as_str(), "lidar");
         assert_eq!(sources[0].convention, AxisConvention::KittiCamera);
@@ -319,6 +416,8 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
             ),
             (GOOD.replace("\"lidar\"", &format!("\"{}\"", "x".repeat(300))), "longer than 64"),
             (format!("namespace = \"a b\"\n{GOOD}"), "namespace"),
+            (format!("max_sessions = 0\n{GOOD}"), "max_sessions"),
+            (format!("session_timeout_s = -1\n{GOOD}"), "session_timeout_s"),
             (
                 format!("{GOOD}\n[[source]]\nname = \"lidar\"\nanchor = {{ lat = 1.0, lon = 1.0, yaw_deg = 0.0 }}\ncorrector = {{ preset = \"basalt\" }}\n"),
                 "configured twice",

@@ -1,22 +1,28 @@
 //! The daemon: checks the configuration and the tile ([`prepare`], which `lanealignd check`
-//! runs too), starts a worker per source and stops if any cannot start, cleans up after dead
-//! processes, watches for poses sent to unknown sources, and shuts down cleanly on SIGINT or
-//! SIGTERM.
+//! runs too), takes its namespace's instance lock, starts a worker per source (each restoring
+//! its journaled sessions) and stops if any cannot start, tells systemd it is ready and alive,
+//! cleans up after dead processes, watches for poses sent to unknown sources, reloads the tile
+//! on SIGHUP for new sessions, and shuts down cleanly on SIGINT or SIGTERM.
 
 use std::collections::BTreeSet;
+use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
-use lanealign_wire::service::{Namespace, NodeCreateError, SourceName};
+use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::service::{Namespace, NodeCreateError, NodeListError, SourceName, DAEMON_NODE};
 
 use crate::config::{Config, ConfigError, ResolvedSource};
-use crate::worker::{self, WorkerError, WorkerSummary};
+use crate::journal::fingerprint;
+use crate::session::SessionSetup;
+use crate::worker::{self, Reload, WorkerError, WorkerSetup, WorkerSummary};
 
 /// How often the supervisor looks for dead nodes and unknown sources.
 const SUPERVISION_PERIOD: Duration = Duration::from_millis(500);
@@ -49,6 +55,28 @@ pub enum DaemonError {
     /// A worker could not set up its ports: the daemon does not run with a source missing.
     #[error(transparent)]
     Worker(#[from] WorkerError),
+    /// Another daemon serves the namespace.
+    #[error("another lanealignd serves namespace '{namespace}'{detail}: stop it first, or give this deployment its own namespace")]
+    AlreadyRunning {
+        /// The namespace.
+        namespace: String,
+        /// What is known of the other daemon.
+        detail: String,
+    },
+    /// The state folder or its lock could not be set up.
+    #[error("{path}: {source}")]
+    State {
+        /// The folder or file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// Listing the namespace's nodes failed.
+    #[error(transparent)]
+    NodeList(#[from] NodeListError),
+    /// The persistence thread could not be started.
+    #[error("starting the persistence thread: {0}")]
+    Persistence(std::io::Error),
 }
 
 /// A configuration that passed every check, with its tile loaded.
@@ -59,6 +87,8 @@ pub struct Prepared {
     pub path: PathBuf,
     /// The deployment's namespace.
     pub namespace: Namespace,
+    /// The namespace's state folder, when sessions are journaled.
+    pub state_dir: Option<PathBuf>,
     /// The sources.
     pub sources: Vec<ResolvedSource>,
     /// The lane map.
@@ -71,7 +101,8 @@ pub struct Prepared {
 /// rules the daemon applies before it starts. `lanealignd check` is exactly this.
 pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     let config = Config::load(path)?;
-    let (namespace, sources) = config.resolve(path)?;
+    let resolved = config.resolve(path)?;
+    let (namespace, sources) = (resolved.namespace, resolved.sources);
     let (map, info) = tile::load(&config.tile).map_err(|source| {
         let hint = match &source {
             tile::TileError::Io { source: io, .. }
@@ -90,6 +121,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     Ok(Prepared {
         path: path.to_path_buf(),
         namespace,
+        state_dir: resolved.state_dir,
         sources,
         map: Arc::new(map),
         tile: info,
@@ -136,52 +168,183 @@ fn unknown_sources(namespace: &Namespace, known: &[SourceName]) -> BTreeSet<Stri
     unknown
 }
 
+/// The namespace's instance lock: held for the daemon's life (released by the kernel, even on
+/// kill -9).
+fn lock(namespace: &Namespace, state_dir: Option<&Path>) -> Result<Option<File>, DaemonError> {
+    let others = namespace.daemons()?;
+    if let Some(other) = others.first() {
+        return Err(DaemonError::AlreadyRunning {
+            namespace: namespace.to_string(),
+            detail: format!(" (pid {})", other.pid),
+        });
+    }
+    let Some(dir) = state_dir else {
+        return Ok(None);
+    };
+    let state = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| DaemonError::State { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(state(dir))?;
+    let path = dir.join("lanealignd.lock");
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .map_err(state(&path))?;
+    match rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
+        Ok(()) => Ok(Some(file)),
+        Err(e) if e == rustix::io::Errno::WOULDBLOCK => Err(DaemonError::AlreadyRunning {
+            namespace: namespace.to_string(),
+            detail: format!(" (it holds {})", path.display()),
+        }),
+        Err(e) => Err(state(&path)(e.into())),
+    }
+}
+
+/// What a source's journals are written under: its configuration and the tile.
+fn source_fingerprint(source: &ResolvedSource, tile: &TileInfo) -> u64 {
+    let corrector = toml::to_string(&source.corrector).unwrap_or_default();
+    fingerprint(&[
+        source.name.as_str(),
+        &corrector,
+        source.convention.name(),
+        &format!("{:?}", source.anchor),
+        &format!("{:016x}", tile.checksum),
+    ])
+}
+
+/// Tells systemd (when it started the daemon with `Type=notify`) how things stand.
+fn notify(states: &[sd_notify::NotifyState<'_>]) {
+    if let Err(e) = sd_notify::notify(states) {
+        tracing::debug!(error = %e, "sd_notify failed");
+    }
+}
+
+/// Loads the configured tile again, checks it against every source, and hands it to the
+/// workers for their new sessions.
+fn reload(
+    config: &Config,
+    path: &Path,
+    sources: &[ResolvedSource],
+    workers: &[(
+        String,
+        std::thread::JoinHandle<WorkerSummary>,
+        mpsc::Sender<Reload>,
+    )],
+) {
+    let loaded = tile::load(&config.tile).map_err(|e| lanealign_core::report::error_chain(&e));
+    let checked = loaded.and_then(|(map, info)| {
+        config
+            .check_tile(path, sources, &info)
+            .map_err(|e| lanealign_core::report::error_chain(&e))
+            .map(|()| (Arc::new(map), info))
+    });
+    match checked {
+        Ok((map, info)) => {
+            for ((_, _, tx), source) in workers.iter().zip(sources) {
+                let _ = tx.send(Reload {
+                    map: map.clone(),
+                    fingerprint: source_fingerprint(source, &info),
+                });
+            }
+            tracing::info!(tile = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), "tile reloaded on SIGHUP: new sessions use it");
+        }
+        Err(e) => {
+            tracing::error!(error = %e, "SIGHUP: the tile was not reloaded; every session keeps the one it has")
+        }
+    }
+}
+
 /// Runs until SIGINT or SIGTERM: returns each source's summary. Fails, stopping every worker,
-/// if any source's worker cannot start.
+/// if another daemon serves the namespace or any source's worker cannot start.
 pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonError> {
     let Prepared {
         config,
+        path,
         namespace,
+        state_dir,
         sources,
         map,
         tile: info,
-        ..
     } = prepared;
+    let _lock = lock(&namespace, state_dir.as_deref())?;
     tracing::info!(
         tile = %config.tile.display(),
         lanes = info.lanes,
         points = info.points,
         namespace = %namespace,
+        state_dir = %state_dir.as_ref().map_or("(no journal)".into(), |d| d.display().to_string()),
         "tile loaded"
     );
     let cleaned = remove_dead_nodes(&namespace);
     if cleaned > 0 {
         tracing::info!(cleaned, "removed stale resources left by earlier processes");
     }
-    let node = namespace.node()?;
+    let node = namespace.named_node(DAEMON_NODE)?;
+    let hangup = Arc::new(AtomicBool::new(false));
+    if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
+        tracing::warn!(error = %e, "SIGHUP cannot reload the tile");
+    }
+    let (persistence, persistence_thread) = if state_dir.is_some() {
+        let (tx, handle) = crate::persistence::spawn().map_err(DaemonError::Persistence)?;
+        (Some(tx), Some(handle))
+    } else {
+        (None, None)
+    };
+    let epoch = crate::new_nonce();
     let shutdown = Arc::new(AtomicBool::new(false));
     let interval = Duration::from_secs_f64(config.metrics_interval_s);
     let known: Vec<SourceName> = sources.iter().map(|s| s.name.clone()).collect();
     let (ready_tx, ready_rx) = mpsc::channel();
     let mut workers = Vec::new();
+    let mut heartbeats = Vec::new();
     let mut failure = None;
-    for source in sources {
-        let (map, shutdown, plane, ns) =
-            (map.clone(), shutdown.clone(), info.plane, namespace.clone());
+    for source in &sources {
         let name = source.name.to_string();
+        let heartbeat = Arc::new(AtomicU64::new(monotonic_ns()));
+        let (reload_tx, reloads) = mpsc::channel();
+        let setup = WorkerSetup {
+            sessions: SessionSetup {
+                map: map.clone(),
+                params: source.params,
+                mode: source.corrector.match_mode,
+                placement: Placement {
+                    convention: source.convention,
+                    anchored_from_odom: source.anchor.anchored_from_odom(&info.plane),
+                    smoothing: source.corrector.smoothing(),
+                },
+                journal_dir: state_dir.as_ref().map(|d| d.join(source.name.as_str())),
+                fingerprint: source_fingerprint(source, &info),
+                persistence: persistence.clone(),
+                daemon_epoch: epoch,
+            },
+            source: source.clone(),
+            namespace: namespace.clone(),
+            metrics_interval: interval,
+            session_timeout: Duration::from_secs_f64(config.session_timeout_s),
+            max_sessions: config.max_sessions,
+            shutdown: shutdown.clone(),
+            heartbeat: heartbeat.clone(),
+            reloads,
+        };
         let ready = ready_tx.clone();
         match std::thread::Builder::new()
             .name(format!("worker-{name}"))
-            .spawn(move || worker::run(source, ns, map, plane, interval, shutdown, ready))
+            .spawn(move || worker::run(setup, ready))
         {
-            Ok(handle) => workers.push((name, handle)),
+            Ok(handle) => {
+                workers.push((name, handle, reload_tx));
+                heartbeats.push(heartbeat);
+            }
             Err(error) => {
                 failure = Some(DaemonError::Spawn { name, error });
                 break;
             }
         }
     }
-    drop(ready_tx);
+    drop((ready_tx, persistence));
     if failure.is_none() {
         for _ in 0..workers.len() {
             match ready_rx.recv() {
@@ -196,15 +359,30 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     }
     if let Some(e) = failure {
         shutdown.store(true, Ordering::Relaxed);
-        for (_, handle) in workers {
+        for (_, handle, _) in workers {
             let _ = handle.join();
         }
         return Err(e);
     }
-    tracing::info!(sources = workers.len(), "ready");
+    tracing::info!(
+        sources = workers.len(),
+        epoch = format_args!("{epoch:016x}"),
+        "ready"
+    );
+    notify(&[
+        sd_notify::NotifyState::Ready,
+        sd_notify::NotifyState::Status(&format!("serving {} sources", workers.len())),
+    ]);
     let mut refused = BTreeSet::new();
-    // node.wait returns an error on SIGINT / SIGTERM: that is the shutdown request.
-    while node.wait(SUPERVISION_PERIOD).is_ok() {
+    loop {
+        // node.wait returns an error when a signal interrupts it: SIGHUP asks for a reload,
+        // anything else (SIGINT, SIGTERM) for shutdown.
+        let waited = node.wait(SUPERVISION_PERIOD);
+        if hangup.swap(false, Ordering::Relaxed) {
+            reload(&config, &path, &sources, &workers);
+        } else if waited.is_err() {
+            break;
+        }
         remove_dead_nodes(&namespace);
         for source in unknown_sources(&namespace, &known) {
             if refused.insert(source.clone()) {
@@ -215,19 +393,31 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
                 );
             }
         }
-        if workers.iter().all(|(_, h)| h.is_finished()) {
+        // The watchdog is fed only while every worker goes round its loop.
+        let now = monotonic_ns();
+        let stalled = heartbeats
+            .iter()
+            .any(|h| now.saturating_sub(h.load(Ordering::Relaxed)) > 2_000_000_000);
+        if !stalled {
+            notify(&[sd_notify::NotifyState::Watchdog]);
+        }
+        if workers.iter().all(|(_, h, _)| h.is_finished()) {
             tracing::error!("every worker has stopped");
             break;
         }
     }
     tracing::info!("shutting down");
+    notify(&[sd_notify::NotifyState::Stopping]);
     shutdown.store(true, Ordering::Relaxed);
     let mut summaries = Vec::new();
-    for (name, handle) in workers {
+    for (name, handle, _) in workers {
         match handle.join() {
             Ok(summary) => summaries.push((name, summary)),
             Err(_) => tracing::error!(source = %name, "worker panicked"),
         }
+    }
+    if let Some(handle) = persistence_thread {
+        let _ = handle.join();
     }
     Ok(summaries)
 }

@@ -10,6 +10,10 @@ pub enum Outcome {
     Corrected(Status),
     /// The input was refused (non-finite pose, duplicate or out-of-order sequence number).
     Flagged,
+    /// The input was ahead of the session: answered with a gap status, not used.
+    Gap,
+    /// The input was already used: its answer was sent again.
+    Resent,
     /// The source echoes without correcting.
     PassThrough,
 }
@@ -20,6 +24,16 @@ pub struct SourceMetrics {
     accepted: u64,
     rejected: u64,
     flagged: u64,
+    gaps: u64,
+    resent: u64,
+    /// Answers no one received in this interval.
+    pub undelivered: u64,
+    /// Sessions started in this interval.
+    pub new_sessions: u64,
+    /// Live sessions at the report.
+    pub sessions: u64,
+    /// Journal writes that failed in this interval.
+    pub journal_failures: u64,
     /// Client send to daemon publish (nanoseconds).
     end_to_end: Histogram<u64>,
     /// Daemon receive to daemon publish (nanoseconds).
@@ -53,6 +67,12 @@ impl Default for SourceMetrics {
             accepted: 0,
             rejected: 0,
             flagged: 0,
+            gaps: 0,
+            resent: 0,
+            undelivered: 0,
+            new_sessions: 0,
+            sessions: 0,
+            journal_failures: 0,
             end_to_end: histogram(),
             in_daemon: histogram(),
             matching: histogram(),
@@ -78,6 +98,8 @@ impl SourceMetrics {
                 self.rejected += 1
             }
             Outcome::Flagged => self.flagged += 1,
+            Outcome::Gap => self.gaps += 1,
+            Outcome::Resent => self.resent += 1,
             Outcome::Corrected(_) | Outcome::PassThrough => {}
         }
         let matching_ns = timing.matching.as_nanos() as u64;
@@ -98,7 +120,12 @@ impl SourceMetrics {
     /// Emits one INFO event with the counts and latency quantiles, then starts over.
     pub fn report(&mut self, source: &str) {
         if self.count == 0 {
-            tracing::info!(source, count = 0, "no poses in this interval");
+            tracing::info!(
+                source,
+                count = 0,
+                sessions = self.sessions,
+                "no poses in this interval"
+            );
             return;
         }
         let [e50, e99, e999, emax] = quantiles(&self.end_to_end);
@@ -112,6 +139,12 @@ impl SourceMetrics {
             accepted = self.accepted,
             rejected = self.rejected,
             flagged = self.flagged,
+            gaps = self.gaps,
+            resent = self.resent,
+            undelivered = self.undelivered,
+            sessions = self.sessions,
+            new_sessions = self.new_sessions,
+            journal_failures = self.journal_failures,
             e2e_p50_us = e50,
             e2e_p99_us = e99,
             e2e_p999_us = e999,
@@ -135,6 +168,11 @@ impl SourceMetrics {
         self.accepted = 0;
         self.rejected = 0;
         self.flagged = 0;
+        self.gaps = 0;
+        self.resent = 0;
+        self.undelivered = 0;
+        self.new_sessions = 0;
+        self.journal_failures = 0;
         for h in [
             &mut self.end_to_end,
             &mut self.in_daemon,

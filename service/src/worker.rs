@@ -1,27 +1,32 @@
-//! One worker thread per source: it owns the source's iceoryx2 node, ports and one corrector per
-//! client session, waits (without polling) for poses, corrects them and publishes the answers.
+//! One worker thread per source: it owns the source's iceoryx2 node and ports, and one session
+//! (corrector, answer service, journal) per client session; it waits (without polling) for
+//! poses, answers each on its session's service, and reports.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::Sender;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, Sender};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use lanealign_core::corrector::{RejectReason, Status, StepTiming};
-use lanealign_core::geo::MapPlane;
+use iceoryx2::node::Node;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::ipc;
+use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::pose::Pose3;
-use lanealign_core::source_corrector::{Placement, SourceCorrector};
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode};
+use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START};
 use lanealign_wire::service::{
-    Namespace, NodeCreateError, PortCreateError, ServiceOpenError, SourceServices,
+    Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError, SessionServices,
+    DAEMON_NODE,
 };
 
 use crate::config::ResolvedSource;
 use crate::metrics::{Outcome, SourceMetrics};
+use crate::session::{self, JournalFailure, PersistJob, Session, SessionSetup};
 
-/// How long a worker waits for a pose before it checks for shutdown.
+/// How long a worker waits for a pose before it checks for shutdown and idle sessions.
 const WAKE_UP: Duration = Duration::from_millis(100);
 
 /// A worker that could not start.
@@ -54,6 +59,17 @@ pub enum WorkerError {
         #[source]
         source: PortCreateError,
     },
+    /// Its journal folder could not be made.
+    #[error("source {name}: creating the journal folder {dir}")]
+    Journal {
+        /// The source.
+        name: String,
+        /// The folder.
+        dir: PathBuf,
+        /// What failed.
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// What a worker did over its life.
@@ -63,6 +79,10 @@ pub struct WorkerSummary {
     pub received: u64,
     /// Answers published.
     pub published: u64,
+    /// Answers no one received (the session's client was gone).
+    pub undelivered: u64,
+    /// Sessions restored from their journals at start.
+    pub restored: u64,
 }
 
 /// The wire's status and reason for a corrector status: the one conversion between the two
@@ -83,123 +103,288 @@ pub fn wire_status(status: &Status) -> (StatusCode, ReasonCode) {
     (code, reason)
 }
 
-/// One client session's corrector and sequence bookkeeping.
-struct Session {
-    corrector: SourceCorrector,
-    last_seq: Option<u64>,
+/// A lane map the daemon reloaded: new sessions use it.
+pub struct Reload {
+    /// The map.
+    pub map: Arc<LaneMap>,
+    /// The new journal fingerprint of the source.
+    pub fingerprint: u64,
 }
 
-/// Everything a source's worker keeps between poses.
-struct SourceState {
-    source: ResolvedSource,
-    map: Arc<LaneMap>,
-    placement: Placement,
-    sessions: HashMap<u64, Session>,
+/// Everything a worker is started with.
+pub struct WorkerSetup {
+    /// The source.
+    pub source: ResolvedSource,
+    /// The daemon's namespace.
+    pub namespace: Namespace,
+    /// How new sessions are made, and where they are journaled.
+    pub sessions: SessionSetup,
+    /// Seconds between metrics reports.
+    pub metrics_interval: Duration,
+    /// A session with no pose for this long ends.
+    pub session_timeout: Duration,
+    /// Sessions at most; a new one beyond ends the least recently active.
+    pub max_sessions: usize,
+    /// Set to stop.
+    pub shutdown: Arc<AtomicBool>,
+    /// `CLOCK_MONOTONIC` of the worker's last loop (ns), for the watchdog.
+    pub heartbeat: Arc<AtomicU64>,
+    /// Tile reloads.
+    pub reloads: Receiver<Reload>,
 }
 
-impl SourceState {
-    /// Answers one input: the answer, what happened, and the step's timing.
-    fn process(
-        &mut self,
-        input: &OdomPose,
-        received_mono_ns: u64,
-    ) -> (CorrectedPose, Outcome, StepTiming) {
-        let mut out = CorrectedPose {
-            session: input.session,
-            seq: input.seq,
-            stamp_ns: input.stamp_ns,
-            sent_mono_ns: input.sent_mono_ns,
-            received_mono_ns,
-            published_mono_ns: 0,
-            pose: input.pose,
-            map_from_odom: [f64::NAN; 3],
-            residual_m: f64::NAN,
-            match_ratio: f64::NAN,
-            window_len: 0,
-            status: StatusCode::PassThrough as u32,
-            reason: ReasonCode::None as u32,
-            reserved: 0,
-        };
-        if self.source.pass_through {
-            return (out, Outcome::PassThrough, StepTiming::default());
+/// A live session and its answer ports. Pass-through sources keep no corrector.
+struct Live {
+    session: Option<Session>,
+    // Ports before the services they belong to.
+    publisher: Publisher<ipc::Service, CorrectedPose, ()>,
+    notifier: Notifier<ipc::Service>,
+    _services: SessionServices,
+    last_active: Instant,
+}
+
+struct Worker {
+    name: String,
+    setup: WorkerSetup,
+    node: Node<ipc::Service>,
+    sessions: HashMap<u64, Live>,
+    metrics: SourceMetrics,
+    summary: WorkerSummary,
+    journal_warned: bool,
+}
+
+impl Worker {
+    fn open_session(&self, id: u64, session: Option<Session>) -> Result<Live, String> {
+        let chain = |e: &(dyn std::error::Error + 'static)| lanealign_core::report::error_chain(e);
+        let services = SessionServices::open(&self.node, &self.setup.source.name, id)
+            .map_err(|e| chain(&e))?;
+        let publisher = services.publisher().map_err(|e| chain(&e))?;
+        let notifier = services.notifier().map_err(|e| chain(&e))?;
+        Ok(Live {
+            session,
+            publisher,
+            notifier,
+            _services: services,
+            last_active: Instant::now(),
+        })
+    }
+
+    fn journal_failed(&mut self, failure: Option<JournalFailure>) {
+        if let Some(JournalFailure(e)) = failure {
+            self.metrics.journal_failures += 1;
+            if !self.journal_warned {
+                self.journal_warned = true;
+                tracing::error!(source = %self.name, error = %lanealign_core::report::error_chain(&e), "journal write failed: sessions go on without crash recovery");
+            }
         }
-        let (map, params, mode, placement) = (
-            &self.map,
-            self.source.params,
-            self.source.corrector.match_mode,
-            self.placement,
+    }
+
+    fn end_session(&mut self, id: u64, why: &str) {
+        if let Some(live) = self.sessions.remove(&id) {
+            tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
+            let dir = live.session.as_ref().and_then(|s| s.journal_dir());
+            if let (Some(dir), Some(p)) = (dir, &self.setup.sessions.persistence) {
+                let _ = p.send(PersistJob::Remove {
+                    dir: dir.to_path_buf(),
+                });
+            }
+        }
+    }
+
+    fn remove_journal(&self, dir: PathBuf) {
+        if let Some(p) = &self.setup.sessions.persistence {
+            let _ = p.send(PersistJob::Remove { dir });
+        }
+    }
+
+    /// Restores every journaled session of the source (the newest journal of each); removes
+    /// the journals that cannot be restored.
+    fn restore_sessions(&mut self) {
+        let Some(root) = self.setup.sessions.journal_dir.clone() else {
+            return;
+        };
+        let started = Instant::now();
+        let mut newest: HashMap<u64, Session> = HashMap::new();
+        for entry in std::fs::read_dir(&root).into_iter().flatten().flatten() {
+            let dir = entry.path();
+            match session::restore(&dir, &self.setup.sessions) {
+                Ok(session) => {
+                    let older = match newest.get(&session.id) {
+                        Some(kept) if kept.created_unix_ns >= session.created_unix_ns => {
+                            Some(session)
+                        }
+                        _ => newest.insert(session.id, session),
+                    };
+                    if let Some(dir) = older.as_ref().and_then(|s| s.journal_dir()) {
+                        self.remove_journal(dir.to_path_buf());
+                    }
+                }
+                Err(e) => {
+                    tracing::warn!(source = %self.name, dir = %dir.display(), error = %e, "a journal was not restored; its session starts afresh");
+                    self.remove_journal(dir);
+                }
+            }
+        }
+        for (id, session) in newest {
+            let next = session.expected_seq();
+            match self.open_session(id, Some(session)) {
+                Ok(live) => {
+                    tracing::info!(source = %self.name, session = format_args!("{id:016x}"), next_seq = next, "session restored");
+                    self.sessions.insert(id, live);
+                    self.summary.restored += 1;
+                }
+                Err(e) => {
+                    tracing::warn!(source = %self.name, error = %e, "a restored session could not be served")
+                }
+            }
+        }
+        if self.summary.restored > 0 {
+            tracing::info!(source = %self.name, sessions = self.summary.restored, restore_ms = started.elapsed().as_secs_f64() * 1e3, "sessions restored");
+        }
+    }
+
+    /// Makes sure the input's session is live: started when it is new (at its first pose, 1)
+    /// or when the client starts it afresh. False when it cannot be answered at all.
+    fn ensure_live(&mut self, input: &OdomPose) -> bool {
+        let fresh = input.flags & FLAG_FRESH_START != 0;
+        if self.sessions.contains_key(&input.session) && !fresh {
+            return true;
+        }
+        if fresh {
+            self.end_session(input.session, "the client started it afresh");
+        }
+        if self.sessions.len() >= self.setup.max_sessions {
+            if let Some(oldest) = self
+                .sessions
+                .iter()
+                .min_by_key(|(_, l)| l.last_active)
+                .map(|(&id, _)| id)
+            {
+                self.end_session(oldest, "more sessions than max_sessions");
+            }
+        }
+        let session = if self.setup.source.pass_through {
+            None
+        } else {
+            let first = if fresh { input.seq } else { 1 };
+            let (session, failure) = Session::start(input.session, first, &self.setup.sessions);
+            self.journal_failed(failure);
+            Some(session)
+        };
+        match self.open_session(input.session, session) {
+            Ok(live) => {
+                self.metrics.new_sessions += 1;
+                self.sessions.insert(input.session, live);
+                true
+            }
+            Err(e) => {
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), error = %e, "cannot answer a session");
+                false
+            }
+        }
+    }
+
+    fn serve(&mut self, input: OdomPose, received: u64) {
+        self.summary.received += 1;
+        if !self.ensure_live(&input) {
+            return;
+        }
+        let setup = &self.setup.sessions;
+        let Some(live) = self.sessions.get_mut(&input.session) else {
+            return;
+        };
+        live.last_active = Instant::now();
+        let (mut answer, outcome, timing, failure) = match &mut live.session {
+            None => (
+                session::pass_through(&input, received, setup.daemon_epoch),
+                Outcome::PassThrough,
+                Default::default(),
+                None,
+            ),
+            Some(session) => {
+                let (handled, failure) = session.handle(&input, received, setup);
+                (handled.answer, handled.outcome, handled.timing, failure)
+            }
+        };
+        answer.published_mono_ns = monotonic_ns();
+        let in_daemon_ns = answer.published_mono_ns.saturating_sub(received);
+        tracing::debug!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, status = StatusCode::from_code(answer.status).map_or("", StatusCode::name), in_daemon_us = in_daemon_ns as f64 / 1e3, "pose");
+        let delivered = match live.publisher.send_copy(answer) {
+            Ok(0) => false,
+            Ok(_) => {
+                if let Err(e) = live.notifier.notify() {
+                    tracing::warn!(source = %self.name, error = %e, "notify failed");
+                }
+                true
+            }
+            Err(e) => {
+                tracing::warn!(source = %self.name, seq = answer.seq, error = %e, "publish failed");
+                false
+            }
+        };
+        if delivered {
+            self.summary.published += 1;
+        } else {
+            self.summary.undelivered += 1;
+            self.metrics.undelivered += 1;
+        }
+        self.journal_failed(failure);
+        self.metrics.record(
+            &outcome,
+            answer.published_mono_ns.saturating_sub(input.sent_mono_ns),
+            in_daemon_ns,
+            &timing,
         );
-        let session = self
+    }
+
+    fn end_idle_sessions(&mut self) {
+        let timeout = self.setup.session_timeout;
+        let idle: Vec<u64> = self
             .sessions
-            .entry(input.session)
-            .or_insert_with(|| Session {
-                corrector: SourceCorrector::new(map.clone(), params, mode, placement),
-                last_seq: None,
-            });
-        let flag = match session.last_seq {
-            Some(last) if input.seq == last => Some(StatusCode::DuplicateSeq),
-            Some(last) if input.seq < last => Some(StatusCode::OutOfOrderSeq),
-            _ => None,
-        };
-        if let Some(flag) = flag {
-            out.status = flag as u32;
-            return (out, Outcome::Flagged, StepTiming::default());
+            .iter()
+            .filter(|(_, l)| l.last_active.elapsed() > timeout)
+            .map(|(&id, _)| id)
+            .collect();
+        for id in idle {
+            self.end_session(id, "idle");
         }
-        session.last_seq = Some(input.seq);
-        let (record, timing) = session
-            .corrector
-            .correct(&Pose3::from_row_major(&input.pose));
-        let [x, y] = record.map_from_odom.translation();
-        out.map_from_odom = [x, y, record.map_from_odom.yaw()];
-        out.pose = record.pose.to_row_major();
-        let (status, reason) = wire_status(&record.status);
-        out.status = status as u32;
-        out.reason = reason as u32;
-        out.residual_m = record.status.residual_m().unwrap_or(f64::NAN);
-        out.match_ratio = record.status.match_ratio().unwrap_or(f64::NAN);
-        out.window_len = record.status.window_len() as u32;
-        let outcome = match record.status {
-            Status::InvalidInput => Outcome::Flagged,
-            status => Outcome::Corrected(status),
-        };
-        (out, outcome, timing)
     }
 }
 
-/// Runs a source until `shutdown` is set: receive, correct, publish, report. Tells `ready`
-/// once its ports exist (or why they could not be made) before serving.
-pub fn run(
-    source: ResolvedSource,
-    namespace: Namespace,
-    map: Arc<LaneMap>,
-    plane: MapPlane,
-    metrics_interval: Duration,
-    shutdown: Arc<AtomicBool>,
-    ready: Sender<Result<(), WorkerError>>,
-) -> WorkerSummary {
-    let name = source.name.to_string();
-    let setup = || -> Result<_, WorkerError> {
-        let node = namespace.node().map_err(|e| WorkerError::Node {
-            name: name.clone(),
-            source: e,
-        })?;
-        let services =
-            SourceServices::open(&node, &source.name).map_err(|e| WorkerError::Service {
+/// Runs a source until `shutdown` is set. Tells `ready` once its ports exist and its sessions
+/// are restored (or why it could not start) before serving.
+pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> WorkerSummary {
+    let name = setup.source.name.to_string();
+    let start = || -> Result<_, WorkerError> {
+        if let Some(dir) = &setup.sessions.journal_dir {
+            std::fs::create_dir_all(dir).map_err(|source| WorkerError::Journal {
                 name: name.clone(),
-                source: e,
+                dir: dir.clone(),
+                source,
             })?;
-        let port = |e| WorkerError::Port {
+        }
+        let node = setup
+            .namespace
+            .named_node(DAEMON_NODE)
+            .map_err(|source| WorkerError::Node {
+                name: name.clone(),
+                source,
+            })?;
+        let services = PoseServices::open(&node, &setup.source.name).map_err(|source| {
+            WorkerError::Service {
+                name: name.clone(),
+                source,
+            }
+        })?;
+        let port = |source| WorkerError::Port {
             name: name.clone(),
-            source: e,
+            source,
         };
-        let subscriber = services.odom_subscriber().map_err(port)?;
-        let listener = services.odom_listener().map_err(port)?;
-        let notifier = services.corrected_notifier().map_err(port)?;
-        // Created last: clients take its existence as the sign that the worker is ready.
-        let publisher = services.corrected_publisher().map_err(port)?;
-        Ok((node, subscriber, listener, notifier, publisher))
+        let subscriber = services.subscriber().map_err(port)?;
+        let listener = services.listener().map_err(port)?;
+        Ok((node, services, subscriber, listener))
     };
-    let (_node, subscriber, listener, notifier, publisher) = match setup() {
+    let (node, _services, subscriber, listener) = match start() {
         Ok(ports) => ports,
         Err(e) => {
             // The daemon is waiting for this; if it is gone, there is no one left to tell.
@@ -207,28 +392,35 @@ pub fn run(
             return WorkerSummary::default();
         }
     };
-    let _ = ready.send(Ok(()));
-    let placement = Placement {
-        convention: source.convention,
-        anchored_from_odom: source.anchor.anchored_from_odom(&plane),
-        smoothing: source.corrector.smoothing(),
-    };
-    tracing::info!(source = %name, method = source.corrector.method.name(), preset = source.corrector.preset.name(), pass_through = source.pass_through, "worker started");
-    let mut state = SourceState {
-        source,
-        map,
-        placement,
+    let mut worker = Worker {
+        name: name.clone(),
+        setup,
+        node,
         sessions: HashMap::new(),
+        metrics: SourceMetrics::default(),
+        summary: WorkerSummary::default(),
+        journal_warned: false,
     };
-    let mut metrics = SourceMetrics::default();
-    let mut summary = WorkerSummary::default();
-    let mut next_report = Instant::now() + metrics_interval;
+    worker.restore_sessions();
+    let _ = ready.send(Ok(()));
+    let s = &worker.setup.source;
+    tracing::info!(source = %name, method = s.corrector.method.name(), preset = s.corrector.preset.name(), pass_through = s.pass_through, "worker started");
+    let mut next_report = Instant::now() + worker.setup.metrics_interval;
     loop {
+        worker
+            .setup
+            .heartbeat
+            .store(monotonic_ns(), Ordering::Relaxed);
         // On shutdown, answer what is already queued once more, then stop.
-        let stopping = shutdown.load(Ordering::Relaxed);
+        let stopping = worker.setup.shutdown.load(Ordering::Relaxed);
         if !stopping {
             // An interrupted wait (a signal) is a wake-up like any other.
             let _ = listener.timed_wait(|_| {}, WAKE_UP);
+        }
+        while let Ok(reload) = worker.setup.reloads.try_recv() {
+            worker.setup.sessions.map = reload.map;
+            worker.setup.sessions.fingerprint = reload.fingerprint;
+            tracing::info!(source = %name, running_sessions = worker.sessions.len(), "new sessions use the reloaded tile; running sessions keep theirs");
         }
         loop {
             let sample = match subscriber.receive() {
@@ -240,38 +432,24 @@ pub fn run(
                 }
             };
             let received = monotonic_ns();
-            summary.received += 1;
             let input = *sample;
             drop(sample);
-            let (mut out, outcome, timing) = state.process(&input, received);
-            out.published_mono_ns = monotonic_ns();
-            let in_daemon_ns = out.published_mono_ns.saturating_sub(received);
-            tracing::debug!(source = %name, session = input.session, seq = input.seq, status = StatusCode::from_code(out.status).map_or("", StatusCode::name), in_daemon_us = in_daemon_ns as f64 / 1e3, "pose");
-            if let Err(e) = publisher.send_copy(out) {
-                tracing::warn!(source = %name, seq = out.seq, error = %e, "publish failed");
-                continue;
-            }
-            if let Err(e) = notifier.notify() {
-                tracing::warn!(source = %name, error = %e, "notify failed");
-            }
-            summary.published += 1;
-            metrics.record(
-                &outcome,
-                out.published_mono_ns.saturating_sub(input.sent_mono_ns),
-                in_daemon_ns,
-                &timing,
-            );
+            worker.serve(input, received);
         }
         if stopping {
             break;
         }
+        worker.end_idle_sessions();
         if Instant::now() >= next_report {
-            metrics.report(&name);
-            next_report += metrics_interval;
+            worker.metrics.sessions = worker.sessions.len() as u64;
+            worker.metrics.report(&name);
+            next_report += worker.setup.metrics_interval;
         }
     }
-    metrics.report(&name);
-    tracing::info!(source = %name, received = summary.received, published = summary.published, "worker stopped");
+    worker.metrics.sessions = worker.sessions.len() as u64;
+    worker.metrics.report(&name);
+    let summary = worker.summary;
+    tracing::info!(source = %name, received = summary.received, published = summary.published, undelivered = summary.undelivered, "worker stopped");
     summary
 }
 

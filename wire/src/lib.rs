@@ -5,11 +5,11 @@
 //! `docs/wire.md`, which this crate's tests pin.
 //!
 //! ```no_run
-//! use lanealign_wire::service::{Namespace, SourceServices};
+//! use lanealign_wire::service::{Namespace, PoseServices};
 //!
 //! let node = Namespace::default().node()?;
-//! let services = SourceServices::open(&node, &"lidar".parse()?)?;
-//! let publisher = services.odom_publisher()?;
+//! let services = PoseServices::open(&node, &"lidar".parse()?)?;
+//! let publisher = services.publisher()?;
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 

@@ -8,15 +8,26 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+/// The most poses a client keeps in flight (published, not yet answered) per session, counted as
+/// the span of sequence numbers from its oldest unanswered pose: every buffer on the way holds
+/// more, so nothing is overwritten, and the daemon keeps this many answers to send again.
+pub const MAX_IN_FLIGHT: u64 = 512;
+
+/// [`OdomPose::flags`]: start this session afresh at this pose (a new corrector), whatever the
+/// daemon remembers of it. A client sets it when the daemon asks for poses it no longer has.
+pub const FLAG_FRESH_START: u32 = 1;
+
 /// A pose from an odometry source.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("lanealign::OdomPose")]
 #[repr(C)]
 pub struct OdomPose {
     /// The session the client chose (any value but 0): the daemon keeps one corrector per
-    /// session and source, and echoes the session in every answer.
+    /// session and source, and answers on the session's own service.
     pub session: u64,
-    /// Strictly increasing within a session; duplicates and older numbers are flagged, not used.
+    /// 1, 2, 3, ... within a session. The daemon uses the next one; a number it already used,
+    /// with the same pose, gets the same answer again; a different pose under a used number is
+    /// flagged; a number beyond the next is answered with [`StatusCode::Gap`].
     pub seq: u64,
     /// The sensor time stamp (nanoseconds), echoed back.
     pub stamp_ns: i64,
@@ -25,6 +36,10 @@ pub struct OdomPose {
     /// Row-major 3x4 pose `[R | t]` (`world_from_body`) in the source's axis convention
     /// (metres).
     pub pose: [f64; 12],
+    /// [`FLAG_FRESH_START`] or 0.
+    pub flags: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
 }
 
 /// What the daemon did with a pose. The first five are the corrector's statuses, with the same
@@ -49,11 +64,14 @@ pub enum StatusCode {
     OutOfOrderSeq = 6,
     /// The source is configured as pass-through: echoed without correction.
     PassThrough = 7,
+    /// The sequence number is beyond the next one the session expects: not used; send again
+    /// from [`CorrectedPose::expected_seq`] on.
+    Gap = 8,
 }
 
 impl StatusCode {
     /// Every code, in numeric order.
-    pub const ALL: [StatusCode; 8] = [
+    pub const ALL: [StatusCode; 9] = [
         StatusCode::WarmingUp,
         StatusCode::Accepted,
         StatusCode::Rejected,
@@ -62,6 +80,7 @@ impl StatusCode {
         StatusCode::DuplicateSeq,
         StatusCode::OutOfOrderSeq,
         StatusCode::PassThrough,
+        StatusCode::Gap,
     ];
 
     /// Decodes a status code; `None` for a code this build does not know.
@@ -80,6 +99,7 @@ impl StatusCode {
             StatusCode::DuplicateSeq => "duplicate_seq",
             StatusCode::OutOfOrderSeq => "out_of_order_seq",
             StatusCode::PassThrough => "pass_through",
+            StatusCode::Gap => "gap",
         }
     }
 
@@ -131,6 +151,11 @@ impl ReasonCode {
 #[type_name("lanealign::CorrectedPose")]
 #[repr(C)]
 pub struct CorrectedPose {
+    /// The daemon's run: a random number drawn when it started (a client sees a restart as a
+    /// new value).
+    pub daemon_epoch: u64,
+    /// The sequence number the session expects next (after this answer).
+    pub expected_seq: u64,
     /// The input's session.
     pub session: u64,
     /// The input's sequence number.
@@ -179,21 +204,24 @@ mod tests {
     /// The layout documented in docs/wire.md, which C++ and Python clients rely on.
     #[test]
     fn layout_is_the_documented_contract() {
-        assert_eq!((size_of::<OdomPose>(), align_of::<OdomPose>()), (128, 8));
+        assert_eq!((size_of::<OdomPose>(), align_of::<OdomPose>()), (136, 8));
         assert_eq!(offset_of!(OdomPose, seq), 8);
         assert_eq!(offset_of!(OdomPose, pose), 32);
+        assert_eq!(offset_of!(OdomPose, flags), 128);
         assert_eq!(
             (size_of::<CorrectedPose>(), align_of::<CorrectedPose>()),
-            (200, 8)
+            (216, 8)
         );
-        assert_eq!(offset_of!(CorrectedPose, published_mono_ns), 40);
-        assert_eq!(offset_of!(CorrectedPose, pose), 48);
-        assert_eq!(offset_of!(CorrectedPose, map_from_odom), 144);
-        assert_eq!(offset_of!(CorrectedPose, residual_m), 168);
-        assert_eq!(offset_of!(CorrectedPose, match_ratio), 176);
-        assert_eq!(offset_of!(CorrectedPose, window_len), 184);
-        assert_eq!(offset_of!(CorrectedPose, status), 188);
-        assert_eq!(offset_of!(CorrectedPose, reason), 192);
+        assert_eq!(offset_of!(CorrectedPose, expected_seq), 8);
+        assert_eq!(offset_of!(CorrectedPose, session), 16);
+        assert_eq!(offset_of!(CorrectedPose, published_mono_ns), 56);
+        assert_eq!(offset_of!(CorrectedPose, pose), 64);
+        assert_eq!(offset_of!(CorrectedPose, map_from_odom), 160);
+        assert_eq!(offset_of!(CorrectedPose, residual_m), 184);
+        assert_eq!(offset_of!(CorrectedPose, match_ratio), 192);
+        assert_eq!(offset_of!(CorrectedPose, window_len), 200);
+        assert_eq!(offset_of!(CorrectedPose, status), 204);
+        assert_eq!(offset_of!(CorrectedPose, reason), 208);
     }
 
     #[test]
@@ -201,7 +229,7 @@ mod tests {
         for s in StatusCode::ALL {
             assert_eq!(StatusCode::from_code(s as u32), Some(s));
         }
-        assert_eq!(StatusCode::from_code(8), None);
+        assert_eq!(StatusCode::from_code(9), None);
         assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
         assert_eq!(ReasonCode::from_code(3), None);
     }

@@ -1,20 +1,25 @@
 //! Where the payloads travel: a deployment's namespace, each source's services, the limits both
 //! sides open them with, and the ports on them.
 //!
-//! Per source `NAME`: `lanealign/NAME/odom` (publish-subscribe of [`OdomPose`], client to
-//! daemon) and `lanealign/NAME/corrected` ([`CorrectedPose`], daemon to its clients), each with
-//! an event service of the same name that is notified after every sample. A [`Namespace`] is
-//! an iceoryx2 file prefix: daemons and clients of different namespaces never see each other.
+//! Per source `NAME`: `lanealign/NAME/odom` (publish-subscribe of [`OdomPose`], clients to the
+//! daemon), and per session `lanealign/NAME/session/SESSION` ([`CorrectedPose`], the daemon to
+//! that session's client alone), each with an event service of the same name that is notified
+//! after every sample. Buffers never overwrite: a sample that does not fit is not delivered, and
+//! the sender sees it. A [`Namespace`] is an iceoryx2 file prefix: daemons and clients of
+//! different namespaces never see each other.
 
 use std::fmt;
 use std::str::FromStr;
 
-use iceoryx2::node::{Node, NodeBuilder, NodeCreationFailure};
+use iceoryx2::node::{Node, NodeBuilder, NodeCreationFailure, NodeState, NodeView};
+use iceoryx2::port::backpressure_strategy::BackpressureStrategy;
 use iceoryx2::port::listener::{Listener, ListenerCreateError};
 use iceoryx2::port::notifier::{Notifier, NotifierCreateError};
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
-use iceoryx2::prelude::{ipc, FileName, SemanticString, ServiceName};
+use iceoryx2::prelude::{
+    ipc, CallbackProgression, FileName, NodeName, SemanticString, ServiceName,
+};
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
 use iceoryx2::service::port_factory::{event, publish_subscribe, PortFactory as _};
@@ -22,7 +27,8 @@ use iceoryx2::service::service_name::ServiceNameError;
 
 use crate::payload::{CorrectedPose, OdomPose};
 
-/// Samples a subscriber holds before the oldest is overwritten (per source and direction).
+/// Samples a subscriber holds per publisher (far more than [`crate::payload::MAX_IN_FLIGHT`]);
+/// a sample that does not fit is not delivered rather than overwriting an older one.
 pub const BUFFER_SIZE: usize = 4096;
 /// Subscribers of one service at most.
 pub const MAX_SUBSCRIBERS: usize = 16;
@@ -103,9 +109,9 @@ impl SourceName {
         format!("lanealign/{}/odom", self.0)
     }
 
-    /// The source's answer service, `lanealign/NAME/corrected`.
-    pub fn corrected_service(&self) -> String {
-        format!("lanealign/{}/corrected", self.0)
+    /// The answer service of one session, `lanealign/NAME/session/SESSION` (16 hex digits).
+    pub fn session_service(&self, session: u64) -> String {
+        format!("lanealign/{}/session/{session:016x}", self.0)
     }
 
     /// The source whose pose service is `service`, if it is one.
@@ -177,16 +183,9 @@ impl Namespace {
         config
     }
 
-    /// A new node in this namespace.
+    /// A new, unnamed node in this namespace.
     pub fn node(&self) -> Result<Node<ipc::Service>, NodeCreateError> {
-        NodeBuilder::new()
-            .config(&self.config())
-            .create::<ipc::Service>()
-            .map_err(|source| NodeCreateError {
-                namespace: self.0.clone(),
-                hint: String::new(),
-                source,
-            })
+        self.named_node("")
     }
 }
 
@@ -282,6 +281,7 @@ fn pubsub<T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
 ) -> Result<PubSubService<T>, ServiceOpenError> {
     node.service_builder(&service_name(service)?)
         .publish_subscribe::<T>()
+        .enable_safe_overflow(false)
         .subscriber_max_buffer_size(BUFFER_SIZE)
         .max_subscribers(MAX_SUBSCRIBERS)
         .max_publishers(MAX_PUBLISHERS)
@@ -306,26 +306,139 @@ fn events(node: &Node<ipc::Service>, service: &str) -> Result<EventService, Serv
         })
 }
 
-/// The four services of one source, opened (or created) with the settings both sides agree on,
-/// so either side may come up first.
-pub struct SourceServices {
+/// The node name of `lanealignd`'s nodes: clients find the daemon by it.
+pub const DAEMON_NODE: &str = "lanealignd";
+
+/// A node of a running daemon, as a client sees it (a daemon has one node per worker and one
+/// for its supervisor, all in one process).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DaemonNode {
+    /// The node's iceoryx2 id.
+    pub id: u128,
+    /// The daemon's process id: a restarted daemon has a new one.
+    pub pid: i32,
+}
+
+/// Listing the namespace's nodes failed.
+#[derive(Debug, thiserror::Error)]
+#[error("listing the nodes of namespace '{namespace}' failed")]
+pub struct NodeListError {
+    /// The namespace.
+    pub namespace: String,
+    /// iceoryx2's error.
+    #[source]
+    pub source: iceoryx2::node::NodeListFailure,
+}
+
+impl Namespace {
+    /// A new node in this namespace, named `name`.
+    pub fn named_node(&self, name: &str) -> Result<Node<ipc::Service>, NodeCreateError> {
+        let error = |source| NodeCreateError {
+            namespace: self.0.clone(),
+            hint: ownership_hint(&self.config(), &self.prefix()),
+            source,
+        };
+        let builder = NodeBuilder::new().config(&self.config());
+        match NodeName::new(name) {
+            Ok(n) => builder.name(&n).create::<ipc::Service>().map_err(error),
+            Err(_) => builder.create::<ipc::Service>().map_err(error),
+        }
+    }
+
+    /// The living daemons of this namespace (normally none or one).
+    pub fn daemons(&self) -> Result<Vec<DaemonNode>, NodeListError> {
+        let mut found = Vec::new();
+        Node::<ipc::Service>::list(&self.config(), |state| {
+            if let NodeState::Alive(view) = &state {
+                if let Some(details) = view.details() {
+                    if details.name().as_str() == DAEMON_NODE {
+                        found.push(DaemonNode {
+                            id: view.id().value(),
+                            pid: details.process_id().value(),
+                        });
+                    }
+                }
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|source| NodeListError {
+            namespace: self.0.clone(),
+            source,
+        })?;
+        Ok(found)
+    }
+}
+
+/// Who owns the namespace's files, when it is not this process's user: what a permission error
+/// means, and what to do. Empty when nothing can be said.
+fn ownership_hint(config: &iceoryx2::config::Config, prefix: &str) -> String {
+    let me = rustix::process::geteuid().as_raw();
+    let mut owners = std::collections::BTreeSet::new();
+    let root = config.global.root_path().to_string();
+    for dir in ["/dev/shm".to_string(), root.clone()] {
+        let mut stack = vec![std::path::PathBuf::from(dir)];
+        while let Some(dir) = stack.pop() {
+            for entry in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
+                let path = entry.path();
+                let Ok(meta) = std::fs::symlink_metadata(&path) else {
+                    continue;
+                };
+                let name = entry.file_name().to_string_lossy().into_owned();
+                if meta.is_dir() && path.starts_with(&root) {
+                    stack.push(path.clone());
+                }
+                let relevant = name.starts_with(prefix) || path == std::path::Path::new(&root);
+                if relevant && std::os::unix::fs::MetadataExt::uid(&meta) != me {
+                    owners.insert(std::os::unix::fs::MetadataExt::uid(&meta));
+                }
+            }
+        }
+    }
+    if let Ok(meta) = std::fs::metadata(&root) {
+        if std::os::unix::fs::MetadataExt::uid(&meta) != me {
+            owners.insert(std::os::unix::fs::MetadataExt::uid(&meta));
+        }
+    }
+    if owners.is_empty() {
+        return String::new();
+    }
+    let names: Vec<String> = owners
+        .iter()
+        .map(|&uid| match user_name(uid) {
+            Some(name) => format!("'{name}' (uid {uid})"),
+            None => format!("uid {uid}"),
+        })
+        .collect();
+    format!(
+        ": its shared-memory files (prefix {prefix} in /dev/shm and {root}) belong to {}, and this process runs as uid {me}; run as that user, or give the daemon and its clients their own namespace (docs/operations.md, \"Access\")",
+        names.join(", ")
+    )
+}
+
+/// The user name of `uid`, from /etc/passwd.
+fn user_name(uid: u32) -> Option<String> {
+    let passwd = std::fs::read_to_string("/etc/passwd").ok()?;
+    passwd.lines().find_map(|line| {
+        let fields: Vec<&str> = line.split(':').collect();
+        (fields.get(2)? == &uid.to_string().as_str()).then(|| fields[0].to_string())
+    })
+}
+
+/// Where a client publishes a source's poses and the daemon takes them.
+pub struct PoseServices {
     source: SourceName,
     odom: PubSubService<OdomPose>,
     odom_events: EventService,
-    corrected: PubSubService<CorrectedPose>,
-    corrected_events: EventService,
 }
 
-impl SourceServices {
-    /// Opens or creates `source`'s services on `node`.
+impl PoseServices {
+    /// Opens or creates `source`'s pose services on `node`.
     pub fn open(node: &Node<ipc::Service>, source: &SourceName) -> Result<Self, ServiceOpenError> {
-        let (odom, corrected) = (source.odom_service(), source.corrected_service());
-        Ok(SourceServices {
+        let odom = source.odom_service();
+        Ok(PoseServices {
             source: source.clone(),
             odom: pubsub(node, &odom)?,
             odom_events: events(node, &odom)?,
-            corrected: pubsub(node, &corrected)?,
-            corrected_events: events(node, &corrected)?,
         })
     }
 
@@ -334,16 +447,16 @@ impl SourceServices {
         &self.source
     }
 
-    /// True when a daemon serves the source: its worker creates the answer publisher after
-    /// every port that receives, so poses published from then on are all seen.
-    pub fn daemon_serving(&self) -> bool {
-        self.corrected.dynamic_config().number_of_publishers() > 0
+    /// Subscribers of the poses (the daemon's worker, once it runs).
+    pub fn subscribers(&self) -> usize {
+        self.odom.dynamic_config().number_of_subscribers()
     }
 
     /// Client side: publishes poses.
-    pub fn odom_publisher(&self) -> Result<Publisher<ipc::Service, OdomPose, ()>, PortCreateError> {
+    pub fn publisher(&self) -> Result<Publisher<ipc::Service, OdomPose, ()>, PortCreateError> {
         self.odom
             .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
             .map_err(|source| PortCreateError::Publisher {
                 service: self.source.odom_service(),
@@ -352,7 +465,7 @@ impl SourceServices {
     }
 
     /// Client side: wakes the daemon after a pose.
-    pub fn odom_notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
+    pub fn notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
         self.odom_events
             .notifier_builder()
             .create()
@@ -362,34 +475,8 @@ impl SourceServices {
             })
     }
 
-    /// Client side: receives answers.
-    pub fn corrected_subscriber(
-        &self,
-    ) -> Result<Subscriber<ipc::Service, CorrectedPose, ()>, PortCreateError> {
-        self.corrected
-            .subscriber_builder()
-            .create()
-            .map_err(|source| PortCreateError::Subscriber {
-                service: self.source.corrected_service(),
-                source,
-            })
-    }
-
-    /// Client side: waits for answers.
-    pub fn corrected_listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
-        self.corrected_events
-            .listener_builder()
-            .create()
-            .map_err(|source| PortCreateError::Listener {
-                service: self.source.corrected_service(),
-                source,
-            })
-    }
-
     /// Daemon side: receives poses.
-    pub fn odom_subscriber(
-        &self,
-    ) -> Result<Subscriber<ipc::Service, OdomPose, ()>, PortCreateError> {
+    pub fn subscriber(&self) -> Result<Subscriber<ipc::Service, OdomPose, ()>, PortCreateError> {
         self.odom
             .subscriber_builder()
             .create()
@@ -400,7 +487,7 @@ impl SourceServices {
     }
 
     /// Daemon side: waits for poses.
-    pub fn odom_listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
+    pub fn listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
         self.odom_events
             .listener_builder()
             .create()
@@ -409,28 +496,73 @@ impl SourceServices {
                 source,
             })
     }
+}
 
-    /// Daemon side: publishes answers. Create it last: clients take its existence as the sign
-    /// that the daemon is ready.
-    pub fn corrected_publisher(
-        &self,
-    ) -> Result<Publisher<ipc::Service, CorrectedPose, ()>, PortCreateError> {
-        self.corrected
+/// Where the daemon answers one session of a source, and only that session's client listens.
+pub struct SessionServices {
+    service: String,
+    answers: PubSubService<CorrectedPose>,
+    answer_events: EventService,
+}
+
+impl SessionServices {
+    /// Opens or creates the answer services of `session` on `source`.
+    pub fn open(
+        node: &Node<ipc::Service>,
+        source: &SourceName,
+        session: u64,
+    ) -> Result<Self, ServiceOpenError> {
+        let service = source.session_service(session);
+        Ok(SessionServices {
+            answers: pubsub(node, &service)?,
+            answer_events: events(node, &service)?,
+            service,
+        })
+    }
+
+    /// Daemon side: publishes the session's answers.
+    pub fn publisher(&self) -> Result<Publisher<ipc::Service, CorrectedPose, ()>, PortCreateError> {
+        self.answers
             .publisher_builder()
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
             .map_err(|source| PortCreateError::Publisher {
-                service: self.source.corrected_service(),
+                service: self.service.clone(),
                 source,
             })
     }
 
-    /// Daemon side: wakes clients after an answer.
-    pub fn corrected_notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
-        self.corrected_events
+    /// Daemon side: wakes the client after an answer.
+    pub fn notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
+        self.answer_events
             .notifier_builder()
             .create()
             .map_err(|source| PortCreateError::Notifier {
-                service: self.source.corrected_service(),
+                service: self.service.clone(),
+                source,
+            })
+    }
+
+    /// Client side: receives the session's answers.
+    pub fn subscriber(
+        &self,
+    ) -> Result<Subscriber<ipc::Service, CorrectedPose, ()>, PortCreateError> {
+        self.answers
+            .subscriber_builder()
+            .create()
+            .map_err(|source| PortCreateError::Subscriber {
+                service: self.service.clone(),
+                source,
+            })
+    }
+
+    /// Client side: waits for answers.
+    pub fn listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
+        self.answer_events
+            .listener_builder()
+            .create()
+            .map_err(|source| PortCreateError::Listener {
+                service: self.service.clone(),
                 source,
             })
     }
@@ -444,8 +576,12 @@ mod tests {
     fn names_are_checked_and_map_to_services() {
         let s: SourceName = "lidar_front-1".parse().unwrap();
         assert_eq!(s.odom_service(), "lanealign/lidar_front-1/odom");
+        assert_eq!(
+            s.session_service(0xab),
+            "lanealign/lidar_front-1/session/00000000000000ab"
+        );
         assert_eq!(SourceName::of_odom_service(&s.odom_service()), Some(s));
-        assert_eq!(SourceName::of_odom_service("lanealign/x/corrected"), None);
+        assert_eq!(SourceName::of_odom_service("lanealign/x/session/1"), None);
         assert!("".parse::<SourceName>().is_err());
         assert!("a/b".parse::<SourceName>().is_err());
         let long = "x".repeat(300);

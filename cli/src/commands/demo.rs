@@ -100,6 +100,7 @@ pub fn run() -> anyhow::Result<()> {
             &tile_path,
             &namespace,
             5.0,
+            &dir.path().join("state"),
             &[daemon_config::Source {
                 name: source.clone(),
                 corrector,
@@ -115,18 +116,18 @@ pub fn run() -> anyhow::Result<()> {
         daemon.id(),
         s.odometry.len()
     );
-    let conn = Connection::connect_in(
+    let mut conn = Connection::connect_in(
         &namespace.parse()?,
         &source.parse()?,
         lanealign_client::connection::new_session_id(),
     )?;
     let result = replay(
-        &conn,
+        &mut conn,
         &source,
         &s.odometry,
         &[],
-        1,
         Rate::Max(64),
+        Duration::from_secs(10),
         Duration::from_secs(10),
     );
     drop(conn);

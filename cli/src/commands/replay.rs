@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
-use lanealign_cli::replay::{replay, Rate};
+use lanealign_cli::replay::{replay, Rate, ReplayError};
 use lanealign_client::Connection;
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{self, Format, Trajectory};
@@ -43,20 +43,37 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         .as_ref()
         .map(|s| s.iter().map(|t| (t * 1e9).round() as i64).collect())
         .unwrap_or_default();
-    let conn = Connection::connect_in(
+    let mut conn = Connection::connect_in(
         &args.namespace,
         &args.source,
         lanealign_client::connection::new_session_id(),
     )?;
-    let result = replay(
-        &conn,
+    let result = match replay(
+        &mut conn,
         args.source.as_str(),
         &input.poses,
         &stamps,
-        1,
         args.rate,
         Duration::from_secs(10),
-    )?;
+        Duration::from_secs(10),
+    ) {
+        Ok(r) => r,
+        Err(ReplayError::Lost {
+            missing,
+            sent,
+            timeout,
+            partial,
+        }) => {
+            anyhow::bail!(
+                "{} of {sent} poses were not answered (no answer for {timeout:?}; first missing: {:?}); {} answered, {} daemon restarts; nothing written",
+                missing.len(),
+                &missing[..missing.len().min(10)],
+                partial.answers.len(),
+                partial.events.daemon_restarts
+            )
+        }
+        Err(e) => return Err(e.into()),
+    };
     let output = Trajectory {
         stamps: input.stamps.clone(),
         poses: result
@@ -73,9 +90,14 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         .iter()
         .filter(|a| a.status() == Some(StatusCode::Accepted))
         .count();
+    let ev = result.events;
     eprintln!(
-        "{} poses replayed, all answered, {accepted} accepted; round trip p50 {:.1} us, p99 {:.1} us, max {:.1} us",
+        "{} poses replayed, every one answered once, {accepted} accepted; {} daemon restarts, {} poses sent again, {} gaps, {} fresh session starts; round trip p50 {:.1} us, p99 {:.1} us, max {:.1} us",
         result.answers.len(),
+        ev.daemon_restarts,
+        ev.resent,
+        ev.gaps,
+        ev.fresh_starts,
         percentile_us(&rt, 0.5),
         percentile_us(&rt, 0.99),
         percentile_us(&rt, 1.0)

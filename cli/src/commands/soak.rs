@@ -31,10 +31,30 @@ pub struct SoakArgs {
     duration: f64,
 }
 
-/// One source's outcome: round trips (ns) and lost poses.
+/// One source's outcome: round trips (ns) of the answered poses, and the poses not answered.
 struct SourceResult {
     round_trip_ns: Vec<u64>,
     lost: usize,
+}
+
+/// A phase's outcome: per source, and the daemon's resident memory (KiB) after start-up and at
+/// the end.
+struct Phase {
+    sources: Vec<SourceResult>,
+    rss_start_kib: u64,
+    rss_end_kib: u64,
+}
+
+/// Resident memory of process `pid` in KiB (from /proc; 0 where unavailable).
+fn rss_kib(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("VmRSS:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        })
+        .unwrap_or(0)
 }
 
 fn run_phase(
@@ -44,7 +64,7 @@ fn run_phase(
     rate: f64,
     duration: f64,
     pass_through: bool,
-) -> anyhow::Result<Vec<SourceResult>> {
+) -> anyhow::Result<Phase> {
     let tag = if pass_through { "pass" } else { "corr" };
     let names: Vec<String> = (0..sources)
         .map(|k| format!("soak-{}-{tag}-{k}", std::process::id()))
@@ -64,9 +84,10 @@ fn run_phase(
     let namespace = format!("soak-{}", std::process::id());
     daemon_config::write(
         &config,
-        &daemon_config::config(tile_path, &namespace, 5.0, &entries),
+        &daemon_config::config(tile_path, &namespace, 5.0, &dir.join("state"), &entries),
     )?;
     let daemon = DaemonProcess::start(&config, &dir.join(format!("{tag}.log")))?;
+    let rss_start_kib = rss_kib(daemon.id());
     let (_, odometry) = synthetic::drive(3, 7);
     let odometry = Arc::new(odometry);
     let count = (rate * duration).round() as usize;
@@ -76,28 +97,35 @@ fn run_phase(
             let odometry = odometry.clone();
             let namespace = namespace.clone();
             std::thread::spawn(move || -> anyhow::Result<SourceResult> {
-                let conn = Connection::connect_in(
+                let mut conn = Connection::connect_in(
                     &namespace.parse()?,
                     &name.parse()?,
                     lanealign_client::connection::new_session_id(),
                 )?;
                 let poses: Vec<_> = (0..count).map(|i| odometry[i % odometry.len()]).collect();
                 match replay(
-                    &conn,
+                    &mut conn,
                     &name,
                     &poses,
                     &[],
-                    1,
                     Rate::Hz(rate),
+                    Duration::from_secs(10),
                     Duration::from_secs(10),
                 ) {
                     Ok(r) => Ok(SourceResult {
                         round_trip_ns: r.round_trip_ns,
                         lost: 0,
                     }),
-                    Err(ReplayError::Lost { missing, .. }) => Ok(SourceResult {
-                        round_trip_ns: Vec::new(),
-                        lost: missing,
+                    Err(ReplayError::Lost {
+                        missing, partial, ..
+                    }) => Ok(SourceResult {
+                        round_trip_ns: partial
+                            .answers
+                            .iter()
+                            .map(|a| a.seq as usize - 1)
+                            .map(|i| partial.round_trip_ns[i])
+                            .collect(),
+                        lost: missing.len(),
                     }),
                     Err(e) => Err(e.into()),
                 }
@@ -111,9 +139,14 @@ fn run_phase(
                 .map_err(|_| anyhow::anyhow!("a soak thread panicked"))??,
         );
     }
+    let rss_end_kib = rss_kib(daemon.id());
     let clean = daemon.stop()?;
     anyhow::ensure!(clean, "the daemon did not exit cleanly");
-    Ok(results)
+    Ok(Phase {
+        sources: results,
+        rss_start_kib,
+        rss_end_kib,
+    })
 }
 
 /// Runs the soak and prints the table.
@@ -135,7 +168,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         } else {
             "correct"
         };
-        let results = run_phase(
+        let phase = run_phase(
             dir.path(),
             &tile_path,
             sources,
@@ -145,7 +178,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
         )?;
         let mut all: Vec<u64> = Vec::new();
         let mut lost = 0;
-        for (k, r) in results.iter().enumerate() {
+        for (k, r) in phase.sources.iter().enumerate() {
             let mut v = r.round_trip_ns.clone();
             v.sort_unstable();
             println!(
@@ -166,6 +199,10 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
             percentile_us(&all, 0.5),
             percentile_us(&all, 0.99),
             percentile_us(&all, 1.0)
+        );
+        eprintln!(
+            "{mode}: lanealignd resident memory {} KiB after start, {} KiB at the end",
+            phase.rss_start_kib, phase.rss_end_kib
         );
     }
     Ok(())

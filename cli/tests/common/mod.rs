@@ -1,0 +1,256 @@
+//! What the daemon tests share: a tile and a daemon configuration in a private namespace and
+//! state folder, offline correction configured the same way, daemon processes, connections, and
+//! a raw wire client for inputs the client library never sends.
+
+#![allow(dead_code)] // each test file uses its own part of these helpers
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use lanealign_cli::daemon_config;
+use lanealign_cli::daemon_process::DaemonProcess;
+use lanealign_cli::kitti::anchors;
+use lanealign_cli::synthetic;
+use lanealign_client::connection::new_session_id;
+use lanealign_client::Connection;
+use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::params::{CorrectorConfig, Method, Preset};
+use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::tile;
+use lanealign_map::compile::{compile, CompileOptions};
+use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::payload::{CorrectedPose, OdomPose};
+use lanealign_wire::service::{Namespace, PoseServices, SessionServices};
+
+/// A tile, a config with the given sources (name, anchor), and what offline correction needs.
+pub struct Setup {
+    pub dir: tempfile::TempDir,
+    pub config: PathBuf,
+    pub tile: PathBuf,
+    pub namespace: String,
+    pub state: PathBuf,
+    pub convention: AxisConvention,
+    pub anchors: Vec<(String, Anchor)>,
+}
+
+pub fn unique(name: &str) -> String {
+    format!(
+        "{name}-{}-{}",
+        std::process::id(),
+        monotonic_ns() % 1_000_000
+    )
+}
+
+/// Sources whose name starts with `smooth` are configured with smooth output, `pass` as
+/// pass-through.
+fn corrector(name: &str) -> CorrectorConfig {
+    CorrectorConfig {
+        smooth: name.starts_with("smooth"),
+        ..CorrectorConfig::new(Preset::KissIcp, Method::Robust)
+    }
+}
+
+fn write_setup(
+    dir: tempfile::TempDir,
+    tile_path: PathBuf,
+    convention: AxisConvention,
+    sources: Vec<(String, Anchor)>,
+) -> Setup {
+    let namespace = unique("test");
+    let state = dir.path().join("state");
+    let entries: Vec<daemon_config::Source> = sources
+        .iter()
+        .map(|(name, anchor)| daemon_config::Source {
+            name: name.clone(),
+            corrector: corrector(name),
+            frame: convention,
+            anchor: *anchor,
+            pass_through: name.starts_with("pass"),
+        })
+        .collect();
+    let config = dir.path().join("lanealignd.toml");
+    daemon_config::write(
+        &config,
+        &daemon_config::config(&tile_path, &namespace, 1.0, &state, &entries),
+    )
+    .unwrap();
+    Setup {
+        dir,
+        config,
+        tile: tile_path,
+        namespace,
+        state,
+        convention,
+        anchors: sources,
+    }
+}
+
+/// A tile of KITTI 07/08's map (one OSM extract) at 07's origin, and sources (name, sequence
+/// whose anchor to use).
+pub fn kitti_setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
+    let all = anchors(data).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let origin = all["07"];
+    let options = CompileOptions {
+        origin: Some((origin.lat(), origin.lon())),
+        projection: Projection::Kitti,
+        ..CompileOptions::default()
+    };
+    let compiled = compile(&[data.join("osm/kitti_07.osm")], &options).unwrap();
+    let tile_path = dir.path().join("07.tile");
+    tile::write_bytes(&tile_path, &compiled.tile_bytes(3.0)).unwrap();
+    let sources = sources
+        .iter()
+        .map(|(name, seq)| (name.to_string(), all[*seq]))
+        .collect();
+    write_setup(dir, tile_path, AxisConvention::KittiCamera, sources)
+}
+
+/// A tile of the synthetic town and sources on it.
+pub fn town_setup(sources: &[&str]) -> Setup {
+    let dir = tempfile::tempdir().unwrap();
+    let tile_path = dir.path().join("town.tile");
+    synthetic::write_town_tile(&tile_path).unwrap();
+    let sources = sources
+        .iter()
+        .map(|name| (name.to_string(), synthetic::town_anchor()))
+        .collect();
+    write_setup(dir, tile_path, AxisConvention::Flu, sources)
+}
+
+/// What offline correction gives for `source`, configured as the daemon configures it.
+pub fn offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Vec<Pose3> {
+    let (map, info) = tile::load(&setup.tile).unwrap();
+    let anchor = setup.anchors.iter().find(|(n, _)| n == source).unwrap().1;
+    let config = corrector(source);
+    let placement = Placement {
+        convention: setup.convention,
+        anchored_from_odom: anchor.anchored_from_odom(&info.plane),
+        smoothing: config.smoothing(),
+    };
+    correct_trajectory(
+        Arc::new(map),
+        config.params().unwrap(),
+        config.match_mode,
+        placement,
+        poses,
+    )
+    .into_iter()
+    .map(|c| c.pose)
+    .collect()
+}
+
+/// Starts the daemon and waits until it is ready.
+pub fn start(setup: &Setup) -> DaemonProcess {
+    let log = setup.dir.path().join(format!("d-{}.log", monotonic_ns()));
+    DaemonProcess::start_ready(&setup.config, &log, Duration::from_secs(20)).expect(
+        "lanealignd must be built next to the tests (cargo test --workspace builds it) and start",
+    )
+}
+
+pub fn namespace(setup: &Setup) -> Namespace {
+    setup.namespace.parse().unwrap()
+}
+
+pub fn connect(setup: &Setup, source: &str) -> Connection {
+    Connection::connect_in(
+        &namespace(setup),
+        &source.parse().unwrap(),
+        new_session_id(),
+    )
+    .unwrap()
+}
+
+pub fn wait_for_daemon(conn: &mut Connection) {
+    let until = Instant::now() + Duration::from_secs(10);
+    while !conn.daemon_connected() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(conn.daemon_connected(), "the daemon did not come up");
+}
+
+/// The poses of `answers`.
+pub fn poses_of(answers: &[CorrectedPose]) -> Vec<Pose3> {
+    answers
+        .iter()
+        .map(|a| Pose3::from_row_major(&a.pose))
+        .collect()
+}
+
+/// A client that talks the wire directly, to send what the client library never would.
+pub struct RawClient {
+    pub session: u64,
+    publisher: iceoryx2::port::publisher::Publisher<iceoryx2::prelude::ipc::Service, OdomPose, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<iceoryx2::prelude::ipc::Service>,
+    subscriber:
+        iceoryx2::port::subscriber::Subscriber<iceoryx2::prelude::ipc::Service, CorrectedPose, ()>,
+    _poses: PoseServices,
+    _answers: SessionServices,
+    _node: iceoryx2::node::Node<iceoryx2::prelude::ipc::Service>,
+}
+
+impl RawClient {
+    pub fn new(setup: &Setup, source: &str) -> RawClient {
+        let node = namespace(setup).node().unwrap();
+        let source = source.parse().unwrap();
+        let session = new_session_id();
+        let poses = PoseServices::open(&node, &source).unwrap();
+        let answers = SessionServices::open(&node, &source, session).unwrap();
+        RawClient {
+            session,
+            publisher: poses.publisher().unwrap(),
+            notifier: poses.notifier().unwrap(),
+            subscriber: answers.subscriber().unwrap(),
+            _poses: poses,
+            _answers: answers,
+            _node: node,
+        }
+    }
+
+    /// Sends `pose` as `seq` and returns the answer.
+    pub fn send(&self, seq: u64, pose: [f64; 12]) -> CorrectedPose {
+        let delivered = self
+            .publisher
+            .send_copy(OdomPose {
+                session: self.session,
+                seq,
+                stamp_ns: 0,
+                sent_mono_ns: monotonic_ns(),
+                pose,
+                flags: 0,
+                reserved: 0,
+            })
+            .unwrap();
+        assert_eq!(delivered, 1, "the daemon takes the pose");
+        self.notifier.notify().unwrap();
+        let until = Instant::now() + Duration::from_secs(5);
+        loop {
+            if let Some(sample) = self.subscriber.receive().unwrap() {
+                assert_eq!(sample.seq, seq);
+                return *sample;
+            }
+            assert!(Instant::now() < until, "no answer to seq {seq}");
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+}
+
+/// Every entry of /dev/shm and the iceoryx2 root folder.
+pub fn shm_entries() -> std::collections::BTreeSet<String> {
+    let mut out = std::collections::BTreeSet::new();
+    for root in ["/dev/shm", "/tmp/iceoryx2"] {
+        let mut stack = vec![PathBuf::from(root)];
+        while let Some(dir) = stack.pop() {
+            for e in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p.clone());
+                }
+                out.insert(p.display().to_string());
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,324 @@
+//! lanealignd through its real process and shared memory: sessions get correctors of their own
+//! and only their own answers, answers equal offline correction bit for bit, bad input is
+//! flagged and changes nothing, one daemon per namespace, a source that cannot start stops the
+//! daemon, SIGHUP reloads the tile for new sessions, nothing is left in shared memory. On the
+//! synthetic town always; on real KITTI data where `../shared/data` is present.
+
+mod common;
+
+use std::process::{Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use common::*;
+use lanealign_cli::daemon_process::{daemon_binary, DaemonProcess};
+use lanealign_cli::replay::{replay, Rate};
+use lanealign_cli::synthetic;
+use lanealign_client::connection::new_session_id;
+use lanealign_client::Connection;
+use lanealign_core::pose::Pose3;
+use lanealign_core::trajectory::{read, Format};
+use lanealign_tests::shared_data;
+use lanealign_wire::payload::StatusCode;
+
+/// The tests start daemons and count shared-memory files: one at a time.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn run_replay(setup: &Setup, source: &str, poses: &[Pose3], rate: Rate) -> Vec<Pose3> {
+    let mut conn = connect(setup, source);
+    let r = replay(
+        &mut conn,
+        source,
+        poses,
+        &[],
+        rate,
+        Duration::from_secs(10),
+        Duration::from_secs(10),
+    )
+    .unwrap();
+    let seqs: Vec<u64> = r.answers.iter().map(|x| x.seq).collect();
+    assert_eq!(
+        seqs,
+        (1..=poses.len() as u64).collect::<Vec<_>>(),
+        "every pose once, in order"
+    );
+    poses_of(&r.answers)
+}
+
+/// Always runs: two sessions on one source of the synthetic town, at once; each gets every
+/// answer once, only its own, equal to offline correction bit for bit; and a third session
+/// later starts from a fresh corrector.
+#[test]
+fn sessions_have_their_own_correctors_and_answers() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("town");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(2, 42);
+    // The second client drives the run backwards: its answers differ from the first's.
+    let reversed: Vec<Pose3> = odometry.iter().rev().copied().collect();
+    let (forward, backward) = std::thread::scope(|s| {
+        let a = s.spawn(|| run_replay(&setup, &name, &odometry, Rate::Max(16)));
+        let b = s.spawn(|| run_replay(&setup, &name, &reversed, Rate::Max(16)));
+        (a.join().unwrap(), b.join().unwrap())
+    });
+    assert!(forward == offline(&setup, &name, &odometry), "bit for bit");
+    assert!(backward == offline(&setup, &name, &reversed), "bit for bit");
+    // A later session on the same source starts afresh: it does not inherit a corrector.
+    let again = run_replay(&setup, &name, &odometry[..1500], Rate::Max(32));
+    assert!(again == offline(&setup, &name, &odometry[..1500]));
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
+#[test]
+fn two_kitti_sources_at_once_match_offline_bit_for_bit() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(data) = shared_data() else { return };
+    let (a, b) = (unique("lidar07"), unique("smooth08"));
+    let setup = kitti_setup(&data, &[(&a, "07"), (&b, "08")]);
+    let daemon = start(&setup);
+    let read_run = |seq: &str| {
+        read(
+            &data.join(format!("odometry/lidar/{seq}.txt")),
+            Format::Kitti,
+        )
+        .unwrap()
+        .poses
+    };
+    let (poses_a, poses_b) = (read_run("07"), read_run("08"));
+    let (got_a, got_b) = std::thread::scope(|s| {
+        let ha = s.spawn(|| run_replay(&setup, &a, &poses_a, Rate::Max(32)));
+        let hb = s.spawn(|| run_replay(&setup, &b, &poses_b, Rate::Max(32)));
+        (ha.join().unwrap(), hb.join().unwrap())
+    });
+    assert!(daemon.stop().unwrap(), "clean exit");
+    assert!(got_a == offline(&setup, &a, &poses_a), "{a}: bit for bit");
+    assert!(got_b == offline(&setup, &b, &poses_b), "{b}: bit for bit");
+}
+
+/// Always runs: through a raw wire client, the protocol of sequence numbers: non-finite poses
+/// use up their number and change nothing, a used number with another pose is flagged, a used
+/// number with the same pose gets the same answer again, a number beyond the next is a gap;
+/// poses for an unconfigured source are refused and counted.
+#[test]
+fn bad_input_is_flagged_and_changes_nothing() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("bad");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let good_poses = &odometry[..400];
+    let raw = RawClient::new(&setup, &name);
+    let mut good = Vec::new();
+    let mut seq = 0;
+    for (i, p) in good_poses.iter().enumerate() {
+        seq += 1;
+        good.push(raw.send(seq, p.to_row_major()));
+        if i == 200 {
+            let mut nan = p.to_row_major();
+            nan[3] = f64::NAN;
+            seq += 1;
+            assert_eq!(raw.send(seq, nan).status(), Some(StatusCode::InvalidInput));
+            let mut inf = p.to_row_major();
+            inf[11] = f64::INFINITY;
+            seq += 1;
+            assert_eq!(raw.send(seq, inf).status(), Some(StatusCode::InvalidInput));
+            let other = odometry[500].to_row_major();
+            assert_eq!(
+                raw.send(seq, other).status(),
+                Some(StatusCode::DuplicateSeq)
+            );
+            assert_eq!(
+                raw.send(seq - 40, other).status(),
+                Some(StatusCode::OutOfOrderSeq)
+            );
+            let ahead = raw.send(seq + 5, other);
+            assert_eq!(ahead.status(), Some(StatusCode::Gap));
+            assert_eq!(ahead.expected_seq, seq + 1);
+            // The same pose under a used number: the same answer again.
+            let again = raw.send(seq - 3, good_poses[i - 1].to_row_major());
+            assert_eq!(again.pose, good[i - 1].pose);
+            assert_eq!(again.status, good[i - 1].status);
+        }
+    }
+    // Poses for a source the daemon does not serve are refused and counted.
+    let mut stranger = connect(&setup, &unique("nobody"));
+    stranger.publish(0, &good_poses[0].to_row_major()).unwrap();
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("refused_sources=1") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        daemon.log().contains("not configured are refused")
+            && daemon.log().contains("refused_sources=1"),
+        "{}",
+        daemon.log()
+    );
+    assert!(stranger.recv(Duration::from_millis(200)).unwrap().is_none());
+    // The metrics split the corrector's time and count what the protocol refused.
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("bookkeeping_p99_us") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let log = daemon.log();
+    for key in [
+        "matching_p99_us",
+        "icp_p99_us",
+        "bookkeeping_p99_us",
+        "e2e_p999_us",
+        "daemon_p999_us",
+        "gaps=1",
+        "resent=1",
+        "sessions=1",
+    ] {
+        assert!(log.contains(key), "{key} in {log}");
+    }
+    drop((raw, stranger));
+    assert!(daemon.stop().unwrap());
+    // The flagged inputs changed nothing: the good answers equal offline correction of the
+    // good poses alone.
+    assert!(offline(&setup, &name, good_poses) == poses_of(&good));
+}
+
+/// Always runs: a second daemon in a namespace refuses to start, naming the first.
+#[test]
+fn one_daemon_per_namespace() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let setup = town_setup(&[&unique("one")]);
+    let first = start(&setup);
+    let second = DaemonProcess::start(&setup.config, &setup.dir.path().join("second.log")).unwrap();
+    let log_path = setup.dir.path().join("second.log");
+    let status = second.wait().unwrap();
+    let log = std::fs::read_to_string(log_path).unwrap();
+    assert!(!status.success(), "{log}");
+    assert!(
+        log.contains("another lanealignd serves namespace")
+            && log.contains(&format!("pid {}", first.id())),
+        "{log}"
+    );
+    // Another namespace on the same machine is another deployment: it starts.
+    let other = town_setup(&[&unique("other")]);
+    let neighbour = start(&other);
+    assert!(neighbour.stop().unwrap() && first.stop().unwrap());
+}
+
+/// Always runs: with too few file descriptors for 100 sources, a worker cannot open its ports:
+/// the daemon stops with a non-zero exit naming the source and the cause, instead of running
+/// with sources missing.
+#[test]
+fn a_source_that_cannot_start_stops_the_daemon() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let names: Vec<String> = (0..100).map(|k| format!("many-{k}")).collect();
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let setup = town_setup(&refs);
+    let out = Command::new("bash")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -n 64; exec {} --config {}",
+            daemon_binary().unwrap().display(),
+            setup.config.display()
+        ))
+        .stdout(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("error: source many-"), "{err}");
+    assert!(err.contains("caused by"), "{err}");
+}
+
+/// Always runs: SIGHUP reloads the tile. A running session keeps the tile it started with and
+/// loses no pose; a session started after the reload uses the new tile.
+#[test]
+fn sighup_reloads_the_tile_for_new_sessions() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("reload");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let before = offline(&setup, &name, &odometry);
+    let mut running = connect(&setup, &name);
+    wait_for_daemon(&mut running);
+    let mut answers = Vec::new();
+    for p in &odometry[..300] {
+        running.publish(0, &p.to_row_major()).unwrap();
+        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
+    }
+    // The new tile: the town's lanes moved 1 m north.
+    let (map, info) = lanealign_core::tile::load(&setup.tile).unwrap();
+    let lanes: Vec<lanealign_core::lane_map::Lane> = map
+        .lanes()
+        .map(|(id, lane_info, pts)| lanealign_core::lane_map::Lane {
+            id,
+            info: lane_info,
+            points: pts.iter().map(|p| [p[0], p[1] + 1.0]).collect(),
+        })
+        .collect();
+    let moved = lanealign_core::lane_map::LaneMap::new(&lanes).unwrap();
+    lanealign_core::tile::write(
+        &setup.tile,
+        &moved,
+        &info.plane,
+        info.spacing_m,
+        &info.geometry,
+    )
+    .unwrap();
+    rustix::process::kill_process(
+        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
+        rustix::process::Signal::HUP,
+    )
+    .unwrap();
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("tile reloaded") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(daemon.log().contains("tile reloaded"), "{}", daemon.log());
+    for p in &odometry[300..] {
+        running.publish(0, &p.to_row_major()).unwrap();
+        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
+    }
+    assert_eq!(
+        answers.len(),
+        odometry.len(),
+        "no pose lost across the reload"
+    );
+    assert!(
+        poses_of(&answers) == before,
+        "the running session kept its tile"
+    );
+    let after = offline(&setup, &name, &odometry);
+    assert!(after != before, "the new tile changes corrections");
+    assert!(
+        run_replay(&setup, &name, &odometry, Rate::Max(32)) == after,
+        "a new session uses it"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
+/// Always runs: a daemon and its clients leave nothing in shared memory behind them.
+#[test]
+fn nothing_is_left_in_shared_memory() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("clean");
+    let setup = town_setup(&[&name]);
+    // iceoryx2 keeps per-namespace management state (created by the namespace's first node,
+    // kept by design): create it before looking, so only what the processes leave counts.
+    drop(namespace(&setup).node().unwrap());
+    let before = shm_entries();
+    {
+        let daemon = start(&setup);
+        let (_, odometry) = synthetic::drive(1, 42);
+        run_replay(&setup, &name, &odometry[..500], Rate::Max(32));
+        let mut other =
+            Connection::connect_in(&namespace(&setup), &name.parse().unwrap(), new_session_id())
+                .unwrap();
+        wait_for_daemon(&mut other);
+        other.publish(0, &odometry[0].to_row_major()).unwrap();
+        assert!(other.recv(Duration::from_secs(5)).unwrap().is_some());
+        drop(other);
+        assert!(daemon.stop().unwrap(), "clean exit on SIGTERM");
+    }
+    let after = shm_entries();
+    let left: Vec<_> = after.difference(&before).collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+}

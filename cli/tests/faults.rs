@@ -1,0 +1,215 @@
+//! Faults injected, not imagined: `kill -9` of clients and of the daemon at moments drawn from a
+//! fixed seed, during real `lanealign replay` processes. Whatever is killed, a replay that runs
+//! to its end writes exactly what offline correction gives, bit for bit, and exits 0: nothing
+//! is lost, and no session inherits another's corrector. On the synthetic town always; on KITTI
+//! 00 (real LiDAR odometry, the robust method) where `../shared/data` is present.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use common::*;
+use lanealign_cli::daemon_process::DaemonProcess;
+use lanealign_cli::synthetic;
+use lanealign_core::pose::Pose3;
+use lanealign_core::trajectory::{read, write, Format, Trajectory};
+use lanealign_tests::shared_data;
+use lanealign_wire::clock::monotonic_ns;
+
+static SERIAL: Mutex<()> = Mutex::new(());
+
+/// A small deterministic generator (64-bit LCG): the same kill moments on every run.
+struct Lcg(u64);
+
+impl Lcg {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn between(&mut self, lo: f64, hi: f64) -> Duration {
+        Duration::from_secs_f64(lo + (hi - lo) * self.uniform())
+    }
+}
+
+/// `lanealign replay` of `input` to `output` as a process.
+fn spawn_replay(setup: &Setup, source: &str, input: &Path, output: &Path, rate: &str) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_lanealign"))
+        .args([
+            "replay",
+            "--source",
+            source,
+            "--namespace",
+            &setup.namespace,
+            "--rate",
+            rate,
+        ])
+        .arg(input)
+        .arg("-o")
+        .arg(output)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn finish(child: Child) -> String {
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "replay failed: {err}");
+    err
+}
+
+fn daemon_log(setup: &Setup) -> PathBuf {
+    setup.dir.path().join(format!("d-{}.log", monotonic_ns()))
+}
+
+/// Kills `lanealign replay` clients at random moments, three times; then a replay runs to its
+/// end. The killed sessions leave no trace in its output, and the daemon cleans up after them.
+fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], seed: u64) {
+    let daemon = start(setup);
+    let mut rng = Lcg(seed);
+    for k in 0..3 {
+        let mut doomed = spawn_replay(
+            setup,
+            source,
+            input,
+            &setup.dir.path().join(format!("killed-{k}.txt")),
+            "2000",
+        );
+        std::thread::sleep(rng.between(0.2, 1.2));
+        doomed.kill().unwrap();
+        doomed.wait().unwrap();
+    }
+    let output = setup.dir.path().join("after-kills.txt");
+    let summary = finish(spawn_replay(setup, source, input, &output, "max"));
+    let got = read(&output, Format::Kitti).unwrap().poses;
+    assert_eq!(got.len(), poses.len(), "{summary}");
+    assert!(
+        got == offline(setup, source, poses),
+        "bit for bit after killed clients: {summary}"
+    );
+    // The killed clients' nodes are cleaned up (by the daemon's supervisor or the next node
+    // iceoryx2 creates): none is left dead.
+    let config = namespace(setup).config();
+    let until = Instant::now() + Duration::from_secs(5);
+    let dead = || {
+        let mut dead = 0;
+        iceoryx2::node::Node::<iceoryx2::prelude::ipc::Service>::list(&config, |state| {
+            dead += matches!(state, iceoryx2::node::NodeState::Dead(_)) as usize;
+            iceoryx2::prelude::CallbackProgression::Continue
+        })
+        .unwrap();
+        dead
+    };
+    while dead() > 0 && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(dead(), 0, "dead nodes left");
+    assert!(daemon.stop().unwrap());
+}
+
+/// Kills the daemon three times at random moments while one replay runs, restarting it each
+/// time after a random pause (as systemd would). The replay exits 0 and its output equals an
+/// uninterrupted offline run bit for bit.
+fn killed_daemons(
+    setup: &Setup,
+    source: &str,
+    input: &Path,
+    poses: &[Pose3],
+    seed: u64,
+    rate: &str,
+) {
+    let mut rng = Lcg(seed);
+    let mut daemon = start(setup);
+    let output = setup.dir.path().join("through-kills.txt");
+    let client = spawn_replay(setup, source, input, &output, rate);
+    let mut restored = 0;
+    for _ in 0..3 {
+        std::thread::sleep(rng.between(0.3, 1.0));
+        daemon.kill().unwrap();
+        std::thread::sleep(rng.between(0.0, 0.5));
+        daemon =
+            DaemonProcess::start_ready(&setup.config, &daemon_log(setup), Duration::from_secs(20))
+                .unwrap();
+        restored += daemon.log().contains("session restored") as usize;
+    }
+    let summary = finish(client);
+    println!("{summary}");
+    assert!(daemon.stop().unwrap());
+    let got = read(&output, Format::Kitti).unwrap().poses;
+    assert_eq!(got.len(), poses.len(), "{summary}");
+    assert!(
+        got == offline(setup, source, poses),
+        "bit for bit through daemon kills: {summary}"
+    );
+    assert!(
+        summary.contains("3 daemon restarts"),
+        "the client saw every restart: {summary}"
+    );
+    assert!(
+        restored >= 2,
+        "the session was restored from its journal ({restored} of 3 restarts)"
+    );
+}
+
+fn town_input(setup: &Setup) -> (PathBuf, Vec<Pose3>) {
+    let (_, odometry) = synthetic::drive(2, 7);
+    let path = setup.dir.path().join("town-odometry.txt");
+    write(
+        &path,
+        &Trajectory {
+            stamps: None,
+            poses: odometry.clone(),
+        },
+        Format::Kitti,
+    )
+    .unwrap();
+    (path, odometry)
+}
+
+#[test]
+fn killed_clients_leave_no_trace_on_the_town() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("town");
+    let setup = town_setup(&[&name]);
+    let (input, poses) = town_input(&setup);
+    killed_clients(&setup, &name, &input, &poses, 11);
+}
+
+#[test]
+fn killed_daemons_lose_nothing_on_the_town() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("town");
+    let setup = town_setup(&[&name]);
+    let (input, poses) = town_input(&setup);
+    killed_daemons(&setup, &name, &input, &poses, 12, "800");
+}
+
+#[test]
+fn killed_clients_leave_no_trace_on_kitti() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(data) = shared_data() else { return };
+    let name = unique("lidar07");
+    let setup = kitti_setup(&data, &[(&name, "07")]);
+    let input = data.join("odometry/lidar/07.txt");
+    let poses = read(&input, Format::Kitti).unwrap().poses;
+    killed_clients(&setup, &name, &input, &poses, 21);
+}
+
+#[test]
+fn killed_daemons_lose_nothing_on_kitti() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(data) = shared_data() else { return };
+    let name = unique("lidar07");
+    let setup = kitti_setup(&data, &[(&name, "07")]);
+    let input = data.join("odometry/lidar/07.txt");
+    let poses = read(&input, Format::Kitti).unwrap().poses;
+    killed_daemons(&setup, &name, &input, &poses, 22, "150");
+}

@@ -1,0 +1,603 @@
+//! A session's journal on disk: what lets a killed daemon come back with every session exactly
+//! where it was.
+//!
+//! Per session, a folder `<state_dir>/<namespace>/<source>/<session>-<nonce>/` (a new nonce for
+//! every journal, so an ended session's folder, removed in the background, is never reused)
+//! holds:
+//!
+//! - `session`: who the session is, when its journal began, and what it was corrected with (a
+//!   fingerprint of the source's configuration and the tile): a journal written under another
+//!   configuration is not restored.
+//! - `NNNNNNNN.log`: segments of [`SEGMENT_RECORDS`] records, one per pose the session used:
+//!   the input and the answer, checksummed. The worker appends a record with one `write` before
+//!   it publishes the answer, so every answer a client can have seen is in the journal, even if
+//!   the daemon is killed the next instant (the kernel keeps the write; a torn last record fails
+//!   its checksum and was never answered).
+//! - `snapshot`: the corrector's exact state after the last full segment, written (atomically,
+//!   by the persistence thread) each time a segment fills. Older segments are then deleted, but
+//!   the last full one stays: with the open one it holds at least [`MAX_IN_FLIGHT`] answers to
+//!   send again.
+//!
+//! Restoring loads the snapshot and replays the records after it through the corrector, checking
+//! that every answer it computes again equals the one logged.
+
+use std::fs::File;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+
+use lanealign_core::corrector::CorrectorState;
+use lanealign_core::se2::Se2;
+use lanealign_core::source_corrector::SourceState;
+use lanealign_wire::payload::{CorrectedPose, OdomPose, MAX_IN_FLIGHT};
+use xxhash_rust::xxh3::xxh3_64;
+
+/// Records per segment: the last full segment alone holds [`MAX_IN_FLIGHT`] answers.
+pub const SEGMENT_RECORDS: u64 = MAX_IN_FLIGHT;
+/// Bytes of one record: input (136), answer (216), checksum (8).
+pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
+const ODOM_LEN: usize = 136;
+const ANSWER_LEN: usize = 216;
+const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP01";
+/// The largest window a snapshot may hold (poses): the corrector's own limit.
+const MAX_WINDOW: u64 = 1_000_000;
+
+/// A journal that could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum JournalError {
+    /// A file could not be created, written, read or removed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// A file's content is not a valid journal file.
+    #[error("{path}: {what}")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> JournalError + '_ {
+    move |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Little-endian encoding into a byte vector.
+#[derive(Default)]
+struct Encoder(Vec<u8>);
+
+impl Encoder {
+    fn u32(&mut self, v: u32) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn u64(&mut self, v: u64) -> &mut Self {
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+    fn f64(&mut self, v: f64) -> &mut Self {
+        self.u64(v.to_bits())
+    }
+    fn f64s(&mut self, v: &[f64]) -> &mut Self {
+        for x in v {
+            self.f64(*x);
+        }
+        self
+    }
+    fn se2(&mut self, t: &Se2) -> &mut Self {
+        let (c, s) = t.rotation();
+        let [x, y] = t.translation();
+        self.f64s(&[c, s, x, y])
+    }
+}
+
+/// Little-endian decoding with every read checked: a short or odd file is an error, not a panic.
+struct Decoder<'a>(&'a [u8]);
+
+impl Decoder<'_> {
+    fn take(&mut self, n: usize) -> Option<&[u8]> {
+        if self.0.len() < n {
+            return None;
+        }
+        let (head, rest) = self.0.split_at(n);
+        self.0 = rest;
+        Some(head)
+    }
+    fn u32(&mut self) -> Option<u32> {
+        self.take(4)?.try_into().ok().map(u32::from_le_bytes)
+    }
+    fn u64(&mut self) -> Option<u64> {
+        self.take(8)?.try_into().ok().map(u64::from_le_bytes)
+    }
+    fn f64(&mut self) -> Option<f64> {
+        self.u64().map(f64::from_bits)
+    }
+    fn f64s<const N: usize>(&mut self) -> Option<[f64; N]> {
+        let mut out = [0.0; N];
+        for v in &mut out {
+            *v = self.f64()?;
+        }
+        Some(out)
+    }
+    fn se2(&mut self) -> Option<Se2> {
+        let [c, s, x, y] = self.f64s::<4>()?;
+        let norm = c.hypot(s);
+        let finite = [c, s, x, y].iter().all(|v| v.is_finite());
+        (finite && (norm - 1.0).abs() < 1e-9).then(|| Se2::from_rotation(c, s, x, y))
+    }
+}
+
+fn encode_odom(e: &mut Encoder, p: &OdomPose) {
+    e.u64(p.session)
+        .u64(p.seq)
+        .u64(p.stamp_ns as u64)
+        .u64(p.sent_mono_ns)
+        .f64s(&p.pose)
+        .u32(p.flags)
+        .u32(p.reserved);
+}
+
+fn decode_odom(d: &mut Decoder<'_>) -> Option<OdomPose> {
+    Some(OdomPose {
+        session: d.u64()?,
+        seq: d.u64()?,
+        stamp_ns: d.u64()? as i64,
+        sent_mono_ns: d.u64()?,
+        pose: d.f64s::<12>()?,
+        flags: d.u32()?,
+        reserved: d.u32()?,
+    })
+}
+
+fn encode_answer(e: &mut Encoder, a: &CorrectedPose) {
+    e.u64(a.daemon_epoch)
+        .u64(a.expected_seq)
+        .u64(a.session)
+        .u64(a.seq)
+        .u64(a.stamp_ns as u64)
+        .u64(a.sent_mono_ns)
+        .u64(a.received_mono_ns)
+        .u64(a.published_mono_ns)
+        .f64s(&a.pose)
+        .f64s(&a.map_from_odom)
+        .f64(a.residual_m)
+        .f64(a.match_ratio)
+        .u32(a.window_len)
+        .u32(a.status)
+        .u32(a.reason)
+        .u32(a.reserved);
+}
+
+fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
+    Some(CorrectedPose {
+        daemon_epoch: d.u64()?,
+        expected_seq: d.u64()?,
+        session: d.u64()?,
+        seq: d.u64()?,
+        stamp_ns: d.u64()? as i64,
+        sent_mono_ns: d.u64()?,
+        received_mono_ns: d.u64()?,
+        published_mono_ns: d.u64()?,
+        pose: d.f64s::<12>()?,
+        map_from_odom: d.f64s::<3>()?,
+        residual_m: d.f64()?,
+        match_ratio: d.f64()?,
+        window_len: d.u32()?,
+        status: d.u32()?,
+        reason: d.u32()?,
+        reserved: d.u32()?,
+    })
+}
+
+/// One journal record: a pose the session used, and its answer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Record {
+    /// The input.
+    pub input: OdomPose,
+    /// The answer sent.
+    pub answer: CorrectedPose,
+}
+
+impl Record {
+    /// The record's bytes, checksum last.
+    pub fn encode(&self) -> [u8; RECORD_LEN] {
+        let mut e = Encoder::default();
+        encode_odom(&mut e, &self.input);
+        encode_answer(&mut e, &self.answer);
+        let sum = xxh3_64(&e.0);
+        e.u64(sum);
+        let mut out = [0u8; RECORD_LEN];
+        out.copy_from_slice(&e.0);
+        out
+    }
+
+    /// A record from its bytes; `None` when the checksum or the layout is wrong.
+    pub fn decode(bytes: &[u8]) -> Option<Record> {
+        if bytes.len() != RECORD_LEN {
+            return None;
+        }
+        let (body, sum) = bytes.split_at(RECORD_LEN - 8);
+        if xxh3_64(body).to_le_bytes() != sum {
+            return None;
+        }
+        let mut d = Decoder(body);
+        Some(Record {
+            input: decode_odom(&mut d)?,
+            answer: decode_answer(&mut d)?,
+        })
+    }
+}
+
+/// A session's corrector state at a point of its journal.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Snapshot {
+    /// The last sequence number applied.
+    pub last_seq: u64,
+    /// The first segment whose records come after the snapshot.
+    pub next_segment: u64,
+    /// The source corrector's state.
+    pub state: SourceState,
+}
+
+impl Snapshot {
+    /// The snapshot's bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let c = &self.state.corrector;
+        let mut e = Encoder::default();
+        e.0.extend_from_slice(SNAPSHOT_MAGIC);
+        e.u64(self.last_seq)
+            .u64(self.next_segment)
+            .se2(&c.map_from_anchored)
+            .f64(c.window_path_m)
+            .u32(c.failures)
+            .f64(c.travelled_m);
+        match c.last_position_in_anchored {
+            Some(p) => e.u32(1).f64s(&p),
+            None => e.u32(0).f64s(&[0.0, 0.0]),
+        };
+        match &self.state.smoothed {
+            Some(t) => e.u32(1).se2(t),
+            None => e.u32(0).se2(&Se2::IDENTITY),
+        };
+        e.u64(c.window.len() as u64);
+        for p in &c.window {
+            e.f64s(p);
+        }
+        let sum = xxh3_64(&e.0);
+        e.u64(sum);
+        e.0
+    }
+
+    /// A snapshot from its bytes; `None` for anything but a complete, valid snapshot.
+    pub fn decode(bytes: &[u8]) -> Option<Snapshot> {
+        let (body, sum) = bytes.split_at(bytes.len().checked_sub(8)?);
+        if xxh3_64(body).to_le_bytes() != sum || body.get(..8)? != SNAPSHOT_MAGIC {
+            return None;
+        }
+        let mut d = Decoder(&body[8..]);
+        let last_seq = d.u64()?;
+        let next_segment = d.u64()?;
+        let map_from_anchored = d.se2()?;
+        let window_path_m = d.f64()?;
+        let failures = d.u32()?;
+        let travelled_m = d.f64()?;
+        let last_position = (d.u32()?, d.f64s::<2>()?);
+        let smoothed = (d.u32()?, d.se2()?);
+        let n = d.u64()?;
+        if n > MAX_WINDOW || d.0.len() as u64 != n * 16 {
+            return None;
+        }
+        let window: Vec<[f64; 2]> = (0..n).map(|_| d.f64s::<2>()).collect::<Option<_>>()?;
+        let finite = window.iter().flatten().all(|v| v.is_finite())
+            && window_path_m.is_finite()
+            && travelled_m.is_finite();
+        let flag = |f: u32| (f <= 1).then_some(f == 1);
+        let state = SourceState {
+            corrector: CorrectorState {
+                map_from_anchored,
+                window,
+                window_path_m,
+                failures,
+                travelled_m,
+                last_position_in_anchored: flag(last_position.0)?.then_some(last_position.1),
+            },
+            smoothed: flag(smoothed.0)?.then_some(smoothed.1),
+        };
+        finite.then_some(Snapshot {
+            last_seq,
+            next_segment,
+            state,
+        })
+    }
+}
+
+/// What a session's journal was written under: refused on restore when it differs from now.
+pub fn fingerprint(parts: &[&str]) -> u64 {
+    xxh3_64(parts.join("\u{1f}").as_bytes())
+}
+
+/// Writes `bytes` to `path` atomically and durably: a temporary file, fsync, rename, fsync of
+/// the folder.
+pub fn write_durably(path: &Path, bytes: &[u8]) -> Result<(), JournalError> {
+    let mut tmp_name = path.as_os_str().to_owned();
+    tmp_name.push(".tmp");
+    let tmp = PathBuf::from(tmp_name);
+    let mut f = File::create(&tmp).map_err(io(&tmp))?;
+    f.write_all(bytes).map_err(io(&tmp))?;
+    f.sync_all().map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))?;
+    if let Some(dir) = path.parent() {
+        File::open(dir)
+            .and_then(|d| d.sync_all())
+            .map_err(io(dir))?;
+    }
+    Ok(())
+}
+
+/// What a session folder's `session` file says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// The session id.
+    pub session: u64,
+    /// When the journal began (ns since the Unix epoch): the newest of a session's journals is
+    /// the one to restore.
+    pub created_unix_ns: u64,
+    /// The configuration and tile it was written under.
+    pub fingerprint: u64,
+}
+
+impl Header {
+    /// The file's bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut e = Encoder::default();
+        e.0.extend_from_slice(SESSION_MAGIC);
+        e.u64(self.session)
+            .u64(self.created_unix_ns)
+            .u64(self.fingerprint);
+        let sum = xxh3_64(&e.0);
+        e.u64(sum);
+        e.0
+    }
+
+    /// A header from the file's bytes.
+    pub fn decode(bytes: &[u8]) -> Option<Header> {
+        if bytes.len() != 40 || &bytes[..8] != SESSION_MAGIC {
+            return None;
+        }
+        if xxh3_64(&bytes[..32]).to_le_bytes() != bytes[32..] {
+            return None;
+        }
+        let mut d = Decoder(&bytes[8..32]);
+        Some(Header {
+            session: d.u64()?,
+            created_unix_ns: d.u64()?,
+            fingerprint: d.u64()?,
+        })
+    }
+}
+
+/// The path of segment `n` in `dir`.
+pub fn segment_path(dir: &Path, n: u64) -> PathBuf {
+    dir.join(format!("{n:08}.log"))
+}
+
+/// The segments present in `dir`, in order.
+pub fn segments(dir: &Path) -> Result<Vec<u64>, JournalError> {
+    let mut found: Vec<u64> = std::fs::read_dir(dir)
+        .map_err(io(dir))?
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            name.strip_suffix(".log")?.parse().ok()
+        })
+        .collect();
+    found.sort_unstable();
+    Ok(found)
+}
+
+/// The valid records of a segment file, in order, stopping at the first one that is torn or
+/// damaged (a crash mid-write leaves at most one).
+pub fn read_segment(path: &Path) -> Result<Vec<Record>, JournalError> {
+    let mut bytes = Vec::new();
+    File::open(path)
+        .map_err(io(path))?
+        .take(SEGMENT_RECORDS * RECORD_LEN as u64 + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io(path))?;
+    Ok(bytes.chunks(RECORD_LEN).map_while(Record::decode).collect())
+}
+
+/// An open segment a worker appends records to.
+pub struct SegmentWriter {
+    file: File,
+    path: PathBuf,
+    /// The segment's number.
+    pub number: u64,
+    /// Records written to it.
+    pub records: u64,
+}
+
+impl SegmentWriter {
+    /// Creates segment `number` in `dir` (empty).
+    pub fn create(dir: &Path, number: u64) -> Result<Self, JournalError> {
+        let path = segment_path(dir, number);
+        let file = File::create(&path).map_err(io(&path))?;
+        Ok(SegmentWriter {
+            file,
+            path,
+            number,
+            records: 0,
+        })
+    }
+
+    /// Opens segment `number` in `dir` to append after its first `records` valid records (a
+    /// torn record after them is cut off).
+    pub fn reopen(dir: &Path, number: u64, records: u64) -> Result<Self, JournalError> {
+        let path = segment_path(dir, number);
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&path)
+            .map_err(io(&path))?;
+        file.set_len(records * RECORD_LEN as u64)
+            .map_err(io(&path))?;
+        let mut writer = SegmentWriter {
+            file,
+            path,
+            number,
+            records,
+        };
+        std::io::Seek::seek(
+            &mut writer.file,
+            std::io::SeekFrom::Start(records * RECORD_LEN as u64),
+        )
+        .map_err(io(&writer.path))?;
+        Ok(writer)
+    }
+
+    /// Appends one record with a single write.
+    pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
+        self.file
+            .write_all(&record.encode())
+            .map_err(io(&self.path))?;
+        self.records += 1;
+        Ok(())
+    }
+
+    /// True when the segment holds [`SEGMENT_RECORDS`] records.
+    pub fn is_full(&self) -> bool {
+        self.records >= SEGMENT_RECORDS
+    }
+
+    /// A second handle on the same file, for the persistence thread's fsync.
+    pub fn sync_handle(&self) -> Result<File, JournalError> {
+        self.file.try_clone().map_err(io(&self.path))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(seq: u64) -> Record {
+        let input = OdomPose {
+            session: 7,
+            seq,
+            stamp_ns: -3,
+            sent_mono_ns: 99,
+            pose: [seq as f64; 12],
+            flags: 0,
+            reserved: 0,
+        };
+        let answer = CorrectedPose {
+            daemon_epoch: 5,
+            expected_seq: seq + 1,
+            session: 7,
+            seq,
+            stamp_ns: -3,
+            sent_mono_ns: 99,
+            received_mono_ns: 100,
+            published_mono_ns: 101,
+            pose: [0.5; 12],
+            map_from_odom: [1.0, 2.0, 0.1],
+            residual_m: f64::NAN,
+            match_ratio: f64::INFINITY,
+            window_len: 3,
+            status: 1,
+            reason: 0,
+            reserved: 0,
+        };
+        Record { input, answer }
+    }
+
+    #[test]
+    fn records_round_trip_and_damage_is_caught() {
+        let r = record(42);
+        let bytes = r.encode();
+        let back = Record::decode(&bytes).unwrap();
+        assert_eq!(back.input, r.input);
+        assert_eq!(back.answer.residual_m.to_bits(), f64::NAN.to_bits());
+        assert_eq!(back.answer.pose, r.answer.pose);
+        for at in [0, 100, RECORD_LEN - 1] {
+            let mut bad = bytes;
+            bad[at] ^= 1;
+            assert!(Record::decode(&bad).is_none(), "flip at {at}");
+        }
+        assert!(Record::decode(&bytes[..RECORD_LEN - 1]).is_none());
+    }
+
+    #[test]
+    fn snapshots_round_trip_exactly_and_refuse_damage() {
+        let snap = Snapshot {
+            last_seq: 1234,
+            next_segment: 3,
+            state: SourceState {
+                corrector: CorrectorState {
+                    map_from_anchored: Se2::new(0.3, 1.0, -2.0),
+                    window: (0..500)
+                        .map(|i| [i as f64 * 1.1, 0.1 / (i + 1) as f64])
+                        .collect(),
+                    window_path_m: 549.9000000000001,
+                    failures: 3,
+                    travelled_m: 12.5,
+                    last_position_in_anchored: Some([5.0, 6.0]),
+                },
+                smoothed: None,
+            },
+        };
+        let bytes = snap.encode();
+        assert_eq!(Snapshot::decode(&bytes), Some(snap));
+        for cut in [0, 8, 100, bytes.len() - 1] {
+            assert!(Snapshot::decode(&bytes[..cut]).is_none(), "cut at {cut}");
+        }
+        let mut bad = bytes.clone();
+        bad[50] ^= 4;
+        assert!(Snapshot::decode(&bad).is_none());
+    }
+
+    #[test]
+    fn a_torn_last_record_is_cut_and_appending_continues() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut w = SegmentWriter::create(dir.path(), 0).unwrap();
+        for seq in 1..=5 {
+            w.append(&record(seq)).unwrap();
+        }
+        drop(w);
+        // A crash mid-write: half a record at the end.
+        let path = segment_path(dir.path(), 0);
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes.extend_from_slice(&record(6).encode()[..100]);
+        std::fs::write(&path, bytes).unwrap();
+        let read = read_segment(&path).unwrap();
+        assert_eq!(read.len(), 5);
+        let mut w = SegmentWriter::reopen(dir.path(), 0, 5).unwrap();
+        w.append(&record(6)).unwrap();
+        let seqs: Vec<u64> = read_segment(&path)
+            .unwrap()
+            .iter()
+            .map(|r| r.input.seq)
+            .collect();
+        assert_eq!(seqs, vec![1, 2, 3, 4, 5, 6]);
+        assert_eq!(segments(dir.path()).unwrap(), vec![0]);
+    }
+
+    #[test]
+    fn headers_round_trip() {
+        let h = Header {
+            session: 0xdead,
+            created_unix_ns: 17,
+            fingerprint: fingerprint(&["a", "b"]),
+        };
+        let bytes = h.encode();
+        assert_eq!(Header::decode(&bytes), Some(h));
+        assert_ne!(fingerprint(&["ab", ""]), fingerprint(&["a", "b"]));
+        assert!(Header::decode(&bytes[..39]).is_none());
+    }
+}

@@ -1,0 +1,457 @@
+//! One client session of a source: its corrector, the protocol of sequence numbers, the answers
+//! it can send again, and its journal.
+//!
+//! The protocol (docs/wire.md, "Sessions"): poses are numbered 1, 2, 3, ... within a session.
+//! The next expected number is used; a used number with the same pose gets its answer again
+//! (a client re-sending what a killed daemon did not answer); a used number with another pose is
+//! flagged; a number beyond the next is answered with a gap status naming the one expected.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::Sender;
+use std::sync::Arc;
+
+use lanealign_core::corrector::{MatchMode, Status, StepTiming};
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::Params;
+use lanealign_core::pose::Pose3;
+use lanealign_core::source_corrector::{Placement, SourceCorrector};
+use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, MAX_IN_FLIGHT};
+
+use crate::journal::{
+    read_segment, segments, Header, JournalError, Record, SegmentWriter, Snapshot, SEGMENT_RECORDS,
+};
+use crate::metrics::Outcome;
+use crate::worker::wire_status;
+
+/// Work for the persistence thread: nothing a worker waits for.
+pub enum PersistJob {
+    /// Keep this segment file synced to disk every second.
+    Track {
+        /// The session's folder.
+        dir: PathBuf,
+        /// A handle on the open segment.
+        file: std::fs::File,
+    },
+    /// Write a snapshot durably, then delete the segments before `keep_from`.
+    Snapshot {
+        /// The session's folder.
+        dir: PathBuf,
+        /// The snapshot's bytes.
+        bytes: Vec<u8>,
+        /// The first segment to keep.
+        keep_from: u64,
+    },
+    /// The session ended: remove its folder.
+    Remove {
+        /// The session's folder.
+        dir: PathBuf,
+    },
+}
+
+/// What a source's sessions share: how to build a corrector, and where journals go.
+#[derive(Clone)]
+pub struct SessionSetup {
+    /// The lane map new sessions use.
+    pub map: Arc<LaneMap>,
+    /// Corrector parameters.
+    pub params: Params,
+    /// Matching mode.
+    pub mode: MatchMode,
+    /// The source's placement.
+    pub placement: Placement,
+    /// The source's journal folder, when sessions are persisted.
+    pub journal_dir: Option<PathBuf>,
+    /// Identifies the configuration and tile the journals are written under.
+    pub fingerprint: u64,
+    /// The persistence thread.
+    pub persistence: Option<Sender<PersistJob>>,
+    /// The daemon's run (in every answer).
+    pub daemon_epoch: u64,
+}
+
+/// A session's journal while it is written.
+struct Journal {
+    dir: PathBuf,
+    segment: SegmentWriter,
+}
+
+/// The answer to one input, and what it means for the metrics.
+pub struct Handled {
+    /// What to publish.
+    pub answer: CorrectedPose,
+    /// What happened.
+    pub outcome: Outcome,
+    /// The corrector's time.
+    pub timing: StepTiming,
+}
+
+/// One session of a source.
+pub struct Session {
+    /// The session id.
+    pub id: u64,
+    /// When its journal began (ns since the Unix epoch; 0 without a journal).
+    pub created_unix_ns: u64,
+    corrector: SourceCorrector,
+    /// The next sequence number the session expects.
+    expected_seq: u64,
+    /// The last answers (at most [`MAX_IN_FLIGHT`]), oldest first, to send again on request.
+    recent: VecDeque<Record>,
+    journal: Option<Journal>,
+}
+
+/// A journal that failed: the session goes on without persistence, and the daemon says so.
+pub struct JournalFailure(pub JournalError);
+
+fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> CorrectedPose {
+    CorrectedPose {
+        daemon_epoch: epoch,
+        expected_seq: 0,
+        session: input.session,
+        seq: input.seq,
+        stamp_ns: input.stamp_ns,
+        sent_mono_ns: input.sent_mono_ns,
+        received_mono_ns,
+        published_mono_ns: 0,
+        pose: input.pose,
+        map_from_odom: [f64::NAN; 3],
+        residual_m: f64::NAN,
+        match_ratio: f64::NAN,
+        window_len: 0,
+        status: StatusCode::PassThrough as u32,
+        reason: ReasonCode::None as u32,
+        reserved: 0,
+    }
+}
+
+/// The answer to `input` for a pass-through source (no session state).
+pub fn pass_through(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> CorrectedPose {
+    let mut a = blank_answer(input, received_mono_ns, epoch);
+    a.expected_seq = input.seq + 1;
+    a
+}
+
+impl Session {
+    /// A new session whose first pose is `first_seq`, with a new journal (in a folder of its
+    /// own) when the source journals.
+    pub fn start(
+        id: u64,
+        first_seq: u64,
+        setup: &SessionSetup,
+    ) -> (Session, Option<JournalFailure>) {
+        let corrector =
+            SourceCorrector::new(setup.map.clone(), setup.params, setup.mode, setup.placement);
+        let mut session = Session {
+            id,
+            created_unix_ns: 0,
+            corrector,
+            expected_seq: first_seq,
+            recent: VecDeque::new(),
+            journal: None,
+        };
+        let mut failure = None;
+        if let Some(root) = &setup.journal_dir {
+            let nonce = crate::new_nonce();
+            let dir = root.join(format!("{id:016x}-{nonce:016x}"));
+            let header = Header {
+                session: id,
+                created_unix_ns: unix_ns(),
+                fingerprint: setup.fingerprint,
+            };
+            match create_journal(&dir, &header, setup) {
+                Ok(journal) => {
+                    session.created_unix_ns = header.created_unix_ns;
+                    session.journal = Some(journal);
+                }
+                Err(e) => failure = Some(JournalFailure(e)),
+            }
+        }
+        (session, failure)
+    }
+
+    /// The next sequence number the session expects.
+    pub fn expected_seq(&self) -> u64 {
+        self.expected_seq
+    }
+
+    /// Answers one input of this session. A used pose is journaled before its answer is
+    /// returned (so before anyone can see it); a journal write that fails is reported and the
+    /// session goes on unjournaled.
+    pub fn handle(
+        &mut self,
+        input: &OdomPose,
+        received_mono_ns: u64,
+        setup: &SessionSetup,
+    ) -> (Handled, Option<JournalFailure>) {
+        let epoch = setup.daemon_epoch;
+        let mut answer = blank_answer(input, received_mono_ns, epoch);
+        let flagged = |mut answer: CorrectedPose, code: StatusCode, expected: u64| {
+            answer.status = code as u32;
+            answer.expected_seq = expected;
+            Handled {
+                answer,
+                outcome: if code == StatusCode::Gap {
+                    Outcome::Gap
+                } else {
+                    Outcome::Flagged
+                },
+                timing: StepTiming::default(),
+            }
+        };
+        if input.seq > self.expected_seq {
+            return (flagged(answer, StatusCode::Gap, self.expected_seq), None);
+        }
+        if input.seq < self.expected_seq {
+            let earlier = self.recent.iter().find(|r| r.input.seq == input.seq);
+            return match earlier {
+                Some(r) if r.input.pose == input.pose => {
+                    let mut again = r.answer;
+                    again.daemon_epoch = epoch;
+                    again.received_mono_ns = received_mono_ns;
+                    again.sent_mono_ns = input.sent_mono_ns;
+                    again.expected_seq = self.expected_seq;
+                    let h = Handled {
+                        answer: again,
+                        outcome: Outcome::Resent,
+                        timing: StepTiming::default(),
+                    };
+                    (h, None)
+                }
+                _ => {
+                    let code = if input.seq + 1 == self.expected_seq {
+                        StatusCode::DuplicateSeq
+                    } else {
+                        StatusCode::OutOfOrderSeq
+                    };
+                    (flagged(answer, code, self.expected_seq), None)
+                }
+            };
+        }
+        let (record, timing) = self.corrector.correct(&Pose3::from_row_major(&input.pose));
+        let [x, y] = record.map_from_odom.translation();
+        if record.status != Status::InvalidInput {
+            answer.map_from_odom = [x, y, record.map_from_odom.yaw()];
+        }
+        answer.pose = record.pose.to_row_major();
+        let (status, reason) = wire_status(&record.status);
+        answer.status = status as u32;
+        answer.reason = reason as u32;
+        answer.residual_m = record.status.residual_m().unwrap_or(f64::NAN);
+        answer.match_ratio = record.status.match_ratio().unwrap_or(f64::NAN);
+        answer.window_len = record.status.window_len() as u32;
+        self.expected_seq = input.seq + 1;
+        answer.expected_seq = self.expected_seq;
+        let entry = Record {
+            input: *input,
+            answer,
+        };
+        if self.recent.len() as u64 >= MAX_IN_FLIGHT {
+            self.recent.pop_front();
+        }
+        self.recent.push_back(entry);
+        let failure = self.journal_append(&entry, setup).err();
+        let outcome = match record.status {
+            Status::InvalidInput => Outcome::Flagged,
+            status => Outcome::Corrected(status),
+        };
+        (
+            Handled {
+                answer,
+                outcome,
+                timing,
+            },
+            failure,
+        )
+    }
+
+    fn journal_append(
+        &mut self,
+        record: &Record,
+        setup: &SessionSetup,
+    ) -> Result<(), JournalFailure> {
+        let Some(journal) = &mut self.journal else {
+            return Ok(());
+        };
+        let result = append_and_roll(journal, record, &self.corrector, setup);
+        if result.is_err() {
+            self.journal = None;
+        }
+        result.map_err(JournalFailure)
+    }
+
+    /// The session's journal folder, when it has one.
+    pub fn journal_dir(&self) -> Option<&Path> {
+        self.journal.as_ref().map(|j| j.dir.as_path())
+    }
+}
+
+/// Nanoseconds since the Unix epoch (0 if the clock is before it).
+fn unix_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+fn create_journal(
+    dir: &Path,
+    header: &Header,
+    setup: &SessionSetup,
+) -> Result<Journal, JournalError> {
+    std::fs::create_dir_all(dir).map_err(|source| JournalError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    crate::journal::write_durably(&dir.join("session"), &header.encode())?;
+    let segment = SegmentWriter::create(dir, 0)?;
+    track(setup, dir, &segment)?;
+    Ok(Journal {
+        dir: dir.to_path_buf(),
+        segment,
+    })
+}
+
+fn track(setup: &SessionSetup, dir: &Path, segment: &SegmentWriter) -> Result<(), JournalError> {
+    if let Some(p) = &setup.persistence {
+        // A persistence thread that is gone only means no periodic fsync.
+        let _ = p.send(PersistJob::Track {
+            dir: dir.to_path_buf(),
+            file: segment.sync_handle()?,
+        });
+    }
+    Ok(())
+}
+
+/// Appends a record; when the segment is full, hands a snapshot of the state after it to the
+/// persistence thread and starts the next segment.
+fn append_and_roll(
+    journal: &mut Journal,
+    record: &Record,
+    corrector: &SourceCorrector,
+    setup: &SessionSetup,
+) -> Result<(), JournalError> {
+    journal.segment.append(record)?;
+    if journal.segment.is_full() {
+        let next = journal.segment.number + 1;
+        let snapshot = Snapshot {
+            last_seq: record.input.seq,
+            next_segment: next,
+            state: corrector.state(),
+        };
+        journal.segment = SegmentWriter::create(&journal.dir, next)?;
+        track(setup, &journal.dir, &journal.segment)?;
+        if let Some(p) = &setup.persistence {
+            // The last full segment stays for answers to send again.
+            let _ = p.send(PersistJob::Snapshot {
+                dir: journal.dir.clone(),
+                bytes: snapshot.encode(),
+                keep_from: next - 1,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Why a journal was not restored.
+#[derive(Debug, thiserror::Error)]
+pub enum RestoreError {
+    /// Reading it failed.
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    /// It belongs to another session id, configuration or tile.
+    #[error("written under another configuration or tile")]
+    Stale,
+    /// Its content is inconsistent (a missing record, an answer that does not replay).
+    #[error("{0}")]
+    Inconsistent(String),
+}
+
+/// Restores the session journaled in `dir`: its snapshot, then every later record replayed
+/// through the corrector, each answer computed again and checked against the one logged.
+pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError> {
+    let io = |source| JournalError::Io {
+        path: dir.join("session"),
+        source,
+    };
+    let header = std::fs::read(dir.join("session")).map_err(io)?;
+    let header = Header::decode(&header)
+        .ok_or(RestoreError::Inconsistent("unreadable session file".into()))?;
+    if header.fingerprint != setup.fingerprint {
+        return Err(RestoreError::Stale);
+    }
+    let snapshot = match std::fs::read(dir.join("snapshot")) {
+        Ok(bytes) => Some(
+            Snapshot::decode(&bytes)
+                .ok_or(RestoreError::Inconsistent("unreadable snapshot".into()))?,
+        ),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => {
+            return Err(JournalError::Io {
+                path: dir.join("snapshot"),
+                source: e,
+            }
+            .into())
+        }
+    };
+    let mut corrector = match &snapshot {
+        Some(s) => SourceCorrector::restore(
+            setup.map.clone(),
+            setup.params,
+            setup.mode,
+            setup.placement,
+            s.state.clone(),
+        ),
+        None => SourceCorrector::new(setup.map.clone(), setup.params, setup.mode, setup.placement),
+    };
+    let (mut last_seq, first_segment) = snapshot
+        .as_ref()
+        .map_or((None, 0), |s| (Some(s.last_seq), s.next_segment));
+    let mut recent: VecDeque<Record> = VecDeque::new();
+    let numbers = segments(dir)?;
+    let mut open: Option<(u64, u64)> = None;
+    for &n in &numbers {
+        let records = read_segment(&crate::journal::segment_path(dir, n))?;
+        for r in &records {
+            if n >= first_segment {
+                if let Some(last) = last_seq {
+                    if r.input.seq != last + 1 {
+                        return Err(RestoreError::Inconsistent(format!(
+                            "segment {n}: seq {} after {last}",
+                            r.input.seq
+                        )));
+                    }
+                }
+                let (again, _) = corrector.correct(&Pose3::from_row_major(&r.input.pose));
+                let (status, _) = wire_status(&again.status);
+                if again.pose.to_row_major() != r.answer.pose || status as u32 != r.answer.status {
+                    return Err(RestoreError::Inconsistent(format!(
+                        "segment {n}: the answer to seq {} does not replay",
+                        r.input.seq
+                    )));
+                }
+                last_seq = Some(r.input.seq);
+            }
+            if recent.len() as u64 >= MAX_IN_FLIGHT {
+                recent.pop_front();
+            }
+            recent.push_back(*r);
+        }
+        open = Some((n, records.len() as u64));
+    }
+    let segment = match open {
+        Some((n, records)) if records < SEGMENT_RECORDS => SegmentWriter::reopen(dir, n, records)?,
+        Some((n, _)) => SegmentWriter::create(dir, n + 1)?,
+        None => SegmentWriter::create(dir, first_segment)?,
+    };
+    track(setup, dir, &segment)?;
+    Ok(Session {
+        id: header.session,
+        created_unix_ns: header.created_unix_ns,
+        corrector,
+        expected_seq: last_seq.map_or(1, |s| s + 1),
+        recent,
+        journal: Some(Journal {
+            dir: dir.to_path_buf(),
+            segment,
+        }),
+    })
+}
