@@ -295,6 +295,126 @@ fn sighup_reloads_the_tile_for_new_sessions() {
     assert!(daemon.stop().unwrap());
 }
 
+/// The access model: a deployment's daemon and clients run as one user. A client of another
+/// user is told whose namespace it is and what to do, and can run a deployment of its own in
+/// another namespace. Needs root (to be another user with runuser): visibly skipped otherwise.
+#[test]
+fn a_client_of_another_user_is_told_whose_namespace_it_is() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    if !rustix::process::geteuid().is_root()
+        || Command::new("runuser").arg("--help").output().is_err()
+    {
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIPPED a_client_of_another_user...: needs root and runuser"
+        );
+        return;
+    }
+    let name = unique("access");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    // A trajectory the other user can read.
+    let shared = tempfile::Builder::new()
+        .prefix("lanealign-access")
+        .tempdir_in("/tmp")
+        .unwrap();
+    std::fs::set_permissions(
+        shared.path(),
+        std::os::unix::fs::PermissionsExt::from_mode(0o755),
+    )
+    .unwrap();
+    let input = shared.path().join("in.txt");
+    let (_, odometry) = synthetic::drive(1, 1);
+    lanealign_core::trajectory::write(
+        &input,
+        &lanealign_core::trajectory::Trajectory {
+            stamps: None,
+            poses: odometry[..10].to_vec(),
+        },
+        Format::Kitti,
+    )
+    .unwrap();
+    std::fs::set_permissions(&input, std::os::unix::fs::PermissionsExt::from_mode(0o644)).unwrap();
+    let as_nobody = |namespace: &str| {
+        let out = Command::new("runuser")
+            .args([
+                "-u",
+                "nobody",
+                "--",
+                env!("CARGO_BIN_EXE_lanealign"),
+                "replay",
+                "--source",
+                &name,
+                "--namespace",
+                namespace,
+                "--wait-for-daemon",
+                "0.5",
+            ])
+            .arg(&input)
+            .arg("-o")
+            .arg(shared.path().join("out.txt"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let err = as_nobody(&setup.namespace);
+    assert!(
+        err.contains("belong to 'root' (uid 0)") && err.contains("another namespace"),
+        "{err}"
+    );
+    // In a namespace of its own the other user connects (there is just no daemon there).
+    let own = unique("nobody");
+    let err = as_nobody(&own);
+    assert!(err.contains("no daemon is serving"), "{err}");
+    remove_namespace_files(&own);
+    assert!(daemon.stop().unwrap());
+}
+
+/// Always runs: under systemd (`Type=notify`) the daemon says when it is ready, feeds the
+/// watchdog while its workers run, and says when it stops: checked on a socket standing in for
+/// systemd's.
+#[test]
+fn systemd_hears_ready_watchdog_and_stopping() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let setup = town_setup(&[&unique("notify")]);
+    let socket_path = setup.dir.path().join("notify.sock");
+    let socket = std::os::unix::net::UnixDatagram::bind(&socket_path).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let mut daemon = Command::new(daemon_binary().unwrap())
+        .arg("--config")
+        .arg(&setup.config)
+        .env("NOTIFY_SOCKET", &socket_path)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut heard = Vec::new();
+    let mut buf = [0u8; 512];
+    while !heard.iter().any(|m: &String| m.contains("WATCHDOG=1")) {
+        let n = socket.recv(&mut buf).expect("a notification within 10 s");
+        heard.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+    }
+    assert!(
+        heard[0].contains("READY=1") && heard[0].contains("STATUS=serving 1 sources"),
+        "{heard:?}"
+    );
+    rustix::process::kill_process(
+        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
+        rustix::process::Signal::TERM,
+    )
+    .unwrap();
+    loop {
+        let n = socket.recv(&mut buf).expect("STOPPING=1 within 10 s");
+        if String::from_utf8_lossy(&buf[..n]).contains("STOPPING=1") {
+            break;
+        }
+    }
+    assert!(daemon.wait().unwrap().success());
+}
+
 /// Always runs: a daemon and its clients leave nothing in shared memory behind them.
 #[test]
 fn nothing_is_left_in_shared_memory() {

@@ -72,6 +72,11 @@ impl SourceCorrector {
         }
     }
 
+    /// Poses in the corrector's window.
+    pub fn window_len(&self) -> usize {
+        self.corrector.window().len()
+    }
+
     /// The state to continue from later.
     pub fn state(&self) -> SourceState {
         SourceState {

@@ -279,6 +279,16 @@ impl Session {
         result.map_err(JournalFailure)
     }
 
+    /// Poses in the corrector's window.
+    pub fn window_len(&self) -> usize {
+        self.corrector.window_len()
+    }
+
+    /// The corrector's state (what a snapshot holds).
+    pub fn state(&self) -> lanealign_core::source_corrector::SourceState {
+        self.corrector.state()
+    }
+
     /// The session's journal folder, when it has one.
     pub fn journal_dir(&self) -> Option<&Path> {
         self.journal.as_ref().map(|j| j.dir.as_path())

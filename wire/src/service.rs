@@ -18,7 +18,7 @@ use iceoryx2::port::notifier::{Notifier, NotifierCreateError};
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
 use iceoryx2::prelude::{
-    ipc, CallbackProgression, FileName, NodeName, SemanticString, ServiceName,
+    ipc, CallbackProgression, FileName, NodeName, Path as IoxPath, SemanticString, ServiceName,
 };
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
@@ -27,14 +27,17 @@ use iceoryx2::service::service_name::ServiceNameError;
 
 use crate::payload::{CorrectedPose, OdomPose};
 
-/// Samples a subscriber holds per publisher (far more than [`crate::payload::MAX_IN_FLIGHT`]);
-/// a sample that does not fit is not delivered rather than overwriting an older one.
-pub const BUFFER_SIZE: usize = 4096;
-/// Subscribers of one service at most.
-pub const MAX_SUBSCRIBERS: usize = 16;
-/// Publishers of one service at most (clients of one source, and restarted processes that
-/// briefly overlap their old ports).
-pub const MAX_PUBLISHERS: usize = 16;
+/// Samples a subscriber holds per publisher (twice [`crate::payload::MAX_IN_FLIGHT`]); a sample
+/// that does not fit is not delivered rather than overwriting an older one.
+pub const BUFFER_SIZE: usize = 1024;
+/// Publishers of a source's pose service at most: its clients.
+pub const MAX_POSE_PUBLISHERS: usize = 16;
+/// Subscribers of a source's pose service at most: the daemon's worker (and a restarted
+/// daemon's, while the dead one's port is not yet cleaned up).
+pub const MAX_POSE_SUBSCRIBERS: usize = 4;
+/// Publishers and subscribers of a session's answer service at most: the daemon and the
+/// session's client (and a restarted daemon's port, and a monitor).
+pub const MAX_SESSION_PORTS: usize = 4;
 /// Nodes per service at most.
 pub const MAX_NODES: usize = 64;
 /// Notifiers and listeners of one event service at most.
@@ -124,7 +127,9 @@ impl SourceName {
 }
 
 /// A deployment's namespace: 1 to 32 ASCII letters, digits, `-` and `_`; `default` unless
-/// configured. Its iceoryx2 file prefix is `lanealign_<namespace>_`.
+/// configured. Its iceoryx2 files live in a folder of its own, `/tmp/lanealign-<namespace>/`,
+/// with the file prefix `lanealign_<namespace>_` in `/dev/shm`: deployments of different users
+/// or purposes never share or see each other's files.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct Namespace(String);
 
@@ -173,12 +178,21 @@ impl Namespace {
         format!("lanealign_{}_", self.0)
     }
 
-    /// iceoryx2's configuration for this namespace: its defaults with this namespace's prefix.
+    /// The namespace's iceoryx2 root folder (node and service records).
+    pub fn root_path(&self) -> String {
+        format!("/tmp/lanealign-{}/", self.0)
+    }
+
+    /// iceoryx2's configuration for this namespace: its defaults with this namespace's root
+    /// folder and file prefix.
     pub fn config(&self) -> iceoryx2::config::Config {
         let mut config = iceoryx2::config::Config::default();
-        // Checked names are short and plain, so the prefix is always a valid file name.
+        // Checked names are short and plain, so both are always valid.
         if let Ok(prefix) = FileName::new(self.prefix().as_bytes()) {
             config.global.prefix = prefix;
+        }
+        if let Ok(root) = IoxPath::new(self.root_path().as_bytes()) {
+            config.global.set_root_path(&root);
         }
         config
     }
@@ -278,13 +292,14 @@ fn service_name(service: &str) -> Result<ServiceName, ServiceOpenError> {
 fn pubsub<T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
     node: &Node<ipc::Service>,
     service: &str,
+    (publishers, subscribers): (usize, usize),
 ) -> Result<PubSubService<T>, ServiceOpenError> {
     node.service_builder(&service_name(service)?)
         .publish_subscribe::<T>()
         .enable_safe_overflow(false)
         .subscriber_max_buffer_size(BUFFER_SIZE)
-        .max_subscribers(MAX_SUBSCRIBERS)
-        .max_publishers(MAX_PUBLISHERS)
+        .max_subscribers(subscribers)
+        .max_publishers(publishers)
         .max_nodes(MAX_NODES)
         .open_or_create()
         .map_err(|source| ServiceOpenError::PublishSubscribe {
@@ -410,7 +425,7 @@ fn ownership_hint(config: &iceoryx2::config::Config, prefix: &str) -> String {
         })
         .collect();
     format!(
-        ": its shared-memory files (prefix {prefix} in /dev/shm and {root}) belong to {}, and this process runs as uid {me}; run as that user, or give the daemon and its clients their own namespace (docs/operations.md, \"Access\")",
+        ": the namespace's files ({root} and {prefix}* in /dev/shm) belong to {}, and this process runs as uid {me}: run it as that user (a deployment's daemon and clients share one user), or run a deployment of your own in another namespace (docs/operations.md, \"Access\")",
         names.join(", ")
     )
 }
@@ -437,7 +452,7 @@ impl PoseServices {
         let odom = source.odom_service();
         Ok(PoseServices {
             source: source.clone(),
-            odom: pubsub(node, &odom)?,
+            odom: pubsub(node, &odom, (MAX_POSE_PUBLISHERS, MAX_POSE_SUBSCRIBERS))?,
             odom_events: events(node, &odom)?,
         })
     }
@@ -514,7 +529,7 @@ impl SessionServices {
     ) -> Result<Self, ServiceOpenError> {
         let service = source.session_service(session);
         Ok(SessionServices {
-            answers: pubsub(node, &service)?,
+            answers: pubsub(node, &service, (MAX_SESSION_PORTS, MAX_SESSION_PORTS))?,
             answer_events: events(node, &service)?,
             service,
         })

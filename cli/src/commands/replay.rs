@@ -25,6 +25,9 @@ pub struct ReplayArgs {
     /// Poses per second, or max (flow-controlled, 64 in flight).
     #[arg(long, default_value = "max")]
     rate: Rate,
+    /// Seconds to wait for a daemon to serve the source at the start.
+    #[arg(long, default_value_t = 10.0)]
+    wait_for_daemon: f64,
     /// File format: kitti or tum.
     #[arg(long, default_value = "kitti")]
     format: Format,
@@ -54,7 +57,8 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         &input.poses,
         &stamps,
         args.rate,
-        Duration::from_secs(10),
+        Duration::try_from_secs_f64(args.wait_for_daemon)
+            .map_err(|_| anyhow::anyhow!("--wait-for-daemon must be a number of seconds"))?,
         Duration::from_secs(10),
     ) {
         Ok(r) => r,

@@ -43,6 +43,28 @@ pub fn unique(name: &str) -> String {
     )
 }
 
+/// Removes a namespace's iceoryx2 folder and shared-memory files (iceoryx2 keeps a
+/// namespace's management state by design; a test's namespace goes with the test).
+pub fn remove_namespace_files(namespace: &str) {
+    let _ = std::fs::remove_dir_all(format!("/tmp/lanealign-{namespace}"));
+    let prefix = format!("lanealign_{namespace}_");
+    for entry in std::fs::read_dir("/dev/shm")
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        if entry.file_name().to_string_lossy().starts_with(&prefix) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
+impl Drop for Setup {
+    fn drop(&mut self) {
+        remove_namespace_files(&self.namespace);
+    }
+}
+
 /// Sources whose name starts with `smooth` are configured with smooth output, `pass` as
 /// pass-through.
 fn corrector(name: &str) -> CorrectorConfig {
