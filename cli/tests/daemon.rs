@@ -415,6 +415,21 @@ fn systemd_hears_ready_watchdog_and_stopping() {
     assert!(daemon.wait().unwrap().success());
 }
 
+/// Always runs: a client publishing far faster than the daemon corrects (a million poses a
+/// second asked for) is held back by the connection, not dropped: every pose answered once,
+/// equal to offline correction.
+#[test]
+fn overload_is_held_back_not_lost() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("flood");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(2, 5);
+    let got = run_replay(&setup, &name, &odometry, Rate::Hz(1e6));
+    assert!(got == offline(&setup, &name, &odometry));
+    assert!(daemon.stop().unwrap());
+}
+
 /// Always runs: a daemon and its clients leave nothing in shared memory behind them.
 #[test]
 fn nothing_is_left_in_shared_memory() {
