@@ -51,7 +51,10 @@ fn script(block: &[String], bin: &Path) -> String {
                     line.contains(&format!("--path {package}")),
                     "the install line must install {package} ({binary}): {line}"
                 );
-                assert!(bin.join(binary).is_file(), "{binary} was built");
+                assert!(
+                    bin.join(binary).is_file(),
+                    "{binary} was built (cargo test builds a binary for its package's integration tests)"
+                );
             }
         } else if line.starts_with("cargo test") {
             assert_eq!(

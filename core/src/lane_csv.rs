@@ -4,19 +4,16 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::input::{quote, InputError, Lines};
 use crate::lane_map::Lane;
+use crate::pose::MAX_COORDINATE_M;
 
 /// A lane CSV that could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum LaneCsvError {
-    /// The file could not be read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
+    /// The file could not be read (not a regular file, a line too long, not text).
+    #[error(transparent)]
+    Input(#[from] InputError),
     /// A row is malformed.
     #[error("{path}:{line}: {reason}")]
     Parse {
@@ -29,19 +26,23 @@ pub enum LaneCsvError {
     },
 }
 
-/// Parses lane CSV text; `path` only names the source in errors. A header line starting with
-/// a non-numeric field is skipped.
-pub fn parse(text: &str, path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
+/// Parses numbered lines of lane CSV; `path` names the source in errors.
+fn parse_lines<I>(lines: I, path: &Path) -> Result<Vec<Lane>, LaneCsvError>
+where
+    I: Iterator<Item = Result<(usize, String), InputError>>,
+{
     let mut lanes: Vec<Lane> = Vec::new();
     let mut seen = std::collections::HashSet::new();
-    for (k, raw) in text.lines().enumerate() {
+    for item in lines {
+        let (line_no, raw) = item?;
         let line = raw.trim();
-        if line.is_empty() || (k == 0 && line.starts_with(|c: char| c.is_ascii_alphabetic())) {
+        if line.is_empty() || (line_no == 1 && line.starts_with(|c: char| c.is_ascii_alphabetic()))
+        {
             continue;
         }
         let error = |reason: String| LaneCsvError::Parse {
             path: path.to_path_buf(),
-            line: k + 1,
+            line: line_no,
             reason,
         };
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
@@ -53,11 +54,14 @@ pub fn parse(text: &str, path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
         };
         let id: u64 = id
             .parse()
-            .map_err(|_| error(format!("lane id '{id}' is not an integer")))?;
+            .map_err(|_| error(format!("lane id '{}' is not an integer", quote(id))))?;
         let coord = |s: &str| -> Result<f64, LaneCsvError> {
             match s.parse::<f64>() {
-                Ok(v) if v.is_finite() => Ok(v),
-                _ => Err(error(format!("'{s}' is not a finite number"))),
+                Ok(v) if v.is_finite() && v.abs() <= MAX_COORDINATE_M => Ok(v),
+                _ => Err(error(format!(
+                    "'{}' is not a finite number within 1e7 m",
+                    quote(s)
+                ))),
             }
         };
         let p = [coord(x)?, coord(y)?];
@@ -76,13 +80,15 @@ pub fn parse(text: &str, path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
     Ok(lanes)
 }
 
-/// Reads a lane CSV file.
+/// Parses lane CSV text (any bytes; lines bounded, UTF-8 checked); `path` only names the source in errors. A header line starting with
+/// a non-numeric field is skipped.
+pub fn parse(text: impl AsRef<[u8]>, path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
+    parse_lines(Lines::new(text.as_ref(), path), path)
+}
+
+/// Reads a lane CSV file (a regular file; streamed, a bounded line at a time).
 pub fn read(path: &Path) -> Result<Vec<Lane>, LaneCsvError> {
-    let text = std::fs::read_to_string(path).map_err(|source| LaneCsvError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    parse(&text, path)
+    parse_lines(Lines::open(path)?, path)
 }
 
 #[cfg(test)]

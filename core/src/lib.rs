@@ -7,7 +7,8 @@
 //! with its configuration ([`params`]), smooth output ([`smoothing`]), a source's corrector with
 //! its placement ([`source_corrector`]), accuracy metrics ([`metrics`]) and the file formats
 //! every tool shares: lane tiles ([`tile`]), trajectories ([`trajectory`]) and lane CSV
-//! ([`lane_csv`]). The algorithm as implemented is described in `docs/algorithm.md`.
+//! ([`lane_csv`]), with bounded readers and atomic outputs ([`input`]); [`plausibility`] warns
+//! about runs that are probably set up wrongly. The algorithm as implemented is described in `docs/algorithm.md`.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -30,6 +31,7 @@
 pub mod corrector;
 pub mod geo;
 pub mod icp;
+pub mod input;
 pub mod lane_csv;
 pub mod lane_geometry;
 pub mod lane_map;
@@ -38,6 +40,7 @@ pub mod matching;
 pub mod metrics;
 pub mod names;
 pub mod params;
+pub mod plausibility;
 pub mod pose;
 pub mod report;
 pub mod se2;

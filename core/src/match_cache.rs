@@ -5,7 +5,7 @@
 //! at all. Each window pose therefore keeps:
 //!
 //! - its last query and answer, reused outright when neither position nor direction changed;
-//! - a [`Proof`] that its answer cannot change while it moves less than [`PROOF_MOVE`] and its
+//! - a proof (`Proof`) that its answer cannot change while it moves less than `PROOF_MOVE` (0.25 m) and its
 //!   direction turns by less than a margin: checked with one distance and, for a match, one
 //!   segment test that also recomputes the matched point;
 //! - a wide candidate set, complete within an exclusive radius around where it was built. After a

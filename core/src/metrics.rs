@@ -36,6 +36,12 @@ pub enum MetricsError {
     /// Nothing to compare.
     #[error("no pose pairs to compare")]
     Empty,
+    /// A pose is not finite, so no figure would be either.
+    #[error("pose pair {index} is not finite: no figure can be computed")]
+    NotFinite {
+        /// The pair's index.
+        index: usize,
+    },
 }
 
 /// APE-2D of paired planar poses (`gt[i]` with `est[i]`).
@@ -51,7 +57,10 @@ pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
     }
     let n = gt.len() as f64;
     let (mut sum, mut sq, mut lat_sq, mut heading, mut max) = (0.0, 0.0, 0.0, 0.0, 0.0f64);
-    for (g, e) in gt.iter().zip(est) {
+    for (index, (g, e)) in gt.iter().zip(est).enumerate() {
+        if !(g.is_finite() && e.is_finite()) {
+            return Err(MetricsError::NotFinite { index });
+        }
         let [ex, ey] = e.planar_position();
         let [gx, gy] = g.planar_position();
         let (dx, dy) = (ex - gx, ey - gy);

@@ -9,6 +9,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::se2::Se2;
 
+/// The largest coordinate a pose may have (metres): beyond it a pose is no odometry.
+pub const MAX_COORDINATE_M: f64 = 1e7;
+/// How far a rotation may be from orthonormal (largest entry of `|R^T R - I|`). Odometry files
+/// print 6 to 7 significant digits: the shared stereo visual odometry run reaches 1.6e-5, so the
+/// bound is 1e-4, well below what a scaled (1.01: 2e-2) or zero (1) matrix gives.
+pub const MAX_ROTATION_ERROR: f64 = 1e-4;
+
 /// A rigid 3D pose `world_from_body`: `point_in_world = rotation * point_in_body + translation`
 /// (metres). Files and the wire store it as the 12 numbers of the row-major 3x4 matrix
 /// `[R | t]`.
@@ -82,6 +89,27 @@ impl Pose3 {
         }
         let defect = self.rotation.transpose() * self.rotation - Matrix3::identity();
         defect.amax()
+    }
+
+    /// What makes this no pose, if anything: a non-finite number, a coordinate beyond
+    /// [`MAX_COORDINATE_M`], or a rotation that is not proper and orthonormal within
+    /// [`MAX_ROTATION_ERROR`].
+    pub fn problem(&self) -> Option<String> {
+        if !self.is_finite() {
+            return Some("a number is not finite".into());
+        }
+        if let Some(v) = self.translation.iter().find(|v| v.abs() > MAX_COORDINATE_M) {
+            return Some(format!("coordinate {v} m is beyond 1e7 m"));
+        }
+        let error = self.rotation_error();
+        if error > MAX_ROTATION_ERROR {
+            return Some(if error.is_finite() {
+                format!("the rotation is not orthonormal (|R^T R - I| reaches {error:.1e})")
+            } else {
+                "the rotation is a reflection or degenerate (det R <= 0)".to_string()
+            });
+        }
+        None
     }
 
     /// The planar position (x, y in metres) of a planar (`flu`) pose.

@@ -104,10 +104,11 @@ impl SourceCorrector {
     }
 
     /// Corrects the next pose (`world_from_body` in the source's convention); returns the
-    /// step's timing too. A pose with any non-finite number is answered as invalid input and
-    /// changes nothing.
+    /// step's timing too. A pose that is no pose ([`Pose3::problem`]: a non-finite number, an
+    /// absurd coordinate, a rotation that is not one) is answered as invalid input and changes
+    /// nothing.
     pub fn correct(&mut self, pose: &Pose3) -> (CorrectedPose, StepTiming) {
-        if !pose.is_finite() {
+        if pose.problem().is_some() {
             let record = CorrectedPose {
                 pose: *pose,
                 map_from_odom: self.corrector.map_from_anchored()
@@ -198,8 +199,14 @@ mod tests {
         };
         let mut c = SourceCorrector::new(map, Preset::KissIcp.params(), MatchMode::Fast, placement);
         c.correct(&Pose3::planar(0.0, 0.5, 0.0, 0.0));
-        // Height and roll are not part of the planar position, yet must be finite too.
-        for (row, col, value) in [(2, 3, f64::INFINITY), (2, 1, f64::NAN), (0, 3, f64::NAN)] {
+        // Height and roll are not part of the planar position, yet must be plausible too.
+        for (row, col, value) in [
+            (2, 3, f64::INFINITY),
+            (2, 1, f64::NAN),
+            (0, 3, f64::NAN),
+            (2, 3, 1e8),
+            (2, 2, 0.0),
+        ] {
             let mut v = Pose3::planar(1.0, 0.5, 0.0, 0.0).to_row_major();
             v[row * 4 + col] = value;
             let (record, _) = c.correct(&Pose3::from_row_major(&v));

@@ -38,6 +38,7 @@ use std::path::{Path, PathBuf};
 use xxhash_rust::xxh3::Xxh3;
 
 use crate::geo::{check_lat_lon, MapPlane, Projection};
+use crate::input::InputError;
 use crate::lane_geometry::{LaneGeometry, LaneInfo, RoadClass, RoadClasses, Traffic};
 use crate::lane_map::{LaneMap, LaneMapError, MAX_POINTS};
 
@@ -89,12 +90,10 @@ pub enum TileError {
         /// The I/O error.
         source: std::io::Error,
     },
-    /// Not a regular file (a FIFO, a device, a directory).
-    #[error("{path}: not a regular file")]
-    NotAFile {
-        /// The path.
-        path: PathBuf,
-    },
+    /// The file could not be opened for reading, or is not a regular file (a FIFO, a device,
+    /// a directory).
+    #[error(transparent)]
+    Input(#[from] InputError),
     /// Larger than [`MAX_TILE_BYTES`].
     #[error("{path}: {len} bytes, more than any tile this build loads ({MAX_TILE_BYTES})")]
     TooLarge {
@@ -323,15 +322,7 @@ pub fn write(
 
 /// Writes tile bytes atomically (temporary file beside `path`, then rename).
 pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), TileError> {
-    let io = |source| TileError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut tmp_name = path.as_os_str().to_owned();
-    tmp_name.push(".partial");
-    let tmp = PathBuf::from(tmp_name);
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    Ok(crate::input::write_atomic(path, bytes)?)
 }
 
 fn u32_at(b: &[u8], at: usize) -> u32 {
@@ -548,13 +539,8 @@ pub fn read_regular_file(path: &Path, limit: u64) -> Result<Vec<u8>, TileError> 
         path: path.to_path_buf(),
         source,
     };
-    let file = std::fs::File::open(path).map_err(io)?;
+    let file = crate::input::open_regular(path)?;
     let meta = file.metadata().map_err(io)?;
-    if !meta.is_file() {
-        return Err(TileError::NotAFile {
-            path: path.to_path_buf(),
-        });
-    }
     if meta.len() > limit {
         return Err(TileError::TooLarge {
             path: path.to_path_buf(),
@@ -710,10 +696,15 @@ mod tests {
     #[test]
     fn non_regular_files_are_refused_up_front() {
         let dir = tempfile::tempdir().unwrap();
-        let e = load(dir.path()).unwrap_err();
-        assert!(matches!(e, TileError::NotAFile { .. }), "{e}");
-        let e = load(Path::new("/dev/zero")).unwrap_err();
-        assert!(matches!(e, TileError::NotAFile { .. }), "{e}");
+        let fifo = dir.path().join("fifo");
+        let c_path = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        // SAFETY: a valid NUL-terminated path; mkfifo only creates a file system entry.
+        assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+        for path in [dir.path(), Path::new("/dev/zero"), &fifo] {
+            let e = load(path).unwrap_err();
+            let refused = matches!(e, TileError::Input(InputError::NotAFile { .. }));
+            assert!(refused, "{e}");
+        }
     }
 
     proptest! {

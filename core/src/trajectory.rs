@@ -7,6 +7,7 @@ use std::str::FromStr;
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::input::{quote, InputError, Lines};
 use crate::pose::Pose3;
 
 /// A trajectory file format.
@@ -47,10 +48,16 @@ pub struct Trajectory {
     pub poses: Vec<Pose3>,
 }
 
+/// How far a TUM quaternion's length may be from 1.
+pub const MAX_QUATERNION_ERROR: f64 = 1e-3;
+
 /// A trajectory file that could not be read or written.
 #[derive(Debug, thiserror::Error)]
 pub enum TrajectoryError {
-    /// The file could not be opened, read or written.
+    /// The file could not be read (not a regular file, a line too long, not text).
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// The file could not be written.
     #[error("{path}: {source}")]
     Io {
         /// The file.
@@ -99,76 +106,98 @@ fn numbers(line: &str) -> Result<Vec<f64>, String> {
         .map(|tok| {
             let v: f64 = tok
                 .parse()
-                .map_err(|_| format!("'{tok}' is not a number"))?;
+                .map_err(|_| format!("'{}' is not a number", quote(tok)))?;
             if v.is_finite() {
                 Ok(v)
             } else {
-                Err(format!("'{tok}' is not finite"))
+                Err(format!("'{}' is not finite", quote(tok)))
             }
         })
         .collect()
 }
 
-/// Parses trajectory text; `path` only names the source in errors.
-pub fn parse(text: &str, path: &Path, format: Format) -> Result<Trajectory, TrajectoryError> {
+/// One line: `None` for a blank line or a TUM comment, else the stamp (TUM) and the pose.
+fn parse_line(line: &str, format: Format) -> Result<Option<(Option<f64>, Pose3)>, String> {
+    let line = line.trim();
+    if line.is_empty() || (format == Format::Tum && line.starts_with('#')) {
+        return Ok(None);
+    }
+    let v = numbers(line)?;
+    let (stamp, pose) = match format {
+        Format::Kitti => {
+            let Ok(row_major) = <[f64; 12]>::try_from(v.as_slice()) else {
+                return Err(format!("expected 12 numbers, found {}", v.len()));
+            };
+            (None, Pose3::from_row_major(&row_major))
+        }
+        Format::Tum => {
+            if v.len() != 8 {
+                return Err(format!("expected 8 numbers, found {}", v.len()));
+            }
+            let qn = (v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]).sqrt();
+            if (qn - 1.0).abs() > MAX_QUATERNION_ERROR {
+                return Err(format!("the quaternion has length {qn}, not 1"));
+            }
+            let pose = Pose3 {
+                rotation: rotation_from_quaternion([v[4], v[5], v[6], v[7]]),
+                translation: Vector3::new(v[1], v[2], v[3]),
+            };
+            (Some(v[0]), pose)
+        }
+    };
+    if let Some(problem) = pose.problem() {
+        return Err(problem);
+    }
+    Ok(Some((stamp, pose)))
+}
+
+/// Parses numbered lines into a trajectory; `path` names the source in errors.
+fn parse_lines<I>(lines: I, path: &Path, format: Format) -> Result<Trajectory, TrajectoryError>
+where
+    I: Iterator<Item = Result<(usize, String), InputError>>,
+{
     let mut out = Trajectory {
         stamps: (format == Format::Tum).then(Vec::new),
         poses: Vec::new(),
     };
-    let error = |line: usize, reason: String| TrajectoryError::Parse {
-        path: path.to_path_buf(),
-        line,
-        reason,
-    };
-    for (k, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.is_empty() || (format == Format::Tum && line.starts_with('#')) {
+    for item in lines {
+        let (line, text) = item?;
+        let error = |reason: String| TrajectoryError::Parse {
+            path: path.to_path_buf(),
+            line,
+            reason,
+        };
+        let Some((stamp, pose)) = parse_line(&text, format).map_err(error)? else {
             continue;
-        }
-        let v = numbers(line).map_err(|r| error(k + 1, r))?;
-        match format {
-            Format::Kitti => {
-                if v.len() != 12 {
-                    return Err(error(
-                        k + 1,
-                        format!("expected 12 numbers, found {}", v.len()),
-                    ));
-                }
-                let mut row_major = [0.0; 12];
-                row_major.copy_from_slice(&v);
-                out.poses.push(Pose3::from_row_major(&row_major));
-            }
-            Format::Tum => {
-                if v.len() != 8 {
-                    return Err(error(
-                        k + 1,
-                        format!("expected 8 numbers, found {}", v.len()),
-                    ));
-                }
-                let qn = (v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]).sqrt();
-                if qn < 1e-9 {
-                    return Err(error(k + 1, "the quaternion has zero length".to_string()));
-                }
-                out.poses.push(Pose3 {
-                    rotation: rotation_from_quaternion([v[4], v[5], v[6], v[7]]),
-                    translation: Vector3::new(v[1], v[2], v[3]),
-                });
-                if let Some(stamps) = out.stamps.as_mut() {
-                    stamps.push(v[0]);
+        };
+        if let (Some(stamps), Some(t)) = (out.stamps.as_mut(), stamp) {
+            if let Some(&last) = stamps.last() {
+                if t <= last {
+                    return Err(error(format!(
+                        "timestamp {t} does not follow {last}: timestamps must increase"
+                    )));
                 }
             }
+            stamps.push(t);
         }
+        out.poses.push(pose);
     }
     Ok(out)
 }
 
-/// Reads a trajectory file.
+/// Parses trajectory text (any bytes: lines that are not UTF-8 are refused); `path` only names
+/// the source in errors. Lines are bounded as when reading a file.
+pub fn parse(
+    text: impl AsRef<[u8]>,
+    path: &Path,
+    format: Format,
+) -> Result<Trajectory, TrajectoryError> {
+    parse_lines(Lines::new(text.as_ref(), path), path, format)
+}
+
+/// Reads a trajectory file (a regular file; streamed, a bounded line at a time).
 pub fn read(path: &Path, format: Format) -> Result<Trajectory, TrajectoryError> {
-    let text = std::fs::read_to_string(path).map_err(|source| TrajectoryError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    parse(&text, path, format)
+    parse_lines(Lines::open(path)?, path, format)
 }
 
 /// Formats a trajectory; numbers are written with the shortest text that reads back exactly.
@@ -202,13 +231,10 @@ pub fn format_text(
     Ok(s)
 }
 
-/// Writes a trajectory file.
+/// Writes a trajectory file atomically (it appears whole or not at all).
 pub fn write(path: &Path, traj: &Trajectory, format: Format) -> Result<(), TrajectoryError> {
     let text = format_text(traj, format, path)?;
-    std::fs::write(path, text).map_err(|source| TrajectoryError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    Ok(crate::input::write_atomic(path, text.as_bytes())?)
 }
 
 #[cfg(test)]
@@ -217,16 +243,11 @@ mod tests {
 
     #[test]
     fn kitti_round_trips_exactly() {
-        let text = "1 0 0 0.1 0 1 0 -2.5e-3 0 0 1 3\n0.5 0 0 1 0 1 0 2 0 0 1 3\n";
+        let text = "1 0 0 0.1 0 1 0 -2.5e-3 0 0 1 3\n0.6 -0.8 0 1 0.8 0.6 0 2 0 0 1 3\n";
         let p = Path::new("x.txt");
         let t = parse(text, p, Format::Kitti).unwrap();
         assert_eq!(t.poses.len(), 2);
-        let again = parse(
-            &format_text(&t, Format::Kitti, p).unwrap(),
-            p,
-            Format::Kitti,
-        )
-        .unwrap();
+        let again = parse(format_text(&t, Format::Kitti, p).unwrap(), p, Format::Kitti).unwrap();
         assert_eq!(again, t);
     }
 
@@ -237,7 +258,7 @@ mod tests {
         let t = parse(text, p, Format::Tum).unwrap();
         assert_eq!(t.stamps.as_deref(), Some(&[1.5][..]));
         assert!((t.poses[0].rotation[(1, 0)] - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12);
-        let again = parse(&format_text(&t, Format::Tum, p).unwrap(), p, Format::Tum).unwrap();
+        let again = parse(format_text(&t, Format::Tum, p).unwrap(), p, Format::Tum).unwrap();
         let (a, b) = (again.poses[0].to_row_major(), t.poses[0].to_row_major());
         assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-12));
     }
@@ -254,6 +275,10 @@ mod tests {
                 "not finite",
             ),
             ("1 0 0 inf 0 1 0 0 0 0 1 0\n", 1, "not finite"),
+            ("1 0 0 1e308 0 1 0 0 0 0 1 0\n", 1, "beyond 1e7 m"),
+            ("0 0 0 0 0 0 0 0 0 0 0 0\n", 1, "degenerate"),
+            ("1.01 0 0 0 0 1.01 0 0 0 0 1.01 0\n", 1, "not orthonormal"),
+            ("1 0 0 0 0 1 0 0 0 0 -1 0\n", 1, "reflection"),
         ];
         for (text, line, what) in cases {
             let e = parse(text, p, Format::Kitti).unwrap_err();
@@ -261,5 +286,31 @@ mod tests {
             assert!(msg.starts_with(&format!("bad.txt:{line}:")), "{msg}");
             assert!(msg.contains(what), "{msg}");
         }
+        let long_token = format!("{} 0 0 0 0 1 0 0 0 0 1 0\n", "9x".repeat(1000));
+        let msg = parse(&long_token, p, Format::Kitti)
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("not a number") && msg.len() < 200, "{msg}");
+        let tum = [
+            ("1 0 0 0 0 0 0 2\n", "length 2"),
+            ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", "must increase"),
+        ];
+        for (text, what) in tum {
+            let msg = parse(text, p, Format::Tum).unwrap_err().to_string();
+            assert!(msg.contains(what), "{msg}");
+        }
+    }
+
+    #[test]
+    fn real_odometry_precision_passes() {
+        // A line of the shared stereo visual odometry run (six significant digits).
+        let line = "0.999986 0.00533499 0.000398828 -0.0284618 -0.00533569 0.999984 0.00175901 -0.0367282 -0.000389438 -0.00176111 0.999998 1.54581\n";
+        assert_eq!(
+            parse(line, Path::new("vo.txt"), Format::Kitti)
+                .unwrap()
+                .poses
+                .len(),
+            1
+        );
     }
 }

@@ -1,6 +1,5 @@
 //! `lanealign-map`: compile road data into a lane tile, and inspect tiles.
 
-use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -148,8 +147,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             for (path, report) in inputs.iter().zip(&compiled.reports) {
                 match report {
                     InputReport::Osm(r) => eprintln!(
-                        "{}: OSM, {} drivable ways -> {} lanes; {} ways without geometry, {} missing node references",
-                        path.display(), r.ways_used, r.lanes, r.ways_without_geometry, r.missing_node_refs
+                        "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes); {} missing node references",
+                        path.display(), r.ways_read, r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
                     ),
                     InputReport::Lanelet2(r) => eprintln!(
                         "{}: Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
@@ -223,12 +222,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     "attribution": "Lane centerlines derived from OpenStreetMap data, (c) OpenStreetMap contributors, ODbL 1.0 (https://www.openstreetmap.org/copyright)",
                     "features": features,
                 });
-                let mut f = std::io::BufWriter::new(
-                    std::fs::File::create(&out)
-                        .with_context(|| format!("creating {}", out.display()))?,
-                );
-                serde_json::to_writer(&mut f, &doc)?;
-                f.flush()?;
+                lanealign_core::input::write_atomic(&out, &serde_json::to_vec(&doc)?)?;
                 println!(
                     "geojson     {} ({} lanes, coordinates in driving order)",
                     out.display(),

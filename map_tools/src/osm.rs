@@ -131,7 +131,29 @@ pub enum OsmError {
         /// The root element found.
         root: String,
     },
+    /// The document ends before `</osm>`: a truncated download or copy.
+    #[error("{path}: the file ends at byte {position} before </osm>: it is truncated, so its ways would be incomplete")]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+        /// Where it ends.
+        position: u64,
+    },
+    /// One element is larger than any real OSM element.
+    #[error("{path}: at byte {position}: an element longer than {MAX_ELEMENT_BYTES} bytes")]
+    ElementTooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Where it starts.
+        position: u64,
+    },
+    /// Not a regular file.
+    #[error(transparent)]
+    Input(#[from] lanealign_core::input::InputError),
 }
+
+/// The largest single element (tag) read (bytes): OSM elements are a few hundred bytes.
+pub const MAX_ELEMENT_BYTES: usize = 1 << 20;
 
 enum Open {
     None,
@@ -194,6 +216,7 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
     let mut data = OsmData::default();
     let mut open = Open::None;
     let mut saw_root = false;
+    let mut closed = false;
     loop {
         let position = reader.buffer_position();
         let er = ElementReader { path, position };
@@ -204,11 +227,18 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
                 position: reader.error_position(),
                 message: e.to_string(),
             })?;
+        if reader.buffer_position().saturating_sub(position) > MAX_ELEMENT_BYTES as u64 {
+            return Err(OsmError::ElementTooLarge {
+                path: path.to_path_buf(),
+                position,
+            });
+        }
         let (e, is_empty) = match &event {
             Event::Start(e) => (e, false),
             Event::Empty(e) => (e, true),
             Event::End(e) => {
                 match e.name().as_ref() {
+                    "osm" => closed = true,
                     "way" | "relation" | "node" => match std::mem::replace(&mut open, Open::None) {
                         Open::Way(w) => data.ways.push(w),
                         Open::Relation(r) => data.relations.push(r),
@@ -312,16 +342,19 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
             root: "(none)".to_string(),
         });
     }
+    if !closed {
+        return Err(OsmError::Truncated {
+            path: path.to_path_buf(),
+            position: reader.buffer_position(),
+        });
+    }
     data.sort();
     Ok(data)
 }
 
-/// Reads an OSM XML file.
+/// Reads an OSM XML file (a regular file).
 pub fn read_xml_file(path: &Path) -> Result<OsmData, OsmError> {
-    let file = std::fs::File::open(path).map_err(|source| OsmError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let file = lanealign_core::input::open_regular(path)?;
     read_xml(std::io::BufReader::new(file), path)
 }
 

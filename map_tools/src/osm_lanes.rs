@@ -71,6 +71,11 @@ impl LaneOptions {
 /// What lane derivation did with the input, for a person to check.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct DeriveReport {
+    /// Ways in the input.
+    pub ways_read: usize,
+    /// Ways skipped because they are not a road of the selected classes (no `highway` tag, a
+    /// class not selected, or `area=yes`).
+    pub ways_not_drivable: usize,
     /// Drivable ways turned into lanes.
     pub ways_used: usize,
     /// Drivable ways skipped because fewer than two of their nodes exist in the file.
@@ -237,18 +242,19 @@ pub fn derive_lanes(
     plane: &MapPlane,
     opts: &LaneOptions,
 ) -> (Vec<Lane>, DeriveReport) {
-    let mut report = DeriveReport::default();
+    let mut report = DeriveReport {
+        ways_read: osm.ways.len(),
+        ..DeriveReport::default()
+    };
     let mut lanes = Vec::new();
     for way in &osm.ways {
-        let Some(highway) = tag(&way.tags, "highway") else {
+        let road_class = tag(&way.tags, "highway")
+            .and_then(RoadClass::from_osm)
+            .filter(|&c| opts.classes.contains(c) && tag(&way.tags, "area") != Some("yes"));
+        let Some(road_class) = road_class else {
+            report.ways_not_drivable += 1;
             continue;
         };
-        let Some(road_class) = RoadClass::from_osm(highway) else {
-            continue;
-        };
-        if !opts.classes.contains(road_class) || tag(&way.tags, "area") == Some("yes") {
-            continue;
-        }
         let class = road_class.name();
         let Some(mut line) = way_line(osm, way, plane, &mut report) else {
             report.ways_without_geometry += 1;

@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use lanealign_core::input::open_regular;
 use osmpbf::{BlobDecode, BlobReader, Element, RelMemberType};
 use rayon::iter::{ParallelBridge, ParallelIterator};
 
@@ -23,18 +24,31 @@ fn quantise(nano: i64) -> i64 {
     (nano as f64 / 100.0).round() as i64 * 100
 }
 
-fn add_element(d: &mut OsmData, e: Element<'_>) {
+/// A node's coordinates in nanodegrees, quantised; `Err` names the node when they are outside
+/// WGS84 (latitude within ±90°, longitude within ±180°).
+fn node_position(id: i64, nano_lat: i64, nano_lon: i64) -> Result<(i64, i64), String> {
+    if nano_lat.abs() > 90_000_000_000 || nano_lon.abs() > 180_000_000_000 {
+        return Err(format!(
+            "node {id}: coordinates out of range ({}, {})",
+            nano_lat as f64 / 1e9,
+            nano_lon as f64 / 1e9
+        ));
+    }
+    Ok((quantise(nano_lat), quantise(nano_lon)))
+}
+
+fn add_element(d: &mut OsmData, e: Element<'_>) -> Result<(), String> {
     let tags = |it: &mut dyn Iterator<Item = (&str, &str)>| -> Vec<(String, String)> {
         it.map(|(k, v)| (k.to_string(), v.to_string())).collect()
     };
     match e {
         Element::Node(n) => {
-            d.nodes
-                .insert(n.id(), (quantise(n.nano_lat()), quantise(n.nano_lon())));
+            let at = node_position(n.id(), n.nano_lat(), n.nano_lon())?;
+            d.nodes.insert(n.id(), at);
         }
         Element::DenseNode(n) => {
-            d.nodes
-                .insert(n.id(), (quantise(n.nano_lat()), quantise(n.nano_lon())));
+            let at = node_position(n.id(), n.nano_lat(), n.nano_lon())?;
+            d.nodes.insert(n.id(), at);
         }
         Element::Way(w) => d.ways.push(Way {
             id: w.id(),
@@ -59,22 +73,25 @@ fn add_element(d: &mut OsmData, e: Element<'_>) {
             tags: tags(&mut r.tags()),
         }),
     }
+    Ok(())
 }
 
 /// Reads a PBF file; ways and relations come out ordered by id (see [`OsmData::sort`]).
 pub fn read_pbf_file(path: &Path) -> Result<OsmData, PbfError> {
-    let err = |e: osmpbf::Error| PbfError {
+    let err = |message: String| PbfError {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        message,
     };
-    let blobs = BlobReader::from_path(path).map_err(err)?;
+    let file = open_regular(path).map_err(|e| err(e.to_string()))?;
+    let blobs = BlobReader::new(std::io::BufReader::new(file));
     let mut data = blobs
         .par_bridge()
         .map(|blob| {
             let mut block_data = OsmData::default();
-            if let BlobDecode::OsmData(block) = blob?.decode()? {
+            let blob = blob.map_err(|e| e.to_string())?;
+            if let BlobDecode::OsmData(block) = blob.decode().map_err(|e| e.to_string())? {
                 for e in block.elements() {
-                    add_element(&mut block_data, e);
+                    add_element(&mut block_data, e)?;
                 }
             }
             Ok(block_data)

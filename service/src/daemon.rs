@@ -13,6 +13,7 @@ use std::time::Duration;
 
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
+use lanealign_core::input::InputError;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
@@ -105,7 +106,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     let (namespace, sources) = (resolved.namespace, resolved.sources);
     let (map, info) = tile::load(&config.tile).map_err(|source| {
         let hint = match &source {
-            tile::TileError::Io { source: io, .. }
+            tile::TileError::Input(InputError::Io { source: io, .. })
                 if io.kind() == std::io::ErrorKind::NotFound =>
             {
                 format!(

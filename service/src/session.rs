@@ -127,7 +127,7 @@ fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> Correcte
 /// The answer to `input` for a pass-through source (no session state).
 pub fn pass_through(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> CorrectedPose {
     let mut a = blank_answer(input, received_mono_ns, epoch);
-    a.expected_seq = input.seq + 1;
+    a.expected_seq = input.seq.saturating_add(1);
     a
 }
 
@@ -200,6 +200,13 @@ impl Session {
         };
         if input.seq > self.expected_seq {
             return (flagged(answer, StatusCode::Gap, self.expected_seq), None);
+        }
+        if input.seq == u64::MAX {
+            // The last number has no successor: the session's numbers are used up.
+            return (
+                flagged(answer, StatusCode::OutOfOrderSeq, self.expected_seq),
+                None,
+            );
         }
         if input.seq < self.expected_seq {
             let earlier = self.recent.iter().find(|r| r.input.seq == input.seq);

@@ -1,16 +1,17 @@
 //! `lanealign correct`: corrects a recorded trajectory offline, exactly as the daemon would.
 
 use std::fmt::Write as _;
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use lanealign_cli::maps::{LoadedMap, MapSource};
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::input::Outputs;
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
+use lanealign_core::plausibility;
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
 use lanealign_core::trajectory::{self, Format, Trajectory};
@@ -182,13 +183,6 @@ pub fn status_csv(run: &[CorrectedPose]) -> String {
     out
 }
 
-fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
-    let mut f =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    f.write_all(text.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))
-}
-
 /// Loads the map for `config` and refuses a tile whose lane geometry the method was not made
 /// for.
 pub fn load_map(source: &MapSource, config: &CorrectorConfig) -> anyhow::Result<LoadedMap> {
@@ -223,6 +217,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         anchored_from_odom: loaded.anchored_from_odom,
         smoothing: config.smoothing(),
     };
+    let (loaded_map, anchored_from_odom) = (loaded.map.clone(), loaded.anchored_from_odom);
     let run = correct_trajectory(
         loaded.map,
         params,
@@ -234,10 +229,16 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),
     };
-    trajectory::write(&args.output, &output, args.format)?;
+    // Every output appears only when all of them were written.
+    let mut outputs = Outputs::default();
+    outputs.stage(
+        &args.output,
+        trajectory::format_text(&output, args.format, &args.output)?.as_bytes(),
+    )?;
     if let Some(path) = &args.status {
-        write_text(path, &status_csv(&run))?;
+        outputs.stage(path, status_csv(&run).as_bytes())?;
     }
+    outputs.commit()?;
     let c = counts(&run);
     eprintln!(
         "{} poses, method {}: {} match attempts, {} accepted, {} resets",
@@ -247,5 +248,17 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         c.accepted,
         c.resets
     );
+    let warnings = [
+        plausibility::axis_convention_warning(&input.poses, args.frame),
+        plausibility::anchor_warning(
+            &loaded_map,
+            &anchored_from_odom,
+            &args.frame.to_planar(&input.poses[0]),
+        ),
+        plausibility::no_correction_warning(run.len(), c.accepted),
+    ];
+    for warning in warnings.into_iter().flatten() {
+        eprintln!("WARN {warning}");
+    }
     Ok(())
 }

@@ -1,0 +1,275 @@
+//! Reading files that come from outside: regular files only (a FIFO, a device or a folder is
+//! refused before anything is read), lines of bounded length (memory stays proportional to the
+//! valid input), and errors that quote at most [`QUOTE_CHARS`] characters of what they refuse.
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+
+/// The longest line a text input may have (bytes).
+pub const MAX_LINE_BYTES: usize = 4096;
+/// The most characters of an input an error message quotes.
+pub const QUOTE_CHARS: usize = 80;
+
+/// An input file that could not be opened or read.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    /// The file could not be opened or read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// Not a regular file.
+    #[error("{path}: not a regular file (a folder, FIFO or device is not read)")]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
+    /// A line longer than [`MAX_LINE_BYTES`].
+    #[error("{path}:{line}: longer than {MAX_LINE_BYTES} bytes, starting '{start}'")]
+    LineTooLong {
+        /// The file.
+        path: PathBuf,
+        /// The 1-based line number.
+        line: usize,
+        /// Its first characters.
+        start: String,
+    },
+    /// A line that is not UTF-8 text.
+    #[error("{path}:{line}: not UTF-8 text")]
+    NotText {
+        /// The file.
+        path: PathBuf,
+        /// The 1-based line number.
+        line: usize,
+    },
+}
+
+/// At most [`QUOTE_CHARS`] characters of `text`, with `...` when cut.
+pub fn quote(text: &str) -> String {
+    let mut chars = text.chars();
+    let head: String = chars.by_ref().take(QUOTE_CHARS).collect();
+    if chars.next().is_some() {
+        format!("{head}...")
+    } else {
+        head
+    }
+}
+
+/// Opens `path` for reading if it is a regular file. The file is opened non-blocking, so a FIFO
+/// without a writer is refused at once instead of waited on.
+pub fn open_regular(path: &Path) -> Result<File, InputError> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let io = |source| InputError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(path)
+        .map_err(io)?;
+    if !file.metadata().map_err(io)?.is_file() {
+        return Err(InputError::NotAFile {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok(file)
+}
+
+/// The lines of a reader (by default a regular file), each at most [`MAX_LINE_BYTES`], as
+/// `(line number, text)`. Iteration stops after the first error.
+pub struct Lines<R = BufReader<File>> {
+    reader: R,
+    path: PathBuf,
+    line: usize,
+    buf: Vec<u8>,
+    failed: bool,
+}
+
+impl Lines {
+    /// The lines of `path` (refused up front when it is not a regular file).
+    pub fn open(path: &Path) -> Result<Lines, InputError> {
+        Ok(Lines::new(BufReader::new(open_regular(path)?), path))
+    }
+}
+
+impl<R: BufRead> Lines<R> {
+    /// The lines of `reader`; `path` names it in errors.
+    pub fn new(reader: R, path: &Path) -> Lines<R> {
+        Lines {
+            reader,
+            path: path.to_path_buf(),
+            line: 0,
+            buf: Vec::new(),
+            failed: false,
+        }
+    }
+}
+
+impl<R: BufRead> Iterator for Lines<R> {
+    type Item = Result<(usize, String), InputError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        self.buf.clear();
+        self.line += 1;
+        let limit = (MAX_LINE_BYTES + 1) as u64;
+        let read = (&mut self.reader)
+            .take(limit)
+            .read_until(b'\n', &mut self.buf);
+        let fail = |e: InputError| Some(Err(e));
+        match read {
+            Err(source) => {
+                self.failed = true;
+                return fail(InputError::Io {
+                    path: self.path.clone(),
+                    source,
+                });
+            }
+            Ok(0) => return None,
+            Ok(_) => {}
+        }
+        if self.buf.last() == Some(&b'\n') {
+            self.buf.pop();
+            if self.buf.last() == Some(&b'\r') {
+                self.buf.pop();
+            }
+        } else if self.buf.len() > MAX_LINE_BYTES {
+            self.failed = true;
+            return fail(InputError::LineTooLong {
+                path: self.path.clone(),
+                line: self.line,
+                start: quote(&String::from_utf8_lossy(
+                    &self.buf[..QUOTE_CHARS.min(self.buf.len())],
+                )),
+            });
+        }
+        match std::str::from_utf8(&self.buf) {
+            Ok(text) => Some(Ok((self.line, text.to_string()))),
+            Err(_) => {
+                self.failed = true;
+                fail(InputError::NotText {
+                    path: self.path.clone(),
+                    line: self.line,
+                })
+            }
+        }
+    }
+}
+
+/// Writes output files so that they appear only together, when everything succeeded: each is
+/// written to a temporary file beside it, and all are renamed into place by [`Outputs::commit`].
+/// Dropped without committing, the temporary files are removed.
+#[derive(Default)]
+pub struct Outputs {
+    staged: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Outputs {
+    /// Stages `bytes` for `path` (written now to a temporary file beside it).
+    pub fn stage(&mut self, path: &Path, bytes: &[u8]) -> Result<(), InputError> {
+        let mut name = path.as_os_str().to_owned();
+        name.push(format!(".partial-{}", std::process::id()));
+        let tmp = PathBuf::from(name);
+        std::fs::write(&tmp, bytes).map_err(|source| InputError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        self.staged.push((tmp, path.to_path_buf()));
+        Ok(())
+    }
+
+    /// Renames every staged file into place.
+    pub fn commit(mut self) -> Result<(), InputError> {
+        for (tmp, path) in std::mem::take(&mut self.staged) {
+            std::fs::rename(&tmp, &path).map_err(|source| InputError::Io {
+                path: path.clone(),
+                source,
+            })?;
+        }
+        Ok(())
+    }
+}
+
+/// Writes one file atomically: it appears whole or not at all.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), InputError> {
+    let mut outputs = Outputs::default();
+    outputs.stage(path, bytes)?;
+    outputs.commit()
+}
+
+impl Drop for Outputs {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.staged {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_are_bounded_and_quoted_short() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.txt");
+        let long = "7".repeat(10_000);
+        std::fs::write(&path, format!("a b\r\nc\n{long}\nafter\n")).unwrap();
+        let mut lines = Lines::open(&path).unwrap();
+        assert_eq!(lines.next().unwrap().unwrap(), (1, "a b".to_string()));
+        assert_eq!(lines.next().unwrap().unwrap(), (2, "c".to_string()));
+        let e = lines.next().unwrap().unwrap_err().to_string();
+        assert!(
+            e.contains(":3: longer than 4096 bytes") && e.len() < 250,
+            "{e}"
+        );
+        assert!(lines.next().is_none(), "reading stops at the first error");
+        std::fs::write(&path, [b'a', 0xff, b'\n']).unwrap();
+        let e = Lines::open(&path).unwrap().next().unwrap().unwrap_err();
+        assert!(matches!(e, InputError::NotText { line: 1, .. }), "{e}");
+    }
+
+    #[test]
+    fn only_regular_files_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        for p in [dir.path(), Path::new("/dev/zero")] {
+            assert!(
+                matches!(Lines::open(p), Err(InputError::NotAFile { .. })),
+                "{}",
+                p.display()
+            );
+        }
+    }
+
+    #[test]
+    fn outputs_appear_together_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.txt"), dir.path().join("b.txt"));
+        let mut out = Outputs::default();
+        out.stage(&a, b"1").unwrap();
+        out.stage(&b, b"2").unwrap();
+        assert!(!a.exists() && !b.exists());
+        out.commit().unwrap();
+        assert_eq!(std::fs::read(&a).unwrap(), b"1");
+        let mut out = Outputs::default();
+        out.stage(&a, b"changed").unwrap();
+        drop(out);
+        assert_eq!(
+            std::fs::read(&a).unwrap(),
+            b"1",
+            "an abandoned output changes nothing"
+        );
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            2,
+            "no temporary file left"
+        );
+    }
+}

@@ -1,0 +1,96 @@
+//! `lanealign-map` as a user runs it: what compile reports, and inputs it must refuse with a
+//! clear message and exit code 1 (never a crash, a hang or a tile built from part of the data).
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn lanealign_map(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lanealign-map"))
+        .args(args)
+        .output()
+        .expect("run lanealign-map")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Two drivable ways (one of them without a known node), a footway and a building.
+const SMALL_OSM: &str = r#"<?xml version="1.0" encoding="UTF-8"?>
+<osm version="0.6" generator="test">
+ <node id="1" lat="49.0000000" lon="8.4000000"/>
+ <node id="2" lat="49.0010000" lon="8.4000000"/>
+ <node id="3" lat="49.0020000" lon="8.4010000"/>
+ <way id="10">
+  <nd ref="1"/><nd ref="2"/><nd ref="3"/>
+  <tag k="highway" v="secondary"/>
+ </way>
+ <way id="11">
+  <nd ref="1"/><nd ref="99"/>
+  <tag k="highway" v="residential"/>
+ </way>
+ <way id="12">
+  <nd ref="2"/><nd ref="3"/>
+  <tag k="highway" v="footway"/>
+ </way>
+ <way id="13">
+  <nd ref="1"/><nd ref="2"/><nd ref="3"/><nd ref="1"/>
+  <tag k="building" v="yes"/>
+ </way>
+</osm>
+"#;
+
+fn write(dir: &Path, name: &str, text: &str) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path.to_string_lossy().into_owned()
+}
+
+#[test]
+fn compile_says_what_it_read_and_skipped() {
+    let dir = tempfile::tempdir().unwrap();
+    let osm = write(dir.path(), "small.osm", SMALL_OSM);
+    let tile = dir.path().join("small.tile");
+    let out = lanealign_map(&["compile", &osm, "-o", tile.to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("4 ways read: 1 drivable -> 2 lanes; skipped 2 not drivable, 1 without geometry (fewer than 2 known nodes); 1 missing node references"),
+        "{err}"
+    );
+    let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+}
+
+#[test]
+fn osm_cut_at_an_element_boundary_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let cut = SMALL_OSM.find(" <way id=\"11\">").unwrap();
+    let osm = write(dir.path(), "cut.osm", &SMALL_OSM[..cut]);
+    let tile = dir.path().join("cut.tile");
+    let out = lanealign_map(&["compile", &osm, "-o", tile.to_str().unwrap()]);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("cut.osm") && err.contains("</osm>"), "{err}");
+    assert!(!tile.exists(), "no tile from part of the data");
+}
+
+#[test]
+fn inspect_refuses_what_is_not_a_regular_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("fifo.osm");
+    let status = Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(status.success());
+    for path in [dir.path(), Path::new("/dev/zero"), &fifo] {
+        let out = lanealign_map(&["inspect", path.to_str().unwrap()]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{}: {err}", path.display());
+        assert!(err.contains("not a regular file"), "{err}");
+    }
+    let out = lanealign_map(&["compile", fifo.to_str().unwrap(), "-o", "x.tile"]);
+    assert!(
+        stderr(&out).contains("not a regular file"),
+        "{}",
+        stderr(&out)
+    );
+}
