@@ -42,6 +42,7 @@ pub fn config(
         session_timeout_s: 600.0,
         max_sessions: 16,
         log_format: LogFormat::Text,
+        trusted_tile_keys: Vec::new(),
         sources: sources
             .iter()
             .map(|s| SourceConfig {

@@ -28,6 +28,9 @@
 //! | 248..256 | XXH3-64 of bytes 0..248 and of the payload |
 //! | 256.. | payload |
 //!
+//! A signed tile (flag bit 1, [`sign`]) carries the signer's public key and an ed25519 signature
+//! of every byte but the signature itself and the checksum; loading verifies it.
+//!
 //! Payload: lane offsets (`u32` x lanes + 1), lane ids (`u64` x lanes), lane info (class `u8`,
 //! flags `u8`, per lane), points (`f64` x, y per point); each array starts at a multiple of 8.
 //! Segment directions and the KD-tree are derived from the points at load.
@@ -35,7 +38,10 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use ed25519_dalek::{Signature, Signer, VerifyingKey};
 use xxhash_rust::xxh3::Xxh3;
+
+pub use ed25519_dalek::SigningKey;
 
 use crate::geo::{check_lat_lon, MapPlane, Projection};
 use crate::input::InputError;
@@ -56,6 +62,9 @@ pub const MAX_TILE_BYTES: u64 = 1 << 32;
 const FLAG_OSM_LANES: u32 = 1;
 const FLAG_SIGNED: u32 = 1 << 1;
 const KNOWN_FLAGS: u32 = FLAG_OSM_LANES | FLAG_SIGNED;
+const SIGNER_AT: usize = 120;
+const SIGNATURE_AT: usize = 152;
+const SIGNATURE_END: usize = 216;
 const CHECKSUM_AT: usize = 248;
 
 /// What a tile says about itself.
@@ -77,6 +86,8 @@ pub struct TileInfo {
     pub payload_len: u64,
     /// The stored checksum.
     pub checksum: u64,
+    /// The ed25519 public key whose signature the tile carries, verified (`None`: unsigned).
+    pub signer: Option<[u8; 32]>,
 }
 
 /// A tile that could not be written or loaded.
@@ -129,6 +140,12 @@ pub enum TileError {
     /// Written with another byte order.
     #[error("{path}: the tile is not little-endian")]
     BadEndianness {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The tile is signed, but the signature does not match its bytes.
+    #[error("{path}: the signature does not match the tile: it was changed after signing")]
+    BadSignature {
         /// The file.
         path: PathBuf,
     },
@@ -224,6 +241,77 @@ fn bounds(points: &[[f64; 2]]) -> [f64; 4] {
     )
 }
 
+/// What a tile's signature covers: every byte but the signature and the checksum (the signature
+/// field counts as zero).
+fn signed_message(bytes: &[u8]) -> Vec<u8> {
+    let mut message = Vec::with_capacity(bytes.len());
+    message.extend_from_slice(&bytes[..SIGNATURE_AT]);
+    message.extend_from_slice(&[0; SIGNATURE_END - SIGNATURE_AT]);
+    message.extend_from_slice(&bytes[SIGNATURE_END..CHECKSUM_AT]);
+    message.extend_from_slice(&bytes[HEADER_LEN..]);
+    message
+}
+
+/// Signs encoded tile bytes (from [`encode`]) with `key`: sets the signed flag, records the
+/// public key and the ed25519 signature, and updates the checksum.
+pub fn sign(bytes: &mut [u8], key: &SigningKey) {
+    if bytes.len() < HEADER_LEN {
+        return;
+    }
+    let flags = u32_at(bytes, 116) | FLAG_SIGNED;
+    put(bytes, 116, &flags.to_le_bytes());
+    put(bytes, SIGNER_AT, &key.verifying_key().to_bytes());
+    let signature = key.sign(&signed_message(bytes));
+    put(bytes, SIGNATURE_AT, &signature.to_bytes());
+    seal(bytes);
+}
+
+/// Verifies a signed tile's signature; the signer's public key when it holds.
+fn verify_signature(path: &Path, bytes: &[u8]) -> Result<[u8; 32], TileError> {
+    let mut key = [0; 32];
+    key.copy_from_slice(&bytes[SIGNER_AT..SIGNATURE_AT]);
+    let mut signature = [0; 64];
+    signature.copy_from_slice(&bytes[SIGNATURE_AT..SIGNATURE_END]);
+    let verifying = VerifyingKey::from_bytes(&key).map_err(|_| TileError::BadHeader {
+        path: path.to_path_buf(),
+        field: "signer",
+        value: "not an ed25519 public key".into(),
+    })?;
+    verifying
+        .verify_strict(&signed_message(bytes), &Signature::from_bytes(&signature))
+        .map_err(|_| TileError::BadSignature {
+            path: path.to_path_buf(),
+        })?;
+    Ok(key)
+}
+
+/// A 32-byte key as 64 lowercase hex digits.
+pub fn key_hex(key: &[u8; 32]) -> String {
+    key.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A 32-byte key from 64 hex digits (surrounding whitespace ignored); `None` if it is not one.
+pub fn parse_key_hex(text: &str) -> Option<[u8; 32]> {
+    let text = text.trim();
+    if text.len() != 64 || !text.is_ascii() {
+        return None;
+    }
+    let mut key = [0; 32];
+    for (k, byte) in key.iter_mut().enumerate() {
+        *byte = u8::from_str_radix(&text[2 * k..2 * k + 2], 16).ok()?;
+    }
+    Some(key)
+}
+
+/// Writes the checksum of whole tile bytes into their header: for tools that edit a tile's
+/// bytes on purpose (tests, fuzzing). Does nothing to bytes shorter than a header.
+pub fn seal(bytes: &mut [u8]) {
+    if bytes.len() >= HEADER_LEN {
+        let sum = checksum(bytes, &bytes[HEADER_LEN..]);
+        bytes[CHECKSUM_AT..HEADER_LEN].copy_from_slice(&sum.to_le_bytes());
+    }
+}
+
 fn checksum(header: &[u8], payload: &[u8]) -> u64 {
     let mut h = Xxh3::new();
     h.update(&header[..CHECKSUM_AT]);
@@ -300,11 +388,10 @@ pub fn encode(map: &LaneMap, plane: &MapPlane, spacing_m: f64, geometry: &LaneGe
         0
     };
     put(&mut h, 116, &flags.to_le_bytes());
-    let sum = checksum(&h, &payload);
-    put(&mut h, CHECKSUM_AT, &sum.to_le_bytes());
     let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
     bytes.extend_from_slice(&h);
     bytes.extend_from_slice(&payload);
+    seal(&mut bytes);
     bytes
 }
 
@@ -416,9 +503,13 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     if flags & !KNOWN_FLAGS != 0 {
         return Err(bad("flags", format!("{flags:#x}")));
     }
-    if flags & FLAG_SIGNED == 0 && bytes[120..216].iter().any(|&b| b != 0) {
+    let signer = if flags & FLAG_SIGNED != 0 {
+        Some(verify_signature(path, bytes)?)
+    } else if bytes[SIGNER_AT..SIGNATURE_END].iter().any(|&b| b != 0) {
         return Err(bad("signature", "present in an unsigned tile".into()));
-    }
+    } else {
+        None
+    };
     if bytes[216..CHECKSUM_AT].iter().any(|&b| b != 0) {
         return Err(bad("reserved bytes 216..248", "not zero".into()));
     }
@@ -458,6 +549,7 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
         bounds,
         payload_len,
         checksum: stored,
+        signer,
     })
 }
 
@@ -592,9 +684,39 @@ mod tests {
     }
 
     fn resealed(mut bytes: Vec<u8>) -> Vec<u8> {
-        let sum = checksum(&bytes, &bytes[HEADER_LEN..]);
-        bytes[CHECKSUM_AT..CHECKSUM_AT + 8].copy_from_slice(&sum.to_le_bytes());
+        seal(&mut bytes);
         bytes
+    }
+
+    #[test]
+    fn signed_tiles_verify_and_any_change_is_refused() {
+        let key = SigningKey::from_bytes(&[7; 32]);
+        let mut bytes = sample_bytes();
+        let p = Path::new("s.tile");
+        assert_eq!(decode(p, &bytes).unwrap().1.signer, None);
+        sign(&mut bytes, &key);
+        let (_, info) = decode(p, &bytes).unwrap();
+        assert_eq!(info.signer, Some(key.verifying_key().to_bytes()));
+        assert_eq!(parse_key_hex(&key_hex(&info.signer.unwrap())), info.signer);
+        // A changed point, resealed so that only the signature can tell.
+        let mut changed = bytes.clone();
+        let last = changed.len() - 3;
+        changed[last] ^= 1;
+        seal(&mut changed);
+        let e = decode(p, &changed).unwrap_err().to_string();
+        assert!(e.contains("signature does not match"), "{e}");
+        // Another key put in place of the signer's.
+        let mut swapped = bytes.clone();
+        put(
+            &mut swapped,
+            SIGNER_AT,
+            &SigningKey::from_bytes(&[8; 32]).verifying_key().to_bytes(),
+        );
+        seal(&mut swapped);
+        assert!(matches!(
+            decode(p, &swapped),
+            Err(TileError::BadSignature { .. })
+        ));
     }
 
     #[test]

@@ -1,5 +1,7 @@
 //! `lanealign-map`: compile road data into a lane tile, and inspect tiles.
 
+use std::io::Write;
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -51,7 +53,17 @@ enum Command {
         /// living_street and their links; add service to include it).
         #[arg(long)]
         classes: Option<String>,
+        /// Sign the tile with the secret key in this file (from `lanealign-map keygen`).
+        #[arg(long, value_name = "KEY_FILE")]
+        sign: Option<PathBuf>,
         /// The tile to write.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Make a key pair for signing tiles: the secret key (64 hex digits, file mode 0600) goes to
+    /// OUTPUT, the public key to OUTPUT.pub and standard output (for `trusted_tile_keys`).
+    Keygen {
+        /// The secret key file to write (refused if it exists).
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -63,6 +75,21 @@ enum Command {
         #[arg(long)]
         geojson: Option<PathBuf>,
     },
+}
+
+/// The signing key in a key file from `keygen` (64 hex digits).
+fn read_secret_key(path: &std::path::Path) -> anyhow::Result<tile::SigningKey> {
+    let bytes = tile::read_regular_file(path, 1024)?;
+    let seed = std::str::from_utf8(&bytes)
+        .ok()
+        .and_then(tile::parse_key_hex)
+        .with_context(|| {
+            format!(
+                "{}: not a key file from `lanealign-map keygen`",
+                path.display()
+            )
+        })?;
+    Ok(tile::SigningKey::from_bytes(&seed))
 }
 
 fn parse_origin(s: &str) -> anyhow::Result<(f64, f64)> {
@@ -118,8 +145,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             traffic,
             unmarked_offset_scale,
             classes,
+            sign,
             output,
         } => {
+            let key = sign.as_deref().map(read_secret_key).transpose()?;
             if !(spacing.is_finite() && spacing > 0.0) {
                 bail!("--spacing must be a positive number of metres");
             }
@@ -142,7 +171,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let start = Instant::now();
             let compiled = compile(&inputs, &options)?;
-            let bytes = compiled.tile_bytes(spacing);
+            let mut bytes = compiled.tile_bytes(spacing);
+            if let Some(key) = &key {
+                tile::sign(&mut bytes, key);
+            }
             tile::write_bytes(&output, &bytes)?;
             for (path, report) in inputs.iter().zip(&compiled.reports) {
                 match report {
@@ -163,6 +195,27 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 plane.origin_lat, plane.origin_lon, plane.projection.name(), compiled.geometry,
                 start.elapsed().as_secs_f64()
             );
+        }
+        Command::Keygen { output } => {
+            let mut seed = [0u8; 32];
+            getrandom::fill(&mut seed).map_err(|e| anyhow::anyhow!("no system randomness: {e}"))?;
+            let key = tile::SigningKey::from_bytes(&seed);
+            let public = tile::key_hex(&key.verifying_key().to_bytes());
+            let mut file = std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .mode(0o600)
+                .open(&output)
+                .with_context(|| format!("creating {}", output.display()))?;
+            writeln!(file, "{}", tile::key_hex(&seed))
+                .with_context(|| format!("writing {}", output.display()))?;
+            let mut public_path = output.into_os_string();
+            public_path.push(".pub");
+            lanealign_core::input::write_atomic(
+                std::path::Path::new(&public_path),
+                format!("{public}\n").as_bytes(),
+            )?;
+            println!("{public}");
         }
         Command::Inspect {
             tile: path,
@@ -199,6 +252,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 "checksum    {:016x} ok; every field and array valid",
                 info.checksum
             );
+            match info.signer {
+                Some(key) => println!("signed      by {} (signature valid)", tile::key_hex(&key)),
+                None => println!("signed      no"),
+            }
             if let Some(out) = geojson {
                 let features: Vec<serde_json::Value> = map
                     .lanes()

@@ -1,5 +1,6 @@
 //! OSM PBF (`.osm.pbf`) reading with the `osmpbf` crate, decoding blocks on all cores.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use lanealign_core::input::open_regular;
@@ -76,14 +77,23 @@ fn add_element(d: &mut OsmData, e: Element<'_>) -> Result<(), String> {
     Ok(())
 }
 
-/// Reads a PBF file; ways and relations come out ordered by id (see [`OsmData::sort`]).
+/// Reads a PBF file (regular files only); ways and relations come out ordered by id (see
+/// [`OsmData::sort`]).
 pub fn read_pbf_file(path: &Path) -> Result<OsmData, PbfError> {
+    let file = open_regular(path).map_err(|e| PbfError {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    read_pbf(std::io::BufReader::new(file), path)
+}
+
+/// Reads PBF from any reader; `path` names the source in errors.
+pub fn read_pbf<R: Read + Send>(input: R, path: &Path) -> Result<OsmData, PbfError> {
     let err = |message: String| PbfError {
         path: path.to_path_buf(),
         message,
     };
-    let file = open_regular(path).map_err(|e| err(e.to_string()))?;
-    let blobs = BlobReader::new(std::io::BufReader::new(file));
+    let blobs = BlobReader::new(input);
     let mut data = blobs
         .par_bridge()
         .map(|blob| {

@@ -94,3 +94,53 @@ fn inspect_refuses_what_is_not_a_regular_file() {
         stderr(&out)
     );
 }
+
+#[test]
+fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
+    let dir = tempfile::tempdir().unwrap();
+    let osm = write(dir.path(), "small.osm", SMALL_OSM);
+    let key = dir.path().join("builder.key");
+    let out = lanealign_map(&["keygen", "-o", key.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let public = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    assert_eq!(public.len(), 64, "{public}");
+    let pub_file = std::fs::read_to_string(dir.path().join("builder.key.pub")).unwrap();
+    assert_eq!(pub_file.trim(), public);
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&key).unwrap().permissions().mode();
+    assert_eq!(mode & 0o777, 0o600, "the secret key is private");
+    let again = lanealign_map(&["keygen", "-o", key.to_str().unwrap()]);
+    assert!(
+        !again.status.success(),
+        "an existing key is never overwritten"
+    );
+    let tile = dir.path().join("signed.tile");
+    let out = lanealign_map(&[
+        "compile",
+        &osm,
+        "--sign",
+        key.to_str().unwrap(),
+        "-o",
+        tile.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        text.contains(&format!("signed      by {public} (signature valid)")),
+        "{text}"
+    );
+    // One byte of a lane point changed and the checksum recomputed: the signature refuses it.
+    let mut bytes = std::fs::read(&tile).unwrap();
+    let last = bytes.len() - 2;
+    bytes[last] ^= 1;
+    lanealign_core::tile::seal(&mut bytes);
+    std::fs::write(&tile, bytes).unwrap();
+    let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        stderr(&out).contains("signature does not match"),
+        "{}",
+        stderr(&out)
+    );
+}

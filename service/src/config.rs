@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use lanealign_core::geo::Anchor;
 use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::AxisConvention;
-use lanealign_core::tile::TileInfo;
+use lanealign_core::tile::{key_hex, parse_key_hex, TileInfo};
 use lanealign_wire::service::{Namespace, SourceName};
 use serde::{Deserialize, Serialize};
 
@@ -44,6 +44,11 @@ pub struct Config {
     /// `text` or `json` log lines.
     #[serde(default)]
     pub log_format: LogFormat,
+    /// Public keys (64 hex digits each, from `lanealign-map keygen`) of the builders whose
+    /// signed tiles this daemon accepts. Empty (the default): any valid tile, signed or not.
+    /// Not empty: the tile must carry a valid signature by one of them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub trusted_tile_keys: Vec<String>,
     /// The odometry sources.
     #[serde(rename = "source")]
     pub sources: Vec<SourceConfig>,
@@ -235,6 +240,19 @@ impl Config {
                 .map_err(|e: lanealign_wire::service::NameError| {
                     value("namespace".into(), e.to_string())
                 })?;
+        if let Some(bad) = self
+            .trusted_tile_keys
+            .iter()
+            .find(|k| parse_key_hex(k).is_none())
+        {
+            return Err(value(
+                "trusted_tile_keys".into(),
+                format!(
+                    "'{}' is not a public key (64 hex digits)",
+                    lanealign_core::input::quote(bad)
+                ),
+            ));
+        }
         if !(self.metrics_interval_s.is_finite()
             && (0.1..=3600.0).contains(&self.metrics_interval_s))
         {
@@ -318,13 +336,35 @@ impl Config {
         })
     }
 
-    /// Refuses a tile whose lane geometry a source's method was not designed for.
+    /// Refuses a tile not signed by a trusted key (when keys are configured) and a tile whose
+    /// lane geometry a source's method was not designed for.
     pub fn check_tile(
         &self,
         path: &Path,
         sources: &[ResolvedSource],
         tile: &TileInfo,
     ) -> Result<(), ConfigError> {
+        if !self.trusted_tile_keys.is_empty() {
+            let trusted = tile.signer.is_some_and(|signer| {
+                self.trusted_tile_keys
+                    .iter()
+                    .any(|k| parse_key_hex(k) == Some(signer))
+            });
+            if !trusted {
+                let signed = match tile.signer {
+                    Some(key) => format!("signed by {}, which is not trusted", key_hex(&key)),
+                    None => "not signed".to_string(),
+                };
+                return Err(ConfigError::Value {
+                    path: path.to_path_buf(),
+                    key: "trusted_tile_keys".into(),
+                    message: format!(
+                        "tile {} is {signed}: compile it with `lanealign-map compile --sign KEY`",
+                        self.tile.display()
+                    ),
+                });
+            }
+        }
         for s in sources.iter().filter(|s| !s.pass_through) {
             s.corrector
                 .check_geometry(&tile.geometry)

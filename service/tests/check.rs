@@ -127,3 +127,50 @@ fn bad_configs_and_tiles_fail_naming_the_problem() {
     let err = stderr(&check(&config));
     assert!(err.contains("checksum mismatch"), "{err}");
 }
+
+#[test]
+fn trusted_keys_admit_only_tiles_their_holders_signed() {
+    use lanealign_core::tile::{key_hex, sign, SigningKey};
+    let dir = tempfile::tempdir().unwrap();
+    let unsigned = dir.path().join("t.tile");
+    write_tile(&unsigned, 0.5);
+    let builder = SigningKey::from_bytes(&[3; 32]);
+    let stranger = SigningKey::from_bytes(&[4; 32]);
+    for (name, key) in [("ours.tile", &builder), ("theirs.tile", &stranger)] {
+        let mut bytes = std::fs::read(&unsigned).unwrap();
+        sign(&mut bytes, key);
+        std::fs::write(dir.path().join(name), bytes).unwrap();
+    }
+    let trusted = key_hex(&builder.verifying_key().to_bytes());
+    let config = dir.path().join("d.toml");
+    let with_keys = |tile: &str, keys: &str| {
+        std::fs::write(
+            &config,
+            format!(
+                "trusted_tile_keys = [{keys}]\n{}",
+                CONFIG.replace("t.tile", tile)
+            ),
+        )
+        .unwrap();
+        check(&config)
+    };
+    let out = with_keys("ours.tile", &format!("\"{trusted}\""));
+    assert!(out.status.success(), "{}", stderr(&out));
+    // Without trusted keys, any valid tile loads, signed or not.
+    assert!(with_keys("theirs.tile", "").status.success());
+    assert!(with_keys("t.tile", "").status.success());
+    for (tile, why) in [
+        ("t.tile", "is not signed"),
+        ("theirs.tile", "which is not trusted"),
+    ] {
+        let out = with_keys(tile, &format!("\"{trusted}\""));
+        assert!(!out.status.success(), "{tile} must be refused");
+        assert!(stderr(&out).contains(why), "{}", stderr(&out));
+    }
+    let out = with_keys("ours.tile", "\"abc\"");
+    assert!(
+        stderr(&out).contains("not a public key"),
+        "{}",
+        stderr(&out)
+    );
+}
