@@ -295,6 +295,62 @@ fn sighup_reloads_the_tile_for_new_sessions() {
     assert!(daemon.stop().unwrap());
 }
 
+/// The daemon never shares its fate with the tile file: truncated in place and then removed
+/// while a session streams, every pose is still answered exactly as before, and the log says
+/// what happened to the file.
+#[test]
+fn a_tile_changed_under_the_daemon_changes_nothing_but_the_log() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("tilefile");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let expected = offline(&setup, &name, &odometry);
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    let mut answers = Vec::new();
+    let wait_for_log = |what: &str| {
+        let until = Instant::now() + Duration::from_secs(5);
+        while !daemon.log().contains(what) && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert!(daemon.log().contains(what), "{}", daemon.log());
+    };
+    let thirds = [
+        0,
+        odometry.len() / 3,
+        2 * odometry.len() / 3,
+        odometry.len(),
+    ];
+    for (k, part) in thirds.windows(2).enumerate() {
+        for p in &odometry[part[0]..part[1]] {
+            conn.publish(0, &p.to_row_major()).unwrap();
+            answers.extend(conn.recv(Duration::from_secs(5)).unwrap());
+        }
+        match k {
+            0 => {
+                let file = std::fs::OpenOptions::new()
+                    .write(true)
+                    .open(&setup.tile)
+                    .unwrap();
+                file.set_len(100).unwrap();
+                wait_for_log("truncated in place (100 of");
+            }
+            1 => {
+                std::fs::remove_file(&setup.tile).unwrap();
+                wait_for_log("change=\"removed\"");
+            }
+            _ => {}
+        }
+    }
+    assert_eq!(answers.len(), odometry.len(), "every pose answered");
+    assert!(
+        poses_of(&answers) == expected,
+        "answers as from the intact tile"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
 /// The access model: a deployment's daemon and clients run as one user. A client of another
 /// user is told whose namespace it is and what to do, and can run a deployment of its own in
 /// another namespace. Needs root (to be another user with runuser): visibly skipped otherwise.

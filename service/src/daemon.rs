@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
+use crate::tile_watch::TileWatch;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use lanealign_core::input::InputError;
@@ -224,7 +225,7 @@ fn notify(states: &[sd_notify::NotifyState<'_>]) {
 }
 
 /// Loads the configured tile again, checks it against every source, and hands it to the
-/// workers for their new sessions.
+/// workers for their new sessions. True when it did.
 fn reload(
     config: &Config,
     path: &Path,
@@ -234,7 +235,7 @@ fn reload(
         std::thread::JoinHandle<WorkerSummary>,
         mpsc::Sender<Reload>,
     )],
-) {
+) -> bool {
     let loaded = tile::load(&config.tile).map_err(|e| lanealign_core::report::error_chain(&e));
     let checked = loaded.and_then(|(map, info)| {
         config
@@ -251,9 +252,11 @@ fn reload(
                 });
             }
             tracing::info!(tile = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), "tile reloaded on SIGHUP: new sessions use it");
+            true
         }
         Err(e) => {
-            tracing::error!(error = %e, "SIGHUP: the tile was not reloaded; every session keeps the one it has")
+            tracing::error!(error = %e, "SIGHUP: the tile was not reloaded; every session keeps the one it has");
+            false
         }
     }
 }
@@ -279,6 +282,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         state_dir = %state_dir.as_ref().map_or("(no journal)".into(), |d| d.display().to_string()),
         "tile loaded"
     );
+    let mut tile_watch = TileWatch::new(&config.tile);
     let cleaned = remove_dead_nodes(&namespace);
     if cleaned > 0 {
         tracing::info!(cleaned, "removed stale resources left by earlier processes");
@@ -380,9 +384,14 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         // anything else (SIGINT, SIGTERM) for shutdown.
         let waited = node.wait(SUPERVISION_PERIOD);
         if hangup.swap(false, Ordering::Relaxed) {
-            reload(&config, &path, &sources, &workers);
+            if reload(&config, &path, &sources, &workers) {
+                tile_watch = TileWatch::new(&config.tile);
+            }
         } else if waited.is_err() {
             break;
+        }
+        if let Some(change) = tile_watch.check() {
+            tracing::warn!(tile = %config.tile.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions)");
         }
         remove_dead_nodes(&namespace);
         for source in unknown_sources(&namespace, &known) {

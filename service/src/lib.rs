@@ -9,6 +9,7 @@ pub mod journal;
 pub mod metrics;
 pub mod persistence;
 pub mod session;
+pub mod tile_watch;
 pub mod worker;
 
 use std::collections::hash_map::RandomState;
