@@ -69,6 +69,37 @@ fn maps_table(data: &Path, loads: usize) -> anyhow::Result<()> {
             percentile(times, 0.99)
         );
     }
+    // A synthetic tile of a million points (1000 parallel lanes of 1000 points, 3 m apart): the
+    // cost of validating and rebuilding the KD-tree at load for a large city.
+    let lanes: Vec<lanealign_core::lane_map::Lane> = (0..1000)
+        .map(|k| {
+            let points = (0..1000)
+                .map(|i| [i as f64 * 3.0, k as f64 * 3.5])
+                .collect();
+            lanealign_core::lane_map::Lane::new(k, points)
+        })
+        .collect();
+    let map = lanealign_core::lane_map::LaneMap::new(&lanes)?;
+    let plane = lanealign_core::geo::MapPlane::new(Default::default(), 49.0, 8.4);
+    let out = dir.path().join("million.tile");
+    let geometry = lanealign_core::lane_geometry::LaneGeometry::default();
+    tile::write(&out, &map, &plane, 3.0, &geometry)?;
+    let bytes = std::fs::metadata(&out)?.len();
+    let times: Vec<f64> = (0..loads.min(20))
+        .map(|_| {
+            let t = Instant::now();
+            let loaded = tile::load(&out).map(|(m, _)| m.len());
+            std::hint::black_box(loaded.ok());
+            t.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    let km = map.lane_length_m() / 1000.0;
+    println!(
+        "| synthetic 10^6 points | - | 1000 | {km:.1} | {bytes} | {:.0} | {:.0} | {:.0} |",
+        bytes as f64 / km,
+        median(times.clone()),
+        percentile(times, 0.99)
+    );
     Ok(())
 }
 

@@ -179,7 +179,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             for (path, report) in inputs.iter().zip(&compiled.reports) {
                 match report {
                     InputReport::Osm(r) => eprintln!(
-                        "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes); {} missing node references",
+                        "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes, or nodes over 5 km apart); {} missing node references",
                         path.display(), r.ways_read, r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
                     ),
                     InputReport::Lanelet2(r) => eprintln!(

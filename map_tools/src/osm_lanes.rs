@@ -78,7 +78,8 @@ pub struct DeriveReport {
     pub ways_not_drivable: usize,
     /// Drivable ways turned into lanes.
     pub ways_used: usize,
-    /// Drivable ways skipped because fewer than two of their nodes exist in the file.
+    /// Drivable ways skipped because fewer than two of their nodes exist in the file, or two
+    /// consecutive nodes are more than [`MAX_NODE_GAP_M`] apart.
     pub ways_without_geometry: usize,
     /// References to nodes that the file does not contain (skipped).
     pub missing_node_refs: usize,
@@ -212,8 +213,22 @@ pub fn offset_polyline(points: &[[f64; 2]], offset_m: f64) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// The longest step between two consecutive nodes of a road (metres): far beyond any real road
+/// segment; a longer one is a broken coordinate, and resampling it would turn a few bytes of
+/// input into millions of lane points.
+pub const MAX_NODE_GAP_M: f64 = 5000.0;
+
+/// True when no two consecutive points of `line` are more than [`MAX_NODE_GAP_M`] apart.
+pub fn has_plausible_steps(line: &[[f64; 2]]) -> bool {
+    line.windows(2).all(|w| {
+        let (dx, dy) = (w[1][0] - w[0][0], w[1][1] - w[0][1]);
+        (dx * dx + dy * dy).sqrt() <= MAX_NODE_GAP_M
+    })
+}
+
 /// The projected way line (metres), without repeated points; `None` if it has fewer than two
-/// distinct points. Counts missing node references into `report`.
+/// distinct points or two consecutive nodes more than [`MAX_NODE_GAP_M`] apart. Counts missing
+/// node references into `report`.
 fn way_line(
     osm: &OsmData,
     way: &Way,
@@ -232,7 +247,7 @@ fn way_line(
             None => report.missing_node_refs += 1,
         }
     }
-    (line.len() >= 2).then_some(line)
+    (line.len() >= 2 && has_plausible_steps(&line)).then_some(line)
 }
 
 /// Derives lane centerlines from the drivable ways of `osm`, projected with `plane`.

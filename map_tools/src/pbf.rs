@@ -1,10 +1,11 @@
 //! OSM PBF (`.osm.pbf`) reading with the `osmpbf` crate, decoding blocks on all cores.
 
 use std::io::Read;
+use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 
 use lanealign_core::input::open_regular;
-use osmpbf::{BlobDecode, BlobReader, Element, RelMemberType};
+use osmpbf::{Blob, BlobDecode, BlobReader, Element, RelMemberType};
 use rayon::iter::{ParallelBridge, ParallelIterator};
 
 use crate::osm::{Member, OsmData, Relation, Way};
@@ -77,6 +78,17 @@ fn add_element(d: &mut OsmData, e: Element<'_>) -> Result<(), String> {
     Ok(())
 }
 
+/// The elements of one blob.
+fn decode_block(blob: &Blob) -> Result<OsmData, String> {
+    let mut block_data = OsmData::default();
+    if let BlobDecode::OsmData(block) = blob.decode().map_err(|e| e.to_string())? {
+        for e in block.elements() {
+            add_element(&mut block_data, e)?;
+        }
+    }
+    Ok(block_data)
+}
+
 /// Reads a PBF file (regular files only); ways and relations come out ordered by id (see
 /// [`OsmData::sort`]).
 pub fn read_pbf_file(path: &Path) -> Result<OsmData, PbfError> {
@@ -97,14 +109,21 @@ pub fn read_pbf<R: Read + Send>(input: R, path: &Path) -> Result<OsmData, PbfErr
     let mut data = blobs
         .par_bridge()
         .map(|blob| {
-            let mut block_data = OsmData::default();
             let blob = blob.map_err(|e| e.to_string())?;
-            if let BlobDecode::OsmData(block) = blob.decode().map_err(|e| e.to_string())? {
-                for e in block.elements() {
-                    add_element(&mut block_data, e)?;
-                }
-            }
-            Ok(block_data)
+            // osmpbf 0.3.8 panics on some malformed blocks (an unknown relation member type
+            // unwraps a protobuf enum, found by fuzzing): such a block is an error like any other.
+            std::panic::catch_unwind(AssertUnwindSafe(|| decode_block(&blob))).unwrap_or_else(
+                |payload| {
+                    let why = payload
+                        .downcast_ref::<String>()
+                        .map(String::as_str)
+                        .or_else(|| payload.downcast_ref::<&str>().copied())
+                        .unwrap_or("no message");
+                    Err(format!(
+                        "a malformed data block (the PBF decoder failed: {why})"
+                    ))
+                },
+            )
         })
         .try_reduce(OsmData::default, |mut a, b| {
             a.merge(b);

@@ -55,7 +55,7 @@ fn compile_says_what_it_read_and_skipped() {
     let err = stderr(&out);
     assert!(out.status.success(), "{err}");
     assert!(
-        err.contains("4 ways read: 1 drivable -> 2 lanes; skipped 2 not drivable, 1 without geometry (fewer than 2 known nodes); 1 missing node references"),
+        err.contains("4 ways read: 1 drivable -> 2 lanes; skipped 2 not drivable, 1 without geometry (fewer than 2 known nodes, or nodes over 5 km apart); 1 missing node references"),
         "{err}"
     );
     let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);

@@ -1,0 +1,50 @@
+//! `lanealign correct` writes its outputs together or not at all, and says when a run looks set
+//! up wrongly.
+
+use std::process::Command;
+
+#[test]
+fn outputs_appear_only_when_the_whole_run_succeeded() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = dir.path().join("lanes.csv");
+    let mut text = String::from("lane_id,x,y\n");
+    for i in 0..100 {
+        text.push_str(&format!("1,{},0\n", i as f64 * 3.0));
+    }
+    std::fs::write(&lanes, text).unwrap();
+    let poses = dir.path().join("poses.txt");
+    let lines: String = (0..50)
+        .map(|i| format!("1 0 0 {i} 0 1 0 500 0 0 1 0\n"))
+        .collect();
+    std::fs::write(&poses, lines).unwrap();
+    let out = dir.path().join("out.txt");
+    let run = |status: &std::path::Path| {
+        Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args(["correct", "--preset", "kiss-icp", "--lanes"])
+            .arg(&lanes)
+            .arg(&poses)
+            .arg("-o")
+            .arg(&out)
+            .arg("--status")
+            .arg(status)
+            .output()
+            .unwrap()
+    };
+    let failed = run(&dir.path().join("missing/status.csv"));
+    assert_eq!(failed.status.code(), Some(1));
+    assert!(
+        !out.exists(),
+        "-o must not appear when --status cannot be written"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(left.len(), 2, "no partial files are left");
+    let ok = run(&dir.path().join("status.csv"));
+    let err = String::from_utf8_lossy(&ok.stderr);
+    assert!(ok.status.success(), "{err}");
+    assert!(out.exists() && dir.path().join("status.csv").exists());
+    // 500 m beside the only lane: nothing can be accepted, and the run says so.
+    assert!(
+        err.contains("WARN no correction was accepted in 50 poses"),
+        "{err}"
+    );
+}

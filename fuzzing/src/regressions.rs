@@ -1,0 +1,188 @@
+//! The known bad inputs, generated: each was once accepted, crashed a binary or misled, and each
+//! must now be refused with the error named here (or, where `refused_with` is `None`, handled
+//! without a crash). `lanealign-regressions DIR` writes them as files for the command-line
+//! tests and for anyone reproducing them by hand.
+
+use std::path::Path;
+
+use lanealign_core::pose::Pose3;
+use lanealign_core::tile;
+use lanealign_map::osm::read_xml;
+use lanealign_wire::payload::OdomPose;
+
+use crate::seeds::{self, odom_pose_bytes};
+use crate::targets::Target;
+
+/// One regression case.
+pub struct Case {
+    /// A file name for it (with its format's extension).
+    pub name: &'static str,
+    /// The harness that reads it.
+    pub target: Target,
+    /// The input.
+    pub bytes: Vec<u8>,
+    /// Part of the error it must be refused with; `None`: any outcome but a crash.
+    pub refused_with: Option<&'static str>,
+}
+
+fn put_u64(bytes: &mut [u8], at: usize, v: u64) {
+    bytes[at..at + 8].copy_from_slice(&v.to_le_bytes());
+}
+
+fn tile_cases() -> Vec<Case> {
+    let good = seeds::tiles().swap_remove(0);
+    let mut huge = good.clone();
+    // A point count and a payload length chosen so that unchecked size arithmetic wraps.
+    put_u64(&mut huge, 48, 1 << 60);
+    put_u64(&mut huge, 104, (good.len() - tile::HEADER_LEN) as u64);
+    tile::seal(&mut huge);
+    let mut reserved = good.clone();
+    reserved[120] = 1;
+    tile::seal(&mut reserved);
+    let mut point = good.clone();
+    let last = point.len() - 5;
+    point[last] ^= 0x40;
+    tile::seal(&mut point);
+    let mut flipped = good.clone();
+    flipped[300] ^= 4;
+    vec![
+        Case {
+            name: "tile_size_arithmetic_wraps.tile",
+            target: Target::Tile,
+            bytes: huge,
+            refused_with: Some("bad header field point count: 1152921504606846976"),
+        },
+        Case {
+            name: "tile_reserved_bytes_set.tile",
+            target: Target::Tile,
+            bytes: reserved,
+            refused_with: Some("present in an unsigned tile"),
+        },
+        Case {
+            name: "tile_point_changed_and_resealed.tile",
+            target: Target::Tile,
+            bytes: point,
+            refused_with: None,
+        },
+        Case {
+            name: "tile_byte_flipped.tile",
+            target: Target::Tile,
+            bytes: flipped,
+            refused_with: Some("checksum mismatch"),
+        },
+        Case {
+            name: "tile_truncated.tile",
+            target: Target::Tile,
+            bytes: good[..good.len() / 2].to_vec(),
+            refused_with: Some("truncated"),
+        },
+    ]
+}
+
+fn pbf_with_node(lat_nano: i64, lon_nano: i64) -> Vec<u8> {
+    let mut osm = read_xml(seeds::OSM_XML.as_bytes(), Path::new("seed.osm")).expect("seed reads");
+    osm.nodes.insert(99, (lat_nano, lon_nano));
+    crate::pbf_writer::write(&osm)
+}
+
+fn pose_line(pose: &Pose3) -> Vec<u8> {
+    let v = pose.to_row_major();
+    let text: Vec<String> = v.iter().map(|x| format!("{x:e}")).collect();
+    format!("{}\n", text.join(" ")).into_bytes()
+}
+
+/// Every regression case.
+pub fn cases() -> Vec<Case> {
+    let mut cases = tile_cases();
+    let cut = seeds::OSM_XML
+        .find(" <way id=\"11\">")
+        .expect("seed has way 11");
+    cases.push(Case {
+        name: "osm_cut_at_element_boundary.osm",
+        target: Target::OsmXml,
+        bytes: seeds::OSM_XML.as_bytes()[..cut].to_vec(),
+        refused_with: Some("before </osm>"),
+    });
+    for (name, lat, lon) in [
+        ("pbf_lat_91.osm.pbf", 91_000_000_000, 8_400_000_000),
+        ("pbf_lon_181.osm.pbf", 49_000_000_000, 181_000_000_000),
+        ("pbf_lat_100000.osm.pbf", 100_000_000_000_000, 8_400_000_000),
+    ] {
+        cases.push(Case {
+            name,
+            target: Target::Pbf,
+            bytes: pbf_with_node(lat, lon),
+            refused_with: Some("node 99: coordinates out of range"),
+        });
+    }
+    let mut far = Pose3::identity();
+    far.translation.x = 1e308;
+    let zero = Pose3 {
+        rotation: nalgebra::Matrix3::zeros(),
+        ..Pose3::identity()
+    };
+    let mut scaled = Pose3::identity();
+    scaled.rotation *= 2.0;
+    for (name, pose, why) in [
+        ("pose_at_1e308_m.txt", far, "beyond 1e7 m"),
+        ("pose_zero_rotation.txt", zero, "degenerate"),
+        ("pose_scaled_rotation.txt", scaled, "not orthonormal"),
+    ] {
+        let mut bytes = pose_line(&Pose3::identity());
+        bytes.extend(pose_line(&pose));
+        cases.push(Case {
+            name,
+            target: Target::Kitti,
+            bytes,
+            refused_with: Some(why),
+        });
+    }
+    cases.push(Case {
+        name: "pose_file_of_zeros.txt",
+        target: Target::Kitti,
+        bytes: vec![0; 1 << 20],
+        refused_with: Some(":1: longer than 4096 bytes"),
+    });
+    cases.push(Case {
+        name: "tum_time_goes_back.txt",
+        target: Target::Tum,
+        bytes: b"2 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n".to_vec(),
+        refused_with: Some("timestamps must increase"),
+    });
+    cases.push(Case {
+        name: "daemon_anchor_latitude_91.toml",
+        target: Target::DaemonToml,
+        bytes: seeds::DAEMON_TOML
+            .replace("lat = 49.0", "lat = 91.0")
+            .into_bytes(),
+        refused_with: Some("latitude 91"),
+    });
+    let last = OdomPose {
+        session: 5,
+        seq: u64::MAX,
+        stamp_ns: 0,
+        sent_mono_ns: 0,
+        pose: Pose3::identity().to_row_major(),
+        flags: lanealign_wire::payload::FLAG_FRESH_START,
+        reserved: 0,
+    };
+    cases.push(Case {
+        name: "wire_last_sequence_number.bin",
+        target: Target::Wire,
+        bytes: odom_pose_bytes(&last),
+        refused_with: None,
+    });
+    cases
+}
+
+/// Writes every case into `dir` under its name.
+pub fn write_all(dir: &Path) -> std::io::Result<Vec<String>> {
+    std::fs::create_dir_all(dir)?;
+    cases()
+        .into_iter()
+        .map(|c| {
+            std::fs::write(dir.join(c.name), &c.bytes)?;
+            Ok(c.name.to_string())
+        })
+        .collect()
+}

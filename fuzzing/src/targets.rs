@@ -1,0 +1,336 @@
+//! One harness per kind of untrusted input: each runs the product's reading path, and what a
+//! reader hands on to the rest (a lane map, poses, sessions) is used, so that a reader that
+//! accepts something it should not is caught where it would hurt. Returning an error is a
+//! correct answer; a panic is a bug.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::{Arc, OnceLock};
+
+use lanealign_core::corrector::MatchMode;
+use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::Preset;
+use lanealign_core::pose::AxisConvention;
+use lanealign_core::se2::Se2;
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::trajectory::{self, Format};
+use lanealign_core::{lane_csv, plausibility, tile};
+use lanealign_map::lanelet2::derive_lanelet_lanes;
+use lanealign_map::osm::{read_xml, OsmData};
+use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
+use lanealign_map::pbf::read_pbf;
+use lanealign_service::config::Config;
+use lanealign_service::session::{Session, SessionSetup};
+use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_FRESH_START};
+
+use crate::seeds::{self, ODOM_POSE_BYTES};
+
+/// A kind of untrusted input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Target {
+    /// A lane tile.
+    Tile,
+    /// Raw OSM XML.
+    OsmXml,
+    /// OSM PBF.
+    Pbf,
+    /// A Lanelet2 map (OSM XML with lanelet relations).
+    Lanelet2,
+    /// A KITTI pose file.
+    Kitti,
+    /// A TUM pose file.
+    Tum,
+    /// Lane CSV.
+    LaneCsv,
+    /// The daemon's TOML configuration.
+    DaemonToml,
+    /// A stream of wire payloads ([`OdomPose`]) into one source's sessions.
+    Wire,
+}
+
+type Outcome = Result<(), String>;
+
+impl Target {
+    /// Every target.
+    pub const ALL: [Target; 9] = [
+        Target::Tile,
+        Target::OsmXml,
+        Target::Pbf,
+        Target::Lanelet2,
+        Target::Kitti,
+        Target::Tum,
+        Target::LaneCsv,
+        Target::DaemonToml,
+        Target::Wire,
+    ];
+
+    /// The target's name (as in `fuzz/fuzz_targets/`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Target::Tile => "tile",
+            Target::OsmXml => "osm_xml",
+            Target::Pbf => "pbf",
+            Target::Lanelet2 => "lanelet2",
+            Target::Kitti => "kitti",
+            Target::Tum => "tum",
+            Target::LaneCsv => "lane_csv",
+            Target::DaemonToml => "daemon_toml",
+            Target::Wire => "wire",
+        }
+    }
+
+    /// Runs the harness on `bytes`: `Err` when the input is refused (a correct answer).
+    pub fn run(self, bytes: &[u8]) -> Outcome {
+        let err = |e: &dyn std::fmt::Display| e.to_string();
+        match self {
+            Target::Tile => {
+                let (map, _) = tile::decode(Path::new("fuzz.tile"), bytes).map_err(|e| err(&e))?;
+                use_map(&map);
+                Ok(())
+            }
+            Target::OsmXml | Target::Lanelet2 => {
+                let osm = read_xml(bytes, Path::new("fuzz.osm")).map_err(|e| err(&e))?;
+                derive_all(&osm, self == Target::Lanelet2)
+            }
+            Target::Pbf => {
+                let osm = read_pbf(bytes, Path::new("fuzz.osm.pbf")).map_err(|e| err(&e))?;
+                derive_all(&osm, false)
+            }
+            Target::Kitti | Target::Tum => {
+                let format = if self == Target::Kitti {
+                    Format::Kitti
+                } else {
+                    Format::Tum
+                };
+                let traj =
+                    trajectory::parse(bytes, Path::new("fuzz.txt"), format).map_err(|e| err(&e))?;
+                correct(&traj.poses);
+                Ok(())
+            }
+            Target::LaneCsv => {
+                let lanes = lane_csv::parse(bytes, Path::new("fuzz.csv")).map_err(|e| err(&e))?;
+                let map = LaneMap::new(&lanes).map_err(|e| err(&e))?;
+                use_map(&map);
+                Ok(())
+            }
+            Target::DaemonToml => {
+                let text = std::str::from_utf8(bytes).map_err(|e| err(&e))?;
+                let path = Path::new("/etc/lanealign/fuzz.toml");
+                let config = Config::parse(text, path).map_err(|e| err(&e))?;
+                config.resolve(path).map_err(|e| err(&e))?;
+                Ok(())
+            }
+            Target::Wire => {
+                serve(bytes);
+                Ok(())
+            }
+        }
+    }
+
+    /// The seeds the mutator starts from.
+    pub fn seeds(self) -> Vec<Vec<u8>> {
+        match self {
+            Target::Tile => seeds::tiles(),
+            Target::OsmXml => vec![seeds::OSM_XML.as_bytes().to_vec()],
+            Target::Pbf => vec![crate::pbf_writer::write(
+                &read_xml(seeds::OSM_XML.as_bytes(), Path::new("seed.osm")).expect("seed reads"),
+            )],
+            Target::Lanelet2 => vec![seeds::LANELET2_XML.as_bytes().to_vec()],
+            Target::Kitti => vec![seeds::trajectory_text(Format::Kitti)],
+            Target::Tum => vec![seeds::trajectory_text(Format::Tum)],
+            Target::LaneCsv => vec![seeds::lane_csv()],
+            Target::DaemonToml => vec![seeds::DAEMON_TOML.as_bytes().to_vec()],
+            Target::Wire => vec![seeds::wire_stream()],
+        }
+    }
+
+    /// Tokens the mutator inserts: what the format's reader branches on.
+    pub fn dictionary(self) -> &'static [&'static [u8]] {
+        const NUMBERS: [&[u8]; 9] = [
+            b"nan",
+            b"inf",
+            b"-inf",
+            b"1e308",
+            b"-0",
+            b"1e7",
+            b"10000001",
+            b"0x10",
+            b"\r\n",
+        ];
+        match self {
+            Target::OsmXml | Target::Lanelet2 => &[
+                b"</osm>",
+                b"<osm>",
+                b"<way id=\"7\">",
+                b"</way>",
+                b"<nd ref=\"1\"/>",
+                b"<node id=\"9\" lat=\"91\" lon=\"181\"/>",
+                b"<tag k=\"lanes\" v=\"-3\"/>",
+                b"<tag k=\"oneway\" v=\"-1\"/>",
+                b"<tag k=\"width\" v=\"1e308\"/>",
+                b"<relation id=\"1\">",
+                b"</relation>",
+                b"<member type=\"way\" ref=\"10\" role=\"left\"/>",
+                b"&amp;",
+                b"&#0;",
+                b"<![CDATA[",
+                b"<!--",
+                b"-->",
+                b"\"nan\"",
+            ],
+            Target::DaemonToml => &[
+                b"[[source]]\n",
+                b"anchor = { lat = 91, lon = 0, yaw_deg = 0 }\n",
+                b"= 1e300\n",
+                b"max_window = 0",
+                b"\"\"",
+                b"nan",
+                b"-inf",
+                b"[",
+                b"{",
+                b"}",
+            ],
+            Target::Kitti | Target::Tum | Target::LaneCsv => &NUMBERS,
+            Target::Tile | Target::Pbf | Target::Wire => &[],
+        }
+    }
+
+    /// Makes a mutant reach past the integrity check most of the time: a tile mutant gets its
+    /// checksum recomputed in 7 of 8 cases (else nearly every mutant stops at the checksum).
+    pub fn prepare(self, mutant: &mut [u8], coin: u64) {
+        if self == Target::Tile && !coin.is_multiple_of(8) {
+            tile::seal(mutant);
+        }
+    }
+}
+
+/// Queries a loaded map the way the corrector does.
+fn use_map(map: &LaneMap) {
+    let mut out = Vec::new();
+    for p in [[0.0, 0.0], [20.0, 3.0], [-1e6, 1e6], [f64::MAX, 0.0]] {
+        map.nearest(p, 8, &mut out);
+        assert!(out.windows(2).all(|w| w[0].0 <= w[1].0), "nearest sorted");
+        for &(_, j) in &out {
+            let _ = map.segment_of(j);
+        }
+        let _ = plausibility::distance_to_lanes(map, p);
+    }
+}
+
+/// Derives lanes (raw OSM or Lanelet2) and builds the map from them.
+fn derive_all(osm: &OsmData, lanelet2: bool) -> Outcome {
+    let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+    let lanes = if lanelet2 {
+        derive_lanelet_lanes(osm, &plane, 3.0).0
+    } else {
+        derive_lanes(osm, &plane, &LaneOptions::default()).0
+    };
+    let map = LaneMap::new(&lanes).map_err(|e| e.to_string())?;
+    use_map(&map);
+    Ok(())
+}
+
+fn seed_map() -> Arc<LaneMap> {
+    static MAP: OnceLock<Arc<LaneMap>> = OnceLock::new();
+    MAP.get_or_init(|| Arc::new(seeds::lane_map())).clone()
+}
+
+fn placement() -> Placement {
+    Placement {
+        convention: AxisConvention::Flu,
+        anchored_from_odom: Se2::IDENTITY,
+        smoothing: None,
+    }
+}
+
+/// Corrects poses that passed a reader's checks: every output must be finite.
+fn correct(poses: &[lanealign_core::pose::Pose3]) {
+    let _ = plausibility::axis_convention_warning(poses, AxisConvention::Flu);
+    let run = correct_trajectory(
+        seed_map(),
+        Preset::KissIcp.params(),
+        MatchMode::Fast,
+        placement(),
+        poses,
+    );
+    assert!(
+        run.iter().all(|c| c.pose.is_finite()),
+        "a non-finite corrected pose from accepted input"
+    );
+}
+
+fn odom_pose(chunk: &[u8]) -> OdomPose {
+    let u64_at = |k: usize| {
+        let mut b = [0; 8];
+        b.copy_from_slice(&chunk[8 * k..8 * k + 8]);
+        u64::from_le_bytes(b)
+    };
+    let u32_at = |at: usize| {
+        let mut b = [0; 4];
+        b.copy_from_slice(&chunk[at..at + 4]);
+        u32::from_le_bytes(b)
+    };
+    OdomPose {
+        session: u64_at(0),
+        seq: u64_at(1),
+        stamp_ns: u64_at(2) as i64,
+        sent_mono_ns: u64_at(3),
+        pose: std::array::from_fn(|k| f64::from_bits(u64_at(4 + k))),
+        flags: u32_at(128),
+        reserved: u32_at(132),
+    }
+}
+
+/// Serves a byte stream of payloads as the worker does (a session starts at its first pose or
+/// afresh on request), checking what every answer must satisfy.
+fn serve(bytes: &[u8]) {
+    let setup = SessionSetup {
+        map: seed_map(),
+        params: Preset::KissIcp.params(),
+        mode: MatchMode::Fast,
+        placement: placement(),
+        journal_dir: None,
+        fingerprint: 0,
+        persistence: None,
+        daemon_epoch: 1,
+    };
+    let mut sessions: BTreeMap<u64, Session> = BTreeMap::new();
+    for chunk in bytes.chunks_exact(ODOM_POSE_BYTES) {
+        let input = odom_pose(chunk);
+        let fresh = input.flags & FLAG_FRESH_START != 0;
+        if fresh || !sessions.contains_key(&input.session) {
+            if sessions.len() >= 4 && !sessions.contains_key(&input.session) {
+                continue;
+            }
+            let first = if fresh { input.seq } else { 1 };
+            sessions.insert(
+                input.session,
+                Session::start(input.session, first, &setup).0,
+            );
+        }
+        let Some(session) = sessions.get_mut(&input.session) else {
+            continue;
+        };
+        let before = session.expected_seq();
+        let (handled, _) = session.handle(&input, 0, &setup);
+        let a = handled.answer;
+        assert_eq!(
+            (a.session, a.seq),
+            (input.session, input.seq),
+            "answer names its input"
+        );
+        assert!(
+            session.expected_seq() >= before,
+            "the expected number never goes back"
+        );
+        let status = StatusCode::from_code(a.status).expect("a known status");
+        if status == StatusCode::Accepted {
+            assert!(
+                a.pose.iter().all(|v| v.is_finite()),
+                "an accepted pose is finite"
+            );
+            assert!(a.map_from_odom.iter().all(|v| v.is_finite()));
+        }
+    }
+}

@@ -1,0 +1,131 @@
+//! Every harness on 10^5 mutants of its seeds (`LANEALIGN_FUZZ_CASES` changes the count), from a
+//! fixed seed per target: reproducible, on stable Rust. A panic fails the test naming the case
+//! and writes the input to `target/fuzz-failures/` to reproduce it; a case slower than a second
+//! fails as a hang.
+
+use std::panic::AssertUnwindSafe;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use lanealign_fuzzing::mutate::{mutate, Rng};
+use lanealign_fuzzing::targets::Target;
+
+fn cases() -> usize {
+    std::env::var("LANEALIGN_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(100_000)
+}
+
+/// The panic's message.
+fn message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_default()
+}
+
+fn fuzz(target: Target) {
+    // Panics are this test's findings, reported below (on standard error, which the harness
+    // shows for a failed test) with their input: the default hook would also print every panic
+    // a reader catches and turns into an error (osmpbf's, in rayon's threads).
+    std::panic::set_hook(Box::new(|_| {}));
+    let seeds = target.seeds();
+    for seed in &seeds {
+        assert!(
+            target.run(seed).is_ok(),
+            "{}: a seed must be accepted",
+            target.name()
+        );
+    }
+    let mut rng = Rng::new(0x1a2e_a119 ^ target as u64);
+    let (mut accepted, mut slowest) = (0usize, Duration::ZERO);
+    let started = Instant::now();
+    let n = cases();
+    for case in 0..n {
+        let seed = &seeds[rng.below(seeds.len())];
+        let other = &seeds[rng.below(seeds.len())];
+        let mut input = mutate(&mut rng, seed, target.dictionary(), other);
+        target.prepare(&mut input, rng.next_u64());
+        let t = Instant::now();
+        let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| target.run(&input)));
+        let took = t.elapsed();
+        slowest = slowest.max(took);
+        let failure = match outcome {
+            Ok(result) => {
+                accepted += usize::from(result.is_ok());
+                (took > Duration::from_secs(1)).then(|| format!("took {took:?}"))
+            }
+            Err(payload) => Some(format!("panicked: {}", message(payload.as_ref()))),
+        };
+        if let Some(what) = failure {
+            let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/fuzz-failures");
+            let file = dir.join(format!("{}-{case}.bin", target.name()));
+            let _ = std::fs::create_dir_all(&dir);
+            let _ = std::fs::write(&file, &input);
+            eprintln!(
+                "{} case {case} {what}; input in {}",
+                target.name(),
+                file.display()
+            );
+            panic!("{} case {case} failed", target.name());
+        }
+    }
+    eprintln!(
+        "{}: {n} cases in {:.1} s, {accepted} accepted, slowest {slowest:?}",
+        target.name(),
+        started.elapsed().as_secs_f64()
+    );
+    // The wire harness answers every stream (its findings are broken invariants); every reader
+    // must both accept and refuse some mutants, or the mutants do not reach its logic.
+    if target != Target::Wire && !(accepted > 0 && accepted < n) {
+        eprintln!("{}: {accepted} of {n} mutants accepted", target.name());
+        panic!("{}: mutants must reach both answers", target.name());
+    }
+}
+
+#[test]
+fn tile() {
+    fuzz(Target::Tile);
+}
+
+#[test]
+fn osm_xml() {
+    fuzz(Target::OsmXml);
+}
+
+#[test]
+fn pbf() {
+    fuzz(Target::Pbf);
+}
+
+#[test]
+fn lanelet2() {
+    fuzz(Target::Lanelet2);
+}
+
+#[test]
+fn kitti() {
+    fuzz(Target::Kitti);
+}
+
+#[test]
+fn tum() {
+    fuzz(Target::Tum);
+}
+
+#[test]
+fn lane_csv() {
+    fuzz(Target::LaneCsv);
+}
+
+#[test]
+fn daemon_toml() {
+    fuzz(Target::DaemonToml);
+}
+
+#[test]
+fn wire() {
+    fuzz(Target::Wire);
+}
