@@ -48,15 +48,27 @@ pub enum InputError {
     },
 }
 
-/// At most [`QUOTE_CHARS`] characters of `text`, with `...` when cut.
+/// At most [`QUOTE_CHARS`] characters of `text`, with `...` when cut; control characters are
+/// escaped (`\0` as `\u{0}`), so that a quote never writes raw bytes to a terminal, and the
+/// escapes count towards the limit.
 pub fn quote(text: &str) -> String {
-    let mut chars = text.chars();
-    let head: String = chars.by_ref().take(QUOTE_CHARS).collect();
-    if chars.next().is_some() {
-        format!("{head}...")
-    } else {
-        head
+    let mut head = String::new();
+    let mut shown = 0;
+    for c in text.chars() {
+        let piece: String = if c.is_control() {
+            c.escape_default().collect()
+        } else {
+            c.to_string()
+        };
+        let len = piece.chars().count();
+        if shown + len > QUOTE_CHARS {
+            head.push_str("...");
+            return head;
+        }
+        head.push_str(&piece);
+        shown += len;
     }
+    head
 }
 
 /// Opens `path` for reading if it is a regular file. The file is opened non-blocking, so a FIFO
@@ -215,6 +227,16 @@ impl Drop for Outputs {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quotes_are_short_and_escape_control_characters() {
+        assert_eq!(quote("a\0b\x1b"), "a\\u{0}b\\u{1b}");
+        assert_eq!(
+            quote(&"\0".repeat(100)),
+            format!("{}...", "\\u{0}".repeat(16))
+        );
+        assert_eq!(quote(&"x".repeat(100)), format!("{}...", "x".repeat(80)));
+    }
 
     #[test]
     fn lines_are_bounded_and_quoted_short() {
