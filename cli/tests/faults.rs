@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use common::*;
 use lanealign_cli::daemon_process::DaemonProcess;
-use lanealign_cli::synthetic;
+use lanealign_cli::synthetic::{self, Lcg};
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
@@ -21,21 +21,9 @@ use lanealign_wire::clock::monotonic_ns;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
-/// A small deterministic generator (64-bit LCG): the same kill moments on every run.
-struct Lcg(u64);
-
-impl Lcg {
-    fn uniform(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn between(&mut self, lo: f64, hi: f64) -> Duration {
-        Duration::from_secs_f64(lo + (hi - lo) * self.uniform())
-    }
+/// A pause between `lo` and `hi` seconds: the same kill moments on every run.
+fn between(rng: &mut Lcg, lo: f64, hi: f64) -> Duration {
+    Duration::from_secs_f64(lo + (hi - lo) * rng.uniform())
 }
 
 /// `lanealign replay` of `input` to `output` as a process.
@@ -83,7 +71,7 @@ fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], se
             &setup.dir.path().join(format!("killed-{k}.txt")),
             "2000",
         );
-        std::thread::sleep(rng.between(0.2, 1.2));
+        std::thread::sleep(between(&mut rng, 0.2, 1.2));
         doomed.kill().unwrap();
         doomed.wait().unwrap();
     }
@@ -132,9 +120,9 @@ fn killed_daemons(
     let client = spawn_replay(setup, source, input, &output, rate);
     let mut restored = 0;
     for _ in 0..3 {
-        std::thread::sleep(rng.between(0.3, 1.0));
+        std::thread::sleep(between(&mut rng, 0.3, 1.0));
         daemon.kill().unwrap();
-        std::thread::sleep(rng.between(0.0, 0.5));
+        std::thread::sleep(between(&mut rng, 0.0, 0.5));
         daemon =
             DaemonProcess::start_ready(&setup.config, &daemon_log(setup), Duration::from_secs(20))
                 .unwrap();

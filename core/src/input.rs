@@ -28,6 +28,16 @@ pub enum InputError {
         /// The path.
         path: PathBuf,
     },
+    /// A whole-file input larger than its limit.
+    #[error("{path}: {len} bytes, more than the {limit} bytes such a file may have")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its length (bytes).
+        len: u64,
+        /// The limit (bytes).
+        limit: u64,
+    },
     /// A line longer than [`MAX_LINE_BYTES`].
     #[error("{path}:{line}: longer than {MAX_LINE_BYTES} bytes, starting '{start}'")]
     LineTooLong {
@@ -90,6 +100,32 @@ pub fn open_regular(path: &Path) -> Result<File, InputError> {
         });
     }
     Ok(file)
+}
+
+/// Reads a whole regular file of at most `limit` bytes into memory (a FIFO or a device is never
+/// waited on or read without end).
+pub fn read_regular_file(path: &Path, limit: u64) -> Result<Vec<u8>, InputError> {
+    let io = |source| InputError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let too_large = |len| InputError::TooLarge {
+        path: path.to_path_buf(),
+        len,
+        limit,
+    };
+    let file = open_regular(path)?;
+    let len = file.metadata().map_err(io)?.len();
+    if len > limit {
+        return Err(too_large(len));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    // One byte past the limit tells a file that grew while being read.
+    file.take(limit + 1).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
 }
 
 /// The lines of a reader (by default a regular file), each at most [`MAX_LINE_BYTES`], as

@@ -22,12 +22,14 @@ const MIN_PATH_FOR_AXIS_CHECK_M: f64 = 10.0;
 /// The share of the 3D path length of `poses` (given in `convention`) that goes along the
 /// planar frame's vertical axis; `None` when the path is too short to tell.
 pub fn vertical_share(poses: &[Pose3], convention: AxisConvention) -> Option<f64> {
+    let mut positions = poses.iter().map(|p| convention.to_planar(p).translation);
+    let mut last = positions.next()?;
     let (mut vertical, mut total) = (0.0, 0.0);
-    for pair in poses.windows(2) {
-        let d =
-            convention.to_planar(&pair[1]).translation - convention.to_planar(&pair[0]).translation;
+    for position in positions {
+        let d = position - last;
         vertical += d.z.abs();
         total += d.norm();
+        last = position;
     }
     (total.is_finite() && total >= MIN_PATH_FOR_AXIS_CHECK_M).then(|| vertical / total)
 }

@@ -35,7 +35,6 @@
 //! flags `u8`, per lane), points (`f64` x, y per point); each array starts at a multiple of 8.
 //! Segment directions and the KD-tree are derived from the points at load.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use ed25519_dalek::{Signature, Signer, VerifyingKey};
@@ -93,26 +92,10 @@ pub struct TileInfo {
 /// A tile that could not be written or loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum TileError {
-    /// The file could not be created, opened or read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
-    /// The file could not be opened for reading, or is not a regular file (a FIFO, a device,
-    /// a directory).
+    /// The file could not be written, opened or read, is not a regular file (a FIFO, a device,
+    /// a directory) or is larger than [`MAX_TILE_BYTES`].
     #[error(transparent)]
     Input(#[from] InputError),
-    /// Larger than [`MAX_TILE_BYTES`].
-    #[error("{path}: {len} bytes, more than any tile this build loads ({MAX_TILE_BYTES})")]
-    TooLarge {
-        /// The file.
-        path: PathBuf,
-        /// Its length.
-        len: u64,
-    },
     /// Shorter than its header or than the header says.
     #[error("{path}: truncated: {len} bytes, expected {expected}")]
     Truncated {
@@ -624,37 +607,10 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<(LaneMap, TileInfo), TileErro
     Ok((map, info))
 }
 
-/// Reads a whole file of at most `limit` bytes into memory; refuses anything but a regular
-/// file, so a FIFO or a device is never waited on or read without end.
-pub fn read_regular_file(path: &Path, limit: u64) -> Result<Vec<u8>, TileError> {
-    let io = |source| TileError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let file = crate::input::open_regular(path)?;
-    let meta = file.metadata().map_err(io)?;
-    if meta.len() > limit {
-        return Err(TileError::TooLarge {
-            path: path.to_path_buf(),
-            len: meta.len(),
-        });
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    // One byte past the limit tells a file that grew while being read.
-    file.take(limit + 1).read_to_end(&mut bytes).map_err(io)?;
-    if bytes.len() as u64 > limit {
-        return Err(TileError::TooLarge {
-            path: path.to_path_buf(),
-            len: bytes.len() as u64,
-        });
-    }
-    Ok(bytes)
-}
-
 /// Loads a tile: reads it into memory (bounded), validates everything and builds the map. The
 /// map owns its data: the file can change or vanish afterwards without effect.
 pub fn load(path: &Path) -> Result<(LaneMap, TileInfo), TileError> {
-    let bytes = read_regular_file(path, MAX_TILE_BYTES)?;
+    let bytes = crate::input::read_regular_file(path, MAX_TILE_BYTES)?;
     decode(path, &bytes)
 }
 

@@ -1,31 +1,10 @@
 //! A seeded mutator: small structural edits of real inputs, the way coverage-guided fuzzers
-//! mutate, without needing their runtime (it runs under `cargo test` on stable Rust). Written
-//! by hand: the generator is SplitMix64 (a dozen lines), and the edits are specific to inputs
-//! that are text or little-endian binary headers.
+//! mutate, without needing their runtime (it runs under `cargo test` on stable Rust). The edits
+//! are written here because they are specific to inputs that are text or little-endian binary
+//! headers; the randomness is `rand`'s `SmallRng` from a fixed seed.
 
-/// SplitMix64: a fixed-seed, fast, well-mixed generator (Steele, Lea, Flood 2014).
-pub struct Rng(u64);
-
-impl Rng {
-    /// A generator starting from `seed`.
-    pub fn new(seed: u64) -> Rng {
-        Rng(seed)
-    }
-
-    /// The next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// A number in `0..n` (`n` > 0).
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n as u64) as usize
-    }
-}
+use rand::rngs::SmallRng;
+use rand::RngExt;
 
 /// Values that break size arithmetic and range checks, written as little-endian integers.
 const INTERESTING: [u64; 10] = [
@@ -44,28 +23,34 @@ const INTERESTING: [u64; 10] = [
 /// One edit of `data`: a bit flip, an interesting byte, word or number written over it, a
 /// dictionary token inserted or written over it, a range deleted, duplicated or cut off, or a
 /// splice of `other`.
-fn edit(rng: &mut Rng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u8]) {
-    let at = |rng: &mut Rng, len: usize| if len == 0 { 0 } else { rng.below(len) };
+fn edit(rng: &mut SmallRng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u8]) {
+    let at = |rng: &mut SmallRng, len: usize| {
+        if len == 0 {
+            0
+        } else {
+            rng.random_range(0..len)
+        }
+    };
     let len = data.len();
-    match rng.below(10) {
+    match rng.random_range(0..10) {
         0 if len > 0 => {
             let i = at(rng, len);
-            data[i] ^= 1 << rng.below(8);
+            data[i] ^= 1 << rng.random_range(0..8);
         }
         1 if len > 0 => {
             let i = at(rng, len);
-            data[i] = [0, 0xff, 0x7f, 0x80, b'\n', b'<', b'"', b'-'][rng.below(8)];
+            data[i] = [0, 0xff, 0x7f, 0x80, b'\n', b'<', b'"', b'-'][rng.random_range(0..8)];
         }
         2 if len >= 8 => {
-            let width = [4, 8][rng.below(2)];
+            let width = [4, 8][rng.random_range(0..2)];
             let i = at(rng, len - width + 1) & !(width - 1);
-            let v = INTERESTING[rng.below(INTERESTING.len())].to_le_bytes();
+            let v = INTERESTING[rng.random_range(0..INTERESTING.len())].to_le_bytes();
             data[i..i + width].copy_from_slice(&v[..width]);
         }
         3 | 4 if !dictionary.is_empty() => {
-            let token = dictionary[rng.below(dictionary.len())];
+            let token = dictionary[rng.random_range(0..dictionary.len())];
             let i = at(rng, len + 1);
-            if rng.below(2) == 0 {
+            if rng.random_range(0..2) == 0 {
                 data.splice(i..i, token.iter().copied());
             } else {
                 let end = (i + token.len()).min(len);
@@ -74,12 +59,12 @@ fn edit(rng: &mut Rng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u8]) {
         }
         5 if len > 0 => {
             let i = at(rng, len);
-            let n = 1 + rng.below((len - i).min(64));
+            let n = 1 + rng.random_range(0..(len - i).min(64));
             data.drain(i..i + n);
         }
         6 if len > 0 => {
             let i = at(rng, len);
-            let n = 1 + rng.below((len - i).min(256));
+            let n = 1 + rng.random_range(0..(len - i).min(256));
             let copy = data[i..i + n].to_vec();
             let j = at(rng, len + 1);
             data.splice(j..j, copy);
@@ -93,16 +78,16 @@ fn edit(rng: &mut Rng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u8]) {
         }
         _ => {
             let i = at(rng, len + 1);
-            let digit = b"0123456789.e-+"[rng.below(14)];
+            let digit = b"0123456789.e-+"[rng.random_range(0..14)];
             data.insert(i, digit);
         }
     }
 }
 
 /// A mutant of `seed`: 1 to 8 edits (never longer than 1 MiB).
-pub fn mutate(rng: &mut Rng, seed: &[u8], dictionary: &[&[u8]], other: &[u8]) -> Vec<u8> {
+pub fn mutate(rng: &mut SmallRng, seed: &[u8], dictionary: &[&[u8]], other: &[u8]) -> Vec<u8> {
     let mut data = seed.to_vec();
-    for _ in 0..1 + rng.below(8) {
+    for _ in 0..1 + rng.random_range(0..8) {
         edit(rng, &mut data, dictionary, other);
     }
     data.truncate(1 << 20);
@@ -112,11 +97,12 @@ pub fn mutate(rng: &mut Rng, seed: &[u8], dictionary: &[&[u8]], other: &[u8]) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::SeedableRng;
 
     #[test]
     fn the_same_seed_gives_the_same_mutants() {
         let run = |seed| {
-            let mut rng = Rng::new(seed);
+            let mut rng = SmallRng::seed_from_u64(seed);
             (0..100)
                 .map(|_| mutate(&mut rng, b"<osm>1.5 2.5</osm>", &[b"nan"], b"xyz"))
                 .collect::<Vec<_>>()

@@ -7,6 +7,7 @@ use std::path::Path;
 
 use lanealign_core::pose::Pose3;
 use lanealign_core::tile;
+use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::osm::read_xml;
 use lanealign_wire::payload::OdomPose;
 
@@ -85,10 +86,14 @@ fn pbf_with_node(lat_nano: i64, lon_nano: i64) -> Vec<u8> {
     crate::pbf_writer::write(&osm)
 }
 
-fn pose_line(pose: &Pose3) -> Vec<u8> {
-    let v = pose.to_row_major();
-    let text: Vec<String> = v.iter().map(|x| format!("{x:e}")).collect();
-    format!("{}\n", text.join(" ")).into_bytes()
+fn kitti_text(poses: Vec<Pose3>) -> Vec<u8> {
+    let traj = Trajectory {
+        stamps: None,
+        poses,
+    };
+    trajectory::format_text(&traj, Format::Kitti, Path::new("case"))
+        .expect("KITTI text needs no stamps")
+        .into_bytes()
 }
 
 /// Every regression case.
@@ -128,12 +133,10 @@ pub fn cases() -> Vec<Case> {
         ("pose_zero_rotation.txt", zero, "degenerate"),
         ("pose_scaled_rotation.txt", scaled, "not orthonormal"),
     ] {
-        let mut bytes = pose_line(&Pose3::identity());
-        bytes.extend(pose_line(&pose));
         cases.push(Case {
             name,
             target: Target::Kitti,
-            bytes,
+            bytes: kitti_text(vec![Pose3::identity(), pose]),
             refused_with: Some(why),
         });
     }

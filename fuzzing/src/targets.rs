@@ -21,7 +21,7 @@ use lanealign_map::osm::{read_xml, OsmData};
 use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
 use lanealign_map::pbf::read_pbf;
 use lanealign_service::config::Config;
-use lanealign_service::session::{Session, SessionSetup};
+use lanealign_service::session::{self, Session, SessionSetup};
 use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_FRESH_START};
 
 use crate::seeds::{self, ODOM_POSE_BYTES};
@@ -303,7 +303,7 @@ fn serve(bytes: &[u8]) {
             if sessions.len() >= 4 && !sessions.contains_key(&input.session) {
                 continue;
             }
-            let first = if fresh { input.seq } else { 1 };
+            let first = session::first_seq(&input);
             sessions.insert(
                 input.session,
                 Session::start(input.session, first, &setup).0,

@@ -7,8 +7,10 @@ use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use lanealign_fuzzing::mutate::{mutate, Rng};
+use lanealign_fuzzing::mutate::mutate;
 use lanealign_fuzzing::targets::Target;
+use rand::rngs::SmallRng;
+use rand::{Rng, RngExt, SeedableRng};
 
 fn cases() -> usize {
     std::env::var("LANEALIGN_FUZZ_CASES")
@@ -39,13 +41,13 @@ fn fuzz(target: Target) {
             target.name()
         );
     }
-    let mut rng = Rng::new(0x1a2e_a119 ^ target as u64);
+    let mut rng = SmallRng::seed_from_u64(0x1a2e_a119 ^ target as u64);
     let (mut accepted, mut slowest) = (0usize, Duration::ZERO);
     let started = Instant::now();
     let n = cases();
     for case in 0..n {
-        let seed = &seeds[rng.below(seeds.len())];
-        let other = &seeds[rng.below(seeds.len())];
+        let seed = &seeds[rng.random_range(0..seeds.len())];
+        let other = &seeds[rng.random_range(0..seeds.len())];
         let mut input = mutate(&mut rng, seed, target.dictionary(), other);
         target.prepare(&mut input, rng.next_u64());
         let t = Instant::now();

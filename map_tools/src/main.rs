@@ -79,7 +79,7 @@ enum Command {
 
 /// The signing key in a key file from `keygen` (64 hex digits).
 fn read_secret_key(path: &std::path::Path) -> anyhow::Result<tile::SigningKey> {
-    let bytes = tile::read_regular_file(path, 1024)?;
+    let bytes = lanealign_core::input::read_regular_file(path, 1024)?;
     let seed = std::str::from_utf8(&bytes)
         .ok()
         .and_then(tile::parse_key_hex)
@@ -180,7 +180,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 match report {
                     InputReport::Osm(r) => eprintln!(
                         "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes, or nodes over 5 km apart); {} missing node references",
-                        path.display(), r.ways_read, r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
+                        path.display(), r.ways_read(), r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
                     ),
                     InputReport::Lanelet2(r) => eprintln!(
                         "{}: Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
@@ -221,8 +221,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tile: path,
             geojson,
         } => {
-            let bytes = tile::read_regular_file(&path, tile::MAX_TILE_BYTES)?;
-            let (map, info) = tile::decode(&path, &bytes)?;
+            let (map, info) = tile::load(&path)?;
             let p = info.plane;
             let (lat0, lon0) = p.unproject([info.bounds[0], info.bounds[1]]);
             let (lat1, lon1) = p.unproject([info.bounds[2], info.bounds[3]]);
@@ -230,7 +229,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             println!(
                 "format      version {}, little-endian, {} bytes",
                 tile::VERSION,
-                bytes.len()
+                tile::HEADER_LEN as u64 + info.payload_len
             );
             println!(
                 "origin      {:.9}, {:.9} ({} projection)",

@@ -71,8 +71,6 @@ impl LaneOptions {
 /// What lane derivation did with the input, for a person to check.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct DeriveReport {
-    /// Ways in the input.
-    pub ways_read: usize,
     /// Ways skipped because they are not a road of the selected classes (no `highway` tag, a
     /// class not selected, or `area=yes`).
     pub ways_not_drivable: usize,
@@ -85,6 +83,13 @@ pub struct DeriveReport {
     pub missing_node_refs: usize,
     /// Lanes produced.
     pub lanes: usize,
+}
+
+impl DeriveReport {
+    /// Ways in the input: every way is used, not drivable or without geometry.
+    pub fn ways_read(&self) -> usize {
+        self.ways_used + self.ways_not_drivable + self.ways_without_geometry
+    }
 }
 
 /// The default lane width (metres) of a highway class, used when `width` is absent.
@@ -257,10 +262,7 @@ pub fn derive_lanes(
     plane: &MapPlane,
     opts: &LaneOptions,
 ) -> (Vec<Lane>, DeriveReport) {
-    let mut report = DeriveReport {
-        ways_read: osm.ways.len(),
-        ..DeriveReport::default()
-    };
+    let mut report = DeriveReport::default();
     let mut lanes = Vec::new();
     for way in &osm.ways {
         let road_class = tag(&way.tags, "highway")

@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use lanealign_core::geo::Anchor;
+use lanealign_core::input::{read_regular_file, InputError};
 use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::tile::{key_hex, parse_key_hex, TileInfo};
@@ -197,19 +198,18 @@ const MAX_CONFIG_BYTES: u64 = 1 << 20;
 impl Config {
     /// Reads a configuration file (at most 1 MiB, regular files only); makes `tile` absolute.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let io = |source| ConfigError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let meta = std::fs::metadata(path).map_err(io)?;
-        if !meta.is_file() || meta.len() > MAX_CONFIG_BYTES {
-            return Err(ConfigError::Value {
+        let bytes = read_regular_file(path, MAX_CONFIG_BYTES).map_err(|e| match e {
+            InputError::Io { path, source } => ConfigError::Io { path, source },
+            _ => ConfigError::Value {
                 path: path.to_path_buf(),
                 key: "(file)".into(),
                 message: format!("not a regular file of at most {MAX_CONFIG_BYTES} bytes"),
-            });
-        }
-        let text = std::fs::read_to_string(path).map_err(io)?;
+            },
+        })?;
+        let text = String::from_utf8(bytes).map_err(|e| ConfigError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(std::io::ErrorKind::InvalidData, e),
+        })?;
         Self::parse(&text, path)
     }
 

@@ -16,7 +16,9 @@ use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
 use lanealign_core::pose::Pose3;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
-use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, MAX_IN_FLIGHT};
+use lanealign_wire::payload::{
+    CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START, MAX_IN_FLIGHT,
+};
 
 use crate::journal::{
     read_segment, segments, Header, JournalError, Record, SegmentWriter, Snapshot, SEGMENT_RECORDS,
@@ -121,6 +123,16 @@ fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> Correcte
         status: StatusCode::PassThrough as u32,
         reason: ReasonCode::None as u32,
         reserved: 0,
+    }
+}
+
+/// The first sequence number of a session that `input` starts: the input's own when the client
+/// starts the session afresh ([`FLAG_FRESH_START`]), else 1.
+pub fn first_seq(input: &OdomPose) -> u64 {
+    if input.flags & FLAG_FRESH_START != 0 {
+        input.seq
+    } else {
+        1
     }
 }
 

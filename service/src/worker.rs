@@ -266,7 +266,7 @@ impl Worker {
         let session = if self.setup.source.pass_through {
             None
         } else {
-            let first = if fresh { input.seq } else { 1 };
+            let first = session::first_seq(input);
             let (session, failure) = Session::start(input.session, first, &self.setup.sessions);
             self.journal_failed(failure);
             Some(session)
