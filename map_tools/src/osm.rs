@@ -209,9 +209,43 @@ impl ElementReader<'_> {
     }
 }
 
-/// Reads OSM XML from any buffered reader; `path` names the source in errors.
+/// A reader that hands out at most `left` more bytes: the XML parser buffers a whole element
+/// before it returns it, so the budget, renewed for every element, is what bounds its memory.
+struct Budget<R> {
+    inner: R,
+    left: usize,
+}
+
+impl<R: BufRead> std::io::Read for Budget<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        let available = self.fill_buf()?;
+        let n = available.len().min(out.len());
+        out[..n].copy_from_slice(&available[..n]);
+        self.consume(n);
+        Ok(n)
+    }
+}
+
+impl<R: BufRead> BufRead for Budget<R> {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        let left = self.left;
+        let buffered = self.inner.fill_buf()?;
+        Ok(&buffered[..buffered.len().min(left)])
+    }
+
+    fn consume(&mut self, n: usize) {
+        self.inner.consume(n);
+        self.left -= n;
+    }
+}
+
+/// Reads OSM XML from any buffered reader; `path` names the source in errors. No element may
+/// be longer than [`MAX_ELEMENT_BYTES`], so memory stays bounded whatever the input.
 pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> {
-    let mut reader = Reader::from_reader(input);
+    let mut reader = Reader::from_reader(Budget {
+        inner: input,
+        left: 0,
+    });
     let mut buf = Vec::new();
     let mut data = OsmData::default();
     let mut open = Open::None;
@@ -220,19 +254,20 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
     loop {
         let position = reader.buffer_position();
         let er = ElementReader { path, position };
-        let event = reader
-            .read_event_into(&mut buf)
-            .map_err(|e| OsmError::Xml {
-                path: path.to_path_buf(),
-                position: reader.error_position(),
-                message: e.to_string(),
-            })?;
-        if reader.buffer_position().saturating_sub(position) > MAX_ELEMENT_BYTES as u64 {
+        // One byte beyond the limit tells an element that is too long.
+        reader.get_mut().left = MAX_ELEMENT_BYTES + 1;
+        let event = reader.read_event_into(&mut buf);
+        if reader.get_ref().left == 0 {
             return Err(OsmError::ElementTooLarge {
                 path: path.to_path_buf(),
                 position,
             });
         }
+        let event = event.map_err(|e| OsmError::Xml {
+            path: path.to_path_buf(),
+            position: reader.error_position(),
+            message: e.to_string(),
+        })?;
         let (e, is_empty) = match &event {
             Event::Start(e) => (e, false),
             Event::Empty(e) => (e, true),
@@ -369,6 +404,18 @@ mod tests {
   <way id="10"><nd ref="1"/><nd ref="2"/><tag k="highway" v="residential"/><tag k="name" v="A &amp; B"/></way>
   <relation id="5"><member type="way" ref="10" role="left"/><tag k="type" v="lanelet"/></relation>
 </osm>"#;
+
+    #[test]
+    fn an_element_longer_than_the_limit_is_refused_before_it_is_all_read() {
+        let mut text = String::from("<osm><node id=\"1\" lat=\"49\" lon=\"8\" note=\"");
+        text.push_str(&"x".repeat(3 * MAX_ELEMENT_BYTES));
+        text.push_str("\"/></osm>");
+        let e = read_xml(text.as_bytes(), Path::new("big.osm")).unwrap_err();
+        assert!(
+            matches!(e, OsmError::ElementTooLarge { position: 5, .. }),
+            "{e}"
+        );
+    }
 
     #[test]
     fn reads_nodes_ways_relations_and_tags() {
