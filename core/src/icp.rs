@@ -44,6 +44,18 @@ pub struct IcpScratch {
     kept: Vec<u32>,
 }
 
+impl IcpScratch {
+    /// The pairs the last run kept after its last trim (indices into its pairs, ascending).
+    pub fn kept(&self) -> &[u32] {
+        &self.kept
+    }
+
+    /// The last run's sources moved by its fit (metres, map plane), in pair order.
+    pub fn fitted_sources(&self) -> &[[f64; 2]] {
+        &self.sources
+    }
+}
+
 /// How many pairs trimmed ICP keeps out of `pairs`.
 pub fn kept_count(pairs: usize, trim_ratio: f64) -> usize {
     let k = ((1.0 - trim_ratio) * pairs as f64).floor() as usize;
@@ -248,6 +260,7 @@ mod tests {
                 index: i,
                 source: s,
                 target: q,
+                point: 0,
             });
         }
         let params = IcpParams {
@@ -275,6 +288,7 @@ mod tests {
                     index: i,
                     source: [x, offset],
                     target: [x, 0.0],
+                    point: 0,
                 }
             })
             .collect();

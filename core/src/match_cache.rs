@@ -70,7 +70,7 @@ struct Proof {
 struct LastMatch {
     position: [f64; 2],
     direction: [f64; 2],
-    answer: Option<[f64; 2]>,
+    answer: Option<([f64; 2], u32)>,
 }
 
 #[derive(Clone, Debug, Default)]
@@ -176,11 +176,12 @@ impl MatchCache {
                 });
                 answer
             };
-            if let Some(target) = target {
+            if let Some((target, point)) = target {
                 out.push(Correspondence {
                     index: i,
                     source: x,
                     target,
+                    point,
                 });
             }
         }
@@ -194,7 +195,7 @@ fn match_one(
     x: [f64; 2],
     dir: [f64; 2],
     params: &MatchParams,
-) -> Option<[f64; 2]> {
+) -> Option<([f64; 2], u32)> {
     if let Some(proof) = cache.proof {
         let (dx, dy) = (x[0] - proof.anchor[0], x[1] - proof.anchor[1]);
         let (ex, ey) = (dir[0] - proof.direction[0], dir[1] - proof.direction[1]);
@@ -205,7 +206,7 @@ fn match_one(
                 None => return None,
                 Some(j) => {
                     if let Some(q) = try_candidate(map, j, x, dir, params.min_direction_cos) {
-                        return Some(q);
+                        return Some((q, j));
                     }
                 }
             }
@@ -223,7 +224,7 @@ fn match_one(
                 keys.retain(|k| k.0 < w2);
                 cache.proof = prove(map, keys, x, dir, params, answer.map(|a| a.0));
             }
-            return answer.map(|a| a.1);
+            return answer.map(|(key, q)| (q, key.1));
         }
         rebuild(map, &mut cache.wide, tree_scratch, x, radius);
         radius *= 2.0;

@@ -23,6 +23,8 @@ pub struct Correspondence {
     pub source: [f64; 2],
     /// The matched point on the lane segment (metres, map plane).
     pub target: [f64; 2],
+    /// The lane point whose segment was matched (an index into [`LaneMap::points`]).
+    pub point: u32,
 }
 
 #[inline]
@@ -79,21 +81,22 @@ pub fn try_candidate(
 }
 
 /// Matches one pose: the first of the `N` nearest candidates (by distance, then index) that
-/// passes. `scratch` holds the candidate list between calls to avoid allocation.
+/// passes, as the matched point and the lane point whose segment it lies on. `scratch` holds the
+/// candidate list between calls to avoid allocation.
 pub fn match_pose(
     map: &LaneMap,
     x: [f64; 2],
     dir: [f64; 2],
     params: &MatchParams,
     scratch: &mut Vec<Candidate>,
-) -> Option<[f64; 2]> {
+) -> Option<([f64; 2], u32)> {
     if dir == [0.0, 0.0] {
         return None;
     }
     map.nearest(x, params.neighbours, scratch);
     scratch
         .iter()
-        .find_map(|&(_, j)| try_candidate(map, j, x, dir, params.min_direction_cos))
+        .find_map(|&(_, j)| try_candidate(map, j, x, dir, params.min_direction_cos).map(|q| (q, j)))
 }
 
 /// Matches every pose of the window exactly as docs/algorithm.md section 2 describes (the
@@ -109,11 +112,12 @@ pub fn match_window(
     out.clear();
     for (i, &x) in window.iter().enumerate() {
         let dir = trajectory_direction(window, i);
-        if let Some(target) = match_pose(map, x, dir, params, scratch) {
+        if let Some((target, point)) = match_pose(map, x, dir, params, scratch) {
             out.push(Correspondence {
                 index: i,
                 source: x,
                 target,
+                point,
             });
         }
     }
@@ -146,9 +150,11 @@ mod tests {
         let map = LaneMap::new(&[straight(1, 0.0, false), straight(2, -3.5, true)]).unwrap();
         let mut scratch = Vec::new();
         let q = match_pose(&map, [10.0, -1.0], [1.0, 0.0], &params(), &mut scratch).unwrap();
-        assert_eq!(q, [10.0, -3.5]);
+        assert_eq!(q.0, [10.0, -3.5]);
+        assert_eq!(map.lane_ids()[map.lane_of(q.1)], 2);
         let q = match_pose(&map, [10.0, -1.0], [-1.0, 0.0], &params(), &mut scratch).unwrap();
-        assert_eq!(q, [10.0, 0.0]);
+        assert_eq!(q.0, [10.0, 0.0]);
+        assert_eq!(map.lane_ids()[map.lane_of(q.1)], 1);
     }
 
     #[test]
@@ -161,12 +167,14 @@ mod tests {
         assert!(match_pose(&map, [3.5, 1.0], [1.0, 0.0], &params(), &mut s).is_none());
         assert_eq!(
             match_pose(&map, [1.5, 1.0], [1.0, 0.0], &params(), &mut s),
-            Some([1.5, 0.0])
+            Some(([1.5, 0.0], 0)),
+            "nearest points 0 and 1 tie; the lower index goes first"
         );
         // Both ends are inside (t = 0 and t = 1 pass).
         assert_eq!(
             match_pose(&map, [3.0, 1.0], [1.0, 0.0], &params(), &mut s),
-            Some([3.0, 0.0])
+            Some(([3.0, 0.0], 1)),
+            "the last point owns the segment ending at it"
         );
     }
 
