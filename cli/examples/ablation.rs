@@ -19,10 +19,11 @@ use std::sync::{Arc, Mutex};
 use anyhow::Context;
 use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_cli::maps::MapSource;
+use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::metrics::{ape_2d, output_jumps};
+use lanealign_core::metrics::{ape_2d, calibration, output_jumps, Calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
@@ -119,6 +120,7 @@ struct Outcome {
     max: f64,
     jump_m: f64,
     jump_deg: f64,
+    calibration: Calibration,
 }
 
 fn load(data: &std::path::Path, odometry: &str, seq: &str) -> anyhow::Result<Sequence> {
@@ -181,7 +183,13 @@ fn run(s: &Sequence, map: &Map, preset: Preset, v: &Variant) -> anyhow::Result<O
     let raw_ape = ape_2d(&gt, &raw)?;
     let ape = ape_2d(&gt, &est)?;
     let jumps = output_jumps(&raw, &est)?;
+    let odom_from_map = map.anchored_from_odom.inverse();
+    let cov: Vec<[[f64; 2]; 2]> = out
+        .iter()
+        .map(|c| position_covariance_in(&odom_from_map, &c.covariance))
+        .collect();
     Ok(Outcome {
+        calibration: calibration(&gt, &est, &cov)?,
         raw_mean: raw_ape.mean_m,
         raw_max: raw_ape.max_m,
         mean: ape.mean_m,
@@ -293,6 +301,31 @@ fn main() -> anyhow::Result<()> {
                 preset.name(),
                 variant.name
             );
+        }
+    }
+    if args.iter().any(|a| a == "--calibration") {
+        println!("\nCalibration per sequence: fraction of poses inside the 95 % ellipse of their covariance / mean NEES of the planar position (2 when calibrated).\n");
+        let header: Vec<String> = variants.iter().map(|v| v.name.clone()).collect();
+        println!("| odometry | preset | seq | {} |", header.join(" | "));
+        println!("|---|---|---|{}", "---|".repeat(variants.len()));
+        for (p, (odometry, preset)) in pairs.iter().enumerate() {
+            for seq in SEQUENCES {
+                let cells: Vec<String> = (0..variants.len())
+                    .map(|v| {
+                        get(p, v, seq).map(|o| {
+                            format!(
+                                "{:.3} / {:.2}",
+                                o.calibration.cov95_coverage, o.calibration.nees_mean
+                            )
+                        })
+                    })
+                    .collect::<anyhow::Result<_>>()?;
+                println!(
+                    "| {odometry} | {} | {seq} | {} |",
+                    preset.name(),
+                    cells.join(" | ")
+                );
+            }
         }
     }
     if per_sequence {

@@ -1,6 +1,6 @@
 //! The building blocks of the `lanealign` command and its examples: where lane maps come from
 //! ([`maps`]), streaming a trajectory through the daemon ([`replay`]), running the daemon
-//! ([`daemon_process`], [`daemon_config`]), the synthetic town used when there is no data
+//! ([`daemon_process`], [`daemon_config`]), the per-pose status CSV ([`status_file`]), the synthetic town used when there is no data
 //! ([`synthetic`]), and the KITTI data of `../shared/data` ([`kitti`]).
 
 pub mod daemon_config;
@@ -8,4 +8,5 @@ pub mod daemon_process;
 pub mod kitti;
 pub mod maps;
 pub mod replay;
+pub mod status_file;
 pub mod synthetic;

@@ -258,3 +258,69 @@ fn correct_writes_every_pose_and_a_status_row_each() {
     assert!(rows.lines().nth(19).unwrap().contains(",warming_up,"));
     assert!(rows.lines().last().unwrap().contains(",accepted,"));
 }
+
+/// `correct --status` publishes a covariance per pose and `eval --status` measures it: on
+/// `stereo_vo` 09 (orb-slam3 preset) 88 % of the true errors lie inside the 95 % ellipses
+/// (docs/method.md, "Confidence").
+#[test]
+fn eval_reports_how_well_the_covariance_describes_the_errors() {
+    let Some(d) = shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (output, status) = (dir.path().join("09.txt"), dir.path().join("09.csv"));
+    let out = lanealign(&[
+        "correct",
+        "--osm",
+        s(&d.join("osm/kitti_09.osm")),
+        "--anchor",
+        "48.9721045445,8.4761469953,-27.5197,0.539,-0.887",
+        "--projection",
+        "kitti",
+        "--preset",
+        "orb-slam3",
+        "--frame",
+        "kitti-camera",
+        s(&d.join("odometry/stereo_vo/09.txt")),
+        "-o",
+        s(&output),
+        "--status",
+        s(&status),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let eval = |status: &Path| {
+        lanealign(&[
+            "eval",
+            "--gt",
+            s(&d.join("kitti/poses/09.txt")),
+            "--est",
+            s(&output),
+            "--frame",
+            "kitti-camera",
+            "--status",
+            s(status),
+            "--json",
+        ])
+    };
+    let out = eval(&status);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    let coverage = v["cov95_coverage"].as_f64().unwrap();
+    let nees = v["nees_mean"].as_f64().unwrap();
+    assert!((0.85..=0.99).contains(&coverage), "{v}");
+    assert!((1.0..4.0).contains(&nees), "{v}");
+    // A status file of another run is refused, not silently paired.
+    let short = dir.path().join("short.csv");
+    let text = std::fs::read_to_string(&status).unwrap();
+    let lines: Vec<&str> = text.lines().take(100).collect();
+    std::fs::write(&short, lines.join("\n")).unwrap();
+    let out = eval(&short);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("99 rows"));
+}

@@ -12,6 +12,9 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
+use crate::confidence::{
+    alignment_information, correction_at, correction_from, Covariance, PoseUncertainty,
+};
 use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
 use crate::lane_map::{Candidate, LaneMap};
 use crate::match_cache::MatchCache;
@@ -46,10 +49,13 @@ pub enum Status {
         /// Poses in the window.
         window_len: usize,
     },
-    /// A correction was computed and applied.
+    /// A correction was computed and applied (the part of it the evidence supports).
     Accepted {
         /// Mean residual of the kept pairs (metres).
         residual_m: f64,
+        /// Of the correction's three directions (two of position, one of heading), how many the
+        /// map's evidence supported and were applied (3 for the paper's method).
+        applied_directions: u8,
         /// `|C| / |W|`.
         match_ratio: f64,
         /// Poses in the window.
@@ -121,6 +127,16 @@ impl Status {
         }
     }
 
+    /// How many directions of the correction were applied: on accepted steps 0 to 3, otherwise 0.
+    pub fn applied_directions(&self) -> u8 {
+        match *self {
+            Status::Accepted {
+                applied_directions, ..
+            } => applied_directions,
+            _ => 0,
+        }
+    }
+
     /// The matched fraction of the window when matching ran.
     pub fn match_ratio(&self) -> Option<f64> {
         match *self {
@@ -170,6 +186,8 @@ pub struct Step {
     /// The accumulated correction after this step (the paper's `T_acc`): apply it to an anchored
     /// position for the corrected one.
     pub map_from_anchored: Se2,
+    /// The covariance of the corrected pose's error (map plane; x, y in metres, yaw in radians).
+    pub covariance: Covariance,
     /// What happened.
     pub status: Status,
     /// Where the time went.
@@ -315,6 +333,8 @@ pub struct CorrectorState {
     pub travelled_m: f64,
     /// The last position pushed (metres, frame `anchored`).
     pub last_position_in_anchored: Option<[f64; 2]>,
+    /// The covariance of the current pose (see [`Step::covariance`]).
+    pub covariance: Covariance,
 }
 
 /// One odometry source's corrector.
@@ -328,6 +348,7 @@ pub struct Corrector {
     /// have drifted since the window last fitted the lanes.
     travelled_m: f64,
     last_position_in_anchored: Option<[f64; 2]>,
+    uncertainty: PoseUncertainty,
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -350,6 +371,7 @@ impl Corrector {
             failures: 0,
             travelled_m: 0.0,
             last_position_in_anchored: None,
+            uncertainty: PoseUncertainty::new(&params),
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -378,6 +400,7 @@ impl Corrector {
             failures: self.failures,
             travelled_m: self.travelled_m,
             last_position_in_anchored: self.last_position_in_anchored,
+            covariance: self.uncertainty.covariance(),
         }
     }
 
@@ -403,7 +426,13 @@ impl Corrector {
         c.failures = state.failures;
         c.travelled_m = state.travelled_m;
         c.last_position_in_anchored = state.last_position_in_anchored;
+        c.uncertainty = PoseUncertainty::from_covariance(&state.covariance);
         c
+    }
+
+    /// The covariance of the current corrected pose (see [`Step::covariance`]).
+    pub fn covariance(&self) -> Covariance {
+        self.uncertainty.covariance()
     }
 
     /// The current correction (the paper's `T_acc`).
@@ -427,6 +456,7 @@ impl Corrector {
             return Step {
                 position_in_map: [f64::NAN, f64::NAN],
                 map_from_anchored: self.map_from_anchored,
+                covariance: self.uncertainty.covariance(),
                 status: Status::InvalidInput,
                 timing: StepTiming::default(),
             };
@@ -434,6 +464,13 @@ impl Corrector {
         let p = self.params;
         if let Some(last) = self.last_position_in_anchored {
             self.travelled_m += distance(last, position_in_anchored);
+            let (cos, sin) = self.map_from_anchored.rotation();
+            let (dx, dy) = (
+                position_in_anchored[0] - last[0],
+                position_in_anchored[1] - last[1],
+            );
+            self.uncertainty
+                .drive([cos * dx - sin * dy, sin * dx + cos * dy], &p);
         }
         self.last_position_in_anchored = Some(position_in_anchored);
         self.window
@@ -496,7 +533,7 @@ impl Corrector {
                 let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);
                 timing.icp = icp_start.elapsed();
                 if fit.residual_m < p.max_residual_m {
-                    let correction = fit.transform;
+                    let (correction, applied_directions) = self.supported(&fit.transform);
                     self.map_from_anchored = correction * self.map_from_anchored;
                     for x in self.window.as_mut_slice() {
                         *x = correction.apply(*x);
@@ -505,6 +542,7 @@ impl Corrector {
                     self.travelled_m = 0.0;
                     return self.step(Status::Accepted {
                         residual_m: fit.residual_m,
+                        applied_directions,
                         match_ratio,
                         window_len,
                     });
@@ -533,6 +571,50 @@ impl Corrector {
         })
     }
 
+    /// Of the ICP's proposed `correction`, the part the window's evidence supports, and how many
+    /// directions that is; folds the new share of the evidence into the pose's uncertainty.
+    fn supported(&mut self, proposed: &Se2) -> (Se2, u8) {
+        let window = self.window.as_slice();
+        let current = window[window.len() - 1];
+        let center = proposed.apply(current);
+        let spacing = |i: usize| match (window.get(i), window.get(i + 1)) {
+            (Some(&a), Some(&b)) => distance(a, b),
+            _ => 0.0,
+        };
+        let information = alignment_information(
+            &self.map,
+            &self.correspondences,
+            self.icp.kept(),
+            self.icp.fitted_sources(),
+            center,
+            spacing,
+        );
+        let share = if self.window.path_m > 0.0 {
+            (self.travelled_m / self.window.path_m).min(1.0)
+        } else {
+            1.0
+        };
+        let min_ratio = self.params.min_evidence_ratio;
+        let (correction, directions) = if min_ratio > 0.0 {
+            let xi = correction_at(proposed, current);
+            let supported = self
+                .uncertainty
+                .supported(&information, &xi, min_ratio, share);
+            if supported.directions == 3 {
+                (*proposed, 3)
+            } else {
+                (
+                    correction_from(&supported.correction, current),
+                    supported.directions as u8,
+                )
+            }
+        } else {
+            (*proposed, 3)
+        };
+        self.uncertainty.update(&information, share);
+        (correction, directions)
+    }
+
     /// `base` widened by the drift the odometry may have accumulated since the last accepted
     /// step (metres).
     fn widened(&self, base: f64) -> f64 {
@@ -550,6 +632,7 @@ impl Corrector {
         Step {
             position_in_map: self.window.as_slice()[self.window.len() - 1],
             map_from_anchored: self.map_from_anchored,
+            covariance: self.uncertainty.covariance(),
             status,
             timing: StepTiming::default(),
         }
@@ -742,6 +825,56 @@ mod tests {
                 assert_eq!(restored.state(), first.state());
                 let after = run(&mut restored, cut);
                 assert_eq!(after, uninterrupted[cut..], "{mode:?}, cut at {cut}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_straight_road_constrains_only_the_cross_road_direction() {
+        // East along y = 0 with the odometry 1 m to the left, then north after the corner at
+        // x = 300: on the straight the lanes say nothing along the road, and the covariance and
+        // the applied directions say so; after the corner every direction is constrained.
+        let params = Params {
+            min_evidence_ratio: 10.0,
+            ..small_params()
+        };
+        let mut c = Corrector::new(l_shaped_map(), params);
+        let steps: Vec<Step> = l_drive([0.0, 1.0]).into_iter().map(|p| c.push(p)).collect();
+        let along_east = |s: &Step| s.covariance[0][0];
+        let across_east = |s: &Step| s.covariance[1][1];
+        let straight = &steps[140];
+        assert!(matches!(straight.status, Status::Accepted { .. }));
+        assert!(straight.status.applied_directions() < 3, "{straight:?}");
+        assert!(
+            along_east(straight) > 3.0 * across_east(straight),
+            "{:?}",
+            straight.covariance
+        );
+        assert!(along_east(&steps[140]) > along_east(&steps[60]), "grows");
+        assert!(
+            straight.position_in_map[1].abs() < 0.5,
+            "across: corrected {:?}",
+            straight.position_in_map
+        );
+        let [x, _] = straight.map_from_anchored.translation();
+        assert!(x.abs() < 0.01, "along: not moved, {x}");
+        let after = &steps[280];
+        assert!(matches!(after.status, Status::Accepted { .. }));
+        assert!(
+            along_east(after) < 0.5 * along_east(straight),
+            "{:?} then {:?}",
+            straight.covariance,
+            after.covariance
+        );
+    }
+
+    #[test]
+    fn the_paper_method_applies_every_correction_whole() {
+        let mut c = Corrector::new(l_shaped_map(), small_params());
+        for p in l_drive([0.0, 1.0]) {
+            let s = c.push(p);
+            if s.status.attempted() && s.status.name() == "accepted" {
+                assert_eq!(s.status.applied_directions(), 3);
             }
         }
     }

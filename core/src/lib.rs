@@ -4,7 +4,7 @@
 //! ([`se2`]), 3D poses and axis conventions ([`pose`]), projections and anchors ([`geo`]), the
 //! lane map ([`lane_map`]) and what its lanes rest on ([`lane_geometry`]), lane matching
 //! ([`matching`], [`match_cache`]), trimmed ICP ([`icp`]), the online corrector ([`corrector`])
-//! with its configuration ([`params`]), smooth output ([`smoothing`]), a source's corrector with
+//! with its configuration ([`params`]) and its covariance ([`confidence`]), smooth output ([`smoothing`]), a source's corrector with
 //! its placement ([`source_corrector`]), accuracy metrics ([`metrics`]) and the file formats
 //! every tool shares: lane tiles ([`tile`]), trajectories ([`trajectory`]) and lane CSV
 //! ([`lane_csv`]), with bounded readers and atomic outputs ([`input`]); [`plausibility`] warns
@@ -28,6 +28,7 @@
 //! assert!((step.position_in_map[1]).abs() < 1e-6);
 //! ```
 
+pub mod confidence;
 pub mod corrector;
 pub mod geo;
 pub mod icp;

@@ -42,6 +42,12 @@ pub enum MetricsError {
         /// The pair's index.
         index: usize,
     },
+    /// A published covariance is not a covariance.
+    #[error("the covariance of pose {index} is not finite and positive definite")]
+    NotPositiveDefinite {
+        /// The pose's index.
+        index: usize,
+    },
 }
 
 /// APE-2D of paired planar poses (`gt[i]` with `est[i]`).
@@ -80,6 +86,66 @@ pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
         lateral_rmse_m: (lat_sq / n).sqrt(),
         heading_mean_deg: (heading / n).to_degrees(),
         max_m: max,
+        poses: gt.len(),
+    })
+}
+
+/// The chi-square quantile of 2 degrees of freedom at 0.95: a planar position error `e` lies
+/// inside the 95 % ellipse of covariance `S` when `e' S^-1 e` is at most this.
+pub const CHI2_2DOF_95: f64 = 5.991_464_547_107_979;
+
+/// How well published covariances describe the true errors of planar positions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Calibration {
+    /// Fraction of poses whose position error lies inside the 95 % ellipse of its covariance
+    /// (0.95 for a calibrated covariance).
+    pub cov95_coverage: f64,
+    /// Mean normalised estimation error squared of the planar position, `e' S^-1 e` (2 for a
+    /// calibrated covariance: two degrees of freedom).
+    pub nees_mean: f64,
+    /// Poses compared.
+    pub poses: usize,
+}
+
+/// The calibration of position covariances `cov_xy[i]` (metres^2, in the plane of the poses)
+/// published with `est[i]`, against `gt[i]` (both planar, `flu`, paired by index). A pose whose
+/// covariance is not positive definite is an error.
+pub fn calibration(
+    gt: &[Pose3],
+    est: &[Pose3],
+    cov_xy: &[[[f64; 2]; 2]],
+) -> Result<Calibration, MetricsError> {
+    if gt.len() != est.len() || gt.len() != cov_xy.len() {
+        return Err(MetricsError::LengthMismatch {
+            gt: gt.len(),
+            est: est.len().min(cov_xy.len()),
+        });
+    }
+    if gt.is_empty() {
+        return Err(MetricsError::Empty);
+    }
+    let (mut inside, mut nees_sum) = (0usize, 0.0);
+    for (index, ((g, e), s)) in gt.iter().zip(est).zip(cov_xy).enumerate() {
+        let [ex, ey] = e.planar_position();
+        let [gx, gy] = g.planar_position();
+        let (dx, dy) = (ex - gx, ey - gy);
+        if !(dx.is_finite() && dy.is_finite()) {
+            return Err(MetricsError::NotFinite { index });
+        }
+        let det = s[0][0] * s[1][1] - s[0][1] * s[1][0];
+        if !(det > 0.0 && s[0][0] > 0.0 && det.is_finite()) {
+            return Err(MetricsError::NotPositiveDefinite { index });
+        }
+        let nees = (s[1][1] * dx * dx - (s[0][1] + s[1][0]) * dx * dy + s[0][0] * dy * dy) / det;
+        nees_sum += nees;
+        if nees <= CHI2_2DOF_95 {
+            inside += 1;
+        }
+    }
+    let n = gt.len() as f64;
+    Ok(Calibration {
+        cov95_coverage: inside as f64 / n,
+        nees_mean: nees_sum / n,
         poses: gt.len(),
     })
 }
@@ -178,6 +244,23 @@ mod tests {
         assert_eq!(
             ape_2d(&[at(0.0, 0.0, 0.0)], &[]),
             Err(MetricsError::LengthMismatch { gt: 1, est: 0 })
+        );
+    }
+
+    #[test]
+    fn calibration_counts_errors_inside_the_95_ellipse() {
+        // sigma 1 m in x, 2 m in y: 2 m in x is inside (NEES 4 < 5.99), 5 m in x outside (25),
+        // 4 m in y inside (4).
+        let gt = [at(0.0, 0.0, 0.0); 3];
+        let est = [at(2.0, 0.0, 0.0), at(5.0, 0.0, 0.0), at(0.0, 4.0, 0.0)];
+        let s = [[1.0, 0.0], [0.0, 4.0]];
+        let c = calibration(&gt, &est, &[s; 3]).unwrap();
+        assert!((c.cov95_coverage - 2.0 / 3.0).abs() < 1e-12);
+        assert!((c.nees_mean - (4.0 + 25.0 + 4.0) / 3.0).abs() < 1e-12);
+        let singular = [[1.0, 1.0], [1.0, 1.0]];
+        assert_eq!(
+            calibration(&gt[..1], &est[..1], &[singular]),
+            Err(MetricsError::NotPositiveDefinite { index: 0 })
         );
     }
 

@@ -47,6 +47,19 @@ pub struct Params {
     /// Beyond the paper: drift the odometry may accumulate per metre travelled (ratio) since the
     /// last accepted step, widening the match distance bound.
     pub drift_per_m: f64,
+    /// Position drift of the odometry as a random walk (m^2 of variance per metre travelled), for
+    /// the covariance (see [`crate::confidence`]).
+    pub drift_var_per_m: f64,
+    /// Heading drift of the odometry as a random walk (rad^2 of variance per metre travelled).
+    pub yaw_drift_var_per_m: f64,
+    /// Uncertainty of the anchor's placement at the first pose: position (metres, 1 sigma).
+    pub initial_sigma_m: f64,
+    /// Uncertainty of the anchor's placement at the first pose: heading (degrees, 1 sigma).
+    pub initial_sigma_yaw_deg: f64,
+    /// Beyond the paper: a direction of the proposed correction is applied only where the
+    /// window's information outweighs the pose's current uncertainty by this ratio (0 applies
+    /// every correction whole, as the paper does).
+    pub min_evidence_ratio: f64,
 }
 
 /// The unmarked-street offset scale of lanealign's lane geometry (see
@@ -153,6 +166,13 @@ impl Preset {
             Preset::KissIcp => (150, 1000, 100, 1000, 1.5),
             Preset::OrbSlam3 => (150, 1000, 50, 100, 1.5),
         };
+        // LiDAR odometry drifts 0.1-0.7 % of the distance, visual odometry 1-15 %
+        // (../shared/data/README.md): about 0.5 m and 0.05 degree per 100 m against 3 m and
+        // 1 degree.
+        let (drift_var_per_m, yaw_drift_var_per_m) = match self {
+            Preset::Liodom | Preset::KissIcp => (0.0025, 1.2e-7),
+            Preset::Basalt | Preset::OrbSlam3 => (0.09, 3e-6),
+        };
         Params {
             min_window,
             max_window,
@@ -169,6 +189,11 @@ impl Preset {
             lane_tolerance_m: 0.0,
             max_match_distance_m: f64::INFINITY,
             drift_per_m: 0.0,
+            drift_var_per_m,
+            yaw_drift_var_per_m,
+            initial_sigma_m: 1.0,
+            initial_sigma_yaw_deg: 1.0,
+            min_evidence_ratio: 0.0,
         }
     }
 
@@ -181,11 +206,20 @@ impl Preset {
             Preset::Liodom | Preset::KissIcp => 500.0,
             Preset::Basalt | Preset::OrbSlam3 => 300.0,
         };
+        // A direction the lanes say next to nothing about (along a straight road) is never applied
+        // whole. Visual odometry drifts faster than the map errs: whole wherever the lanes know
+        // more than the odometry. For LiDAR odometry a stricter ratio (10) keeps every shared
+        // sequence within 5 cm of raw but lags behind real drift (docs/method.md, "Confidence").
+        let min_evidence_ratio = match self {
+            Preset::Liodom | Preset::KissIcp => 0.1,
+            Preset::Basalt | Preset::OrbSlam3 => 1.0,
+        };
         Params {
             max_window_path_m,
             lane_tolerance_m: 1.0,
             max_match_distance_m: 3.0,
             drift_per_m: 0.2,
+            min_evidence_ratio,
             ..self.params()
         }
     }
@@ -263,6 +297,7 @@ impl Params {
             ("icp_tolerance_m", self.icp_tolerance_m),
             ("lane_tolerance_m", self.lane_tolerance_m),
             ("drift_per_m", self.drift_per_m),
+            ("min_evidence_ratio", self.min_evidence_ratio),
         ] {
             if !finite_nonneg(v) {
                 return Err(invalid(key, v, "must be finite and non-negative"));
@@ -291,6 +326,16 @@ impl Params {
         ] {
             if !positive_or_inf(v) {
                 return Err(invalid(key, v, "must be positive (inf = off)"));
+            }
+        }
+        for (key, v) in [
+            ("drift_var_per_m", self.drift_var_per_m),
+            ("yaw_drift_var_per_m", self.yaw_drift_var_per_m),
+            ("initial_sigma_m", self.initial_sigma_m),
+            ("initial_sigma_yaw_deg", self.initial_sigma_yaw_deg),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v < 1e6) {
+                return Err(invalid(key, v, "must be positive and below 1e6"));
             }
         }
         if self.icp_max_iterations == 0 || self.icp_max_iterations > 100_000 {
@@ -354,6 +399,21 @@ pub struct Overrides {
     /// See [`Params::drift_per_m`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub drift_per_m: Option<f64>,
+    /// See [`Params::drift_var_per_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drift_var_per_m: Option<f64>,
+    /// See [`Params::yaw_drift_var_per_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub yaw_drift_var_per_m: Option<f64>,
+    /// See [`Params::initial_sigma_m`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub initial_sigma_m: Option<f64>,
+    /// See [`Params::initial_sigma_yaw_deg`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub initial_sigma_yaw_deg: Option<f64>,
+    /// See [`Params::min_evidence_ratio`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_evidence_ratio: Option<f64>,
 }
 
 impl Overrides {
@@ -377,6 +437,13 @@ impl Overrides {
                 .max_match_distance_m
                 .unwrap_or(base.max_match_distance_m),
             drift_per_m: self.drift_per_m.unwrap_or(base.drift_per_m),
+            drift_var_per_m: self.drift_var_per_m.unwrap_or(base.drift_var_per_m),
+            yaw_drift_var_per_m: self.yaw_drift_var_per_m.unwrap_or(base.yaw_drift_var_per_m),
+            initial_sigma_m: self.initial_sigma_m.unwrap_or(base.initial_sigma_m),
+            initial_sigma_yaw_deg: self
+                .initial_sigma_yaw_deg
+                .unwrap_or(base.initial_sigma_yaw_deg),
+            min_evidence_ratio: self.min_evidence_ratio.unwrap_or(base.min_evidence_ratio),
         }
     }
 }

@@ -9,6 +9,7 @@
 
 use std::sync::Arc;
 
+use crate::confidence::Covariance;
 use crate::corrector::{Corrector, CorrectorState, MatchMode, Status, StepTiming};
 use crate::lane_map::LaneMap;
 use crate::params::Params;
@@ -26,6 +27,9 @@ pub struct CorrectedPose {
     /// coordinates onto the corrected map plane (the anchor's placement composed with the
     /// accumulated correction).
     pub map_from_odom: Se2,
+    /// The covariance of the exact corrected pose's error (map plane; x, y in metres, yaw in
+    /// radians; see [`crate::confidence`]).
+    pub covariance: Covariance,
     /// What the corrector did.
     pub status: Status,
 }
@@ -72,6 +76,11 @@ impl SourceCorrector {
         }
     }
 
+    /// Where the anchor places the source's planar odometry frame in the map plane.
+    pub fn anchored_from_odom(&self) -> Se2 {
+        self.placement.anchored_from_odom
+    }
+
     /// Poses in the corrector's window.
     pub fn window_len(&self) -> usize {
         self.corrector.window().len()
@@ -113,6 +122,7 @@ impl SourceCorrector {
                 pose: *pose,
                 map_from_odom: self.corrector.map_from_anchored()
                     * self.placement.anchored_from_odom,
+                covariance: self.corrector.covariance(),
                 status: Status::InvalidInput,
             };
             return (record, StepTiming::default());
@@ -141,6 +151,7 @@ impl SourceCorrector {
         let record = CorrectedPose {
             pose: corrected,
             map_from_odom: step.map_from_anchored * placement.anchored_from_odom,
+            covariance: step.covariance,
             status: step.status,
         };
         (record, step.timing)

@@ -33,12 +33,12 @@ use xxhash_rust::xxh3::xxh3_64;
 
 /// Records per segment: the last full segment alone holds [`MAX_IN_FLIGHT`] answers.
 pub const SEGMENT_RECORDS: u64 = MAX_IN_FLIGHT;
-/// Bytes of one record: input (136), answer (216), checksum (8).
+/// Bytes of one record: input (136), answer (272), checksum (8).
 pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
-const ANSWER_LEN: usize = 216;
+const ANSWER_LEN: usize = 272;
 const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP01";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP02";
 /// The largest window a snapshot may hold (poses): the corrector's own limit.
 const MAX_WINDOW: u64 = 1_000_000;
 
@@ -173,7 +173,9 @@ fn encode_answer(e: &mut Encoder, a: &CorrectedPose) {
         .u32(a.window_len)
         .u32(a.status)
         .u32(a.reason)
-        .u32(a.reserved);
+        .u32(a.applied_directions)
+        .f64s(&a.covariance)
+        .f64(a.anchor_yaw);
 }
 
 fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
@@ -193,7 +195,9 @@ fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
         window_len: d.u32()?,
         status: d.u32()?,
         reason: d.u32()?,
-        reserved: d.u32()?,
+        applied_directions: d.u32()?,
+        covariance: d.f64s::<6>()?,
+        anchor_yaw: d.f64()?,
     })
 }
 
@@ -259,6 +263,9 @@ impl Snapshot {
             .f64(c.window_path_m)
             .u32(c.failures)
             .f64(c.travelled_m);
+        for row in &c.covariance {
+            e.f64s(row);
+        }
         match c.last_position_in_anchored {
             Some(p) => e.u32(1).f64s(&p),
             None => e.u32(0).f64s(&[0.0, 0.0]),
@@ -289,6 +296,7 @@ impl Snapshot {
         let window_path_m = d.f64()?;
         let failures = d.u32()?;
         let travelled_m = d.f64()?;
+        let covariance = [d.f64s::<3>()?, d.f64s::<3>()?, d.f64s::<3>()?];
         let last_position = (d.u32()?, d.f64s::<2>()?);
         let smoothed = (d.u32()?, d.se2()?);
         let n = d.u64()?;
@@ -298,7 +306,8 @@ impl Snapshot {
         let window: Vec<[f64; 2]> = (0..n).map(|_| d.f64s::<2>()).collect::<Option<_>>()?;
         let finite = window.iter().flatten().all(|v| v.is_finite())
             && window_path_m.is_finite()
-            && travelled_m.is_finite();
+            && travelled_m.is_finite()
+            && covariance.iter().flatten().all(|v| v.is_finite());
         let flag = |f: u32| (f <= 1).then_some(f == 1);
         let state = SourceState {
             corrector: CorrectorState {
@@ -308,6 +317,7 @@ impl Snapshot {
                 failures,
                 travelled_m,
                 last_position_in_anchored: flag(last_position.0)?.then_some(last_position.1),
+                covariance,
             },
             smoothed: flag(smoothed.0)?.then_some(smoothed.1),
         };
@@ -512,7 +522,9 @@ mod tests {
             window_len: 3,
             status: 1,
             reason: 0,
-            reserved: 0,
+            applied_directions: 2,
+            covariance: [0.5, 0.1, 1e-3, 0.7, -2e-3, 1e-4],
+            anchor_yaw: 1.04,
         };
         Record { input, answer }
     }
@@ -548,6 +560,7 @@ mod tests {
                     failures: 3,
                     travelled_m: 12.5,
                     last_position_in_anchored: Some([5.0, 6.0]),
+                    covariance: [[0.5, 0.1, 1e-3], [0.1, 0.7, -2e-3], [1e-3, -2e-3, 1e-4]],
                 },
                 smoothed: None,
             },

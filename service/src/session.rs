@@ -122,7 +122,9 @@ fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> Correcte
         window_len: 0,
         status: StatusCode::PassThrough as u32,
         reason: ReasonCode::None as u32,
-        reserved: 0,
+        applied_directions: 0,
+        covariance: [f64::NAN; 6],
+        anchor_yaw: f64::NAN,
     }
 }
 
@@ -258,6 +260,10 @@ impl Session {
         answer.residual_m = record.status.residual_m().unwrap_or(f64::NAN);
         answer.match_ratio = record.status.match_ratio().unwrap_or(f64::NAN);
         answer.window_len = record.status.window_len() as u32;
+        answer.applied_directions = u32::from(record.status.applied_directions());
+        let c = &record.covariance;
+        answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
+        answer.anchor_yaw = self.corrector.anchored_from_odom().yaw();
         self.expected_seq = input.seq + 1;
         answer.expected_seq = self.expected_seq;
         let entry = Record {

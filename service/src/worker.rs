@@ -463,6 +463,7 @@ mod tests {
             Status::WarmingUp { window_len: 3 },
             Status::Accepted {
                 residual_m: 0.1,
+                applied_directions: 3,
                 match_ratio: 0.9,
                 window_len: 200,
             },

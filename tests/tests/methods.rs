@@ -3,10 +3,11 @@
 
 use std::sync::Arc;
 
+use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::metrics::{ape_2d, output_jumps, Ape2d, OutputJumps};
+use lanealign_core::metrics::{ape_2d, calibration, output_jumps, Ape2d, Calibration, OutputJumps};
 use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::smoothing::Smoothing;
@@ -32,6 +33,7 @@ struct Run {
     raw: Ape2d,
     corrected: Ape2d,
     jumps: OutputJumps,
+    calibration: Calibration,
 }
 
 fn sequences(data: &std::path::Path) -> Vec<Sequence> {
@@ -83,9 +85,10 @@ fn run(
         Format::Kitti,
     )
     .unwrap();
+    let anchored_from_odom = s.anchor.anchored_from_odom(&s.plane);
     let placement = Placement {
         convention: cam,
-        anchored_from_odom: s.anchor.anchored_from_odom(&s.plane),
+        anchored_from_odom,
         smoothing,
     };
     let map = match method {
@@ -103,10 +106,16 @@ fn run(
     let gt = planar(&s.gt);
     let raw = planar(&odom.poses);
     let est = planar(&out.iter().map(|c| c.pose).collect::<Vec<_>>());
+    let odom_from_map = anchored_from_odom.inverse();
+    let cov: Vec<[[f64; 2]; 2]> = out
+        .iter()
+        .map(|c| position_covariance_in(&odom_from_map, &c.covariance))
+        .collect();
     Run {
         raw: ape_2d(&gt, &raw).unwrap(),
         corrected: ape_2d(&gt, &est).unwrap(),
         jumps: output_jumps(&raw, &est).unwrap(),
+        calibration: calibration(&gt, &est, &cov).unwrap(),
     }
 }
 
@@ -171,9 +180,29 @@ fn robust_beats_the_paper_and_smooth_output_glides() {
             .map(|r| r.jumps.max_position_m)
             .fold(0.0, f64::max);
         assert!(largest > 1.0, "{odometry}: unsmoothed jumps {largest}");
+        // Never worse than the odometry it corrects: visual odometry within 5 cm of raw on
+        // every sequence; LiDAR within 0.2 m (09: +0.19 m, docs/method.md, "Confidence").
+        let allowed = if odometry == "lidar" { 0.2 } else { 0.05 };
         for (s, r) in seqs.iter().zip(&robust) {
             let excess = r.corrected.mean_m - r.raw.mean_m;
-            assert!(excess <= 0.2, "{odometry} {}: {excess:+.3} m", s.name);
+            println!(
+                "{odometry} {} {}: raw {:.3} robust {:.3} ({excess:+.3}); cov95 coverage {:.3}, NEES {:.2}",
+                preset.name(),
+                s.name,
+                r.raw.mean_m,
+                r.corrected.mean_m,
+                r.calibration.cov95_coverage,
+                r.calibration.nees_mean
+            );
+            assert!(excess <= allowed, "{odometry} {}: {excess:+.3} m", s.name);
+            // The covariance is not yet calibrated on every sequence (docs/method.md,
+            // "Confidence"); this guards what it achieves today against regressions.
+            assert!(
+                r.calibration.cov95_coverage >= 0.4,
+                "{odometry} {}: {:?}",
+                s.name,
+                r.calibration
+            );
         }
     }
 }

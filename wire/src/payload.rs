@@ -185,8 +185,17 @@ pub struct CorrectedPose {
     pub status: u32,
     /// [`ReasonCode`].
     pub reason: u32,
-    /// Reserved, zero.
-    pub reserved: u32,
+    /// On accepted steps, how many of the correction's three directions (two of position, one of
+    /// heading) the map's evidence supported and were applied; otherwise 0.
+    pub applied_directions: u32,
+    /// The covariance of the corrected pose's error in the lane map's plane, upper triangle:
+    /// `xx, xy, x_yaw, yy, y_yaw, yaw_yaw` (metres^2, metre-radians, radians^2). NaN for flagged,
+    /// gap and pass-through answers.
+    pub covariance: [f64; 6],
+    /// The rotation of the source's anchor (radians): the planar odometry frame turned into the
+    /// map plane before any correction (turns an error in the odometry frame into the map plane).
+    /// NaN for flagged, gap and pass-through answers.
+    pub anchor_yaw: f64,
 }
 
 impl CorrectedPose {
@@ -210,7 +219,7 @@ mod tests {
         assert_eq!(offset_of!(OdomPose, flags), 128);
         assert_eq!(
             (size_of::<CorrectedPose>(), align_of::<CorrectedPose>()),
-            (216, 8)
+            (272, 8)
         );
         assert_eq!(offset_of!(CorrectedPose, expected_seq), 8);
         assert_eq!(offset_of!(CorrectedPose, session), 16);
@@ -222,6 +231,9 @@ mod tests {
         assert_eq!(offset_of!(CorrectedPose, window_len), 200);
         assert_eq!(offset_of!(CorrectedPose, status), 204);
         assert_eq!(offset_of!(CorrectedPose, reason), 208);
+        assert_eq!(offset_of!(CorrectedPose, applied_directions), 212);
+        assert_eq!(offset_of!(CorrectedPose, covariance), 216);
+        assert_eq!(offset_of!(CorrectedPose, anchor_yaw), 264);
     }
 
     #[test]

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use lanealign_cli::maps::{LoadedMap, MapSource};
+use lanealign_cli::status_file;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::input::Outputs;
@@ -13,6 +14,7 @@ use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
 use lanealign_core::plausibility;
 use lanealign_core::pose::AxisConvention;
+use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::compile::InputReport;
@@ -162,23 +164,24 @@ pub struct CorrectArgs {
     status: Option<PathBuf>,
 }
 
-/// The status CSV: one row per pose, with the corrector's status names and `map_from_odom`.
-pub fn status_csv(run: &[CorrectedPose]) -> String {
-    let mut out = String::with_capacity(run.len() * 100);
-    out.push_str("index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw\n");
+/// The status CSV ([`status_file`]) of a corrected run.
+pub fn status_csv(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
+    let mut out = String::with_capacity(run.len() * 250);
+    out.push_str(status_file::HEADER);
+    out.push('\n');
     for (i, c) in run.iter().enumerate() {
         let s = &c.status;
-        let [x, y] = c.map_from_odom.translation();
-        let _ = writeln!(
-            out,
-            "{i},{},{},{},{},{},{x},{y},{}",
-            s.name(),
-            s.reason().map_or("", |r| r.name()),
-            s.residual_m().unwrap_or(f64::NAN),
-            s.match_ratio().unwrap_or(f64::NAN),
-            s.window_len(),
-            c.map_from_odom.yaw()
-        );
+        let row = status_file::Row {
+            status: s.name(),
+            reason: s.reason().map_or("", |r| r.name()),
+            residual_m: s.residual_m().unwrap_or(f64::NAN),
+            match_ratio: s.match_ratio().unwrap_or(f64::NAN),
+            window_len: s.window_len(),
+            map_from_odom: c.map_from_odom,
+            applied_directions: s.applied_directions(),
+            covariance: c.covariance,
+        };
+        status_file::push_row(&mut out, i, &row, anchored_from_odom);
     }
     out
 }
@@ -236,7 +239,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         trajectory::format_text(&output, args.format, &args.output)?.as_bytes(),
     )?;
     if let Some(path) = &args.status {
-        outputs.stage(path, status_csv(&run).as_bytes())?;
+        outputs.stage(path, status_csv(&run, &anchored_from_odom).as_bytes())?;
     }
     outputs.commit()?;
     let c = counts(&run);

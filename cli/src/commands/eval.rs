@@ -2,8 +2,10 @@
 
 use std::path::PathBuf;
 
+use anyhow::{bail, Context};
 use clap::Args;
-use lanealign_core::metrics::{ape_2d, associate_by_time};
+use lanealign_cli::status_file;
+use lanealign_core::metrics::{ape_2d, associate_by_time, calibration};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{self, Format, Trajectory};
 
@@ -22,6 +24,10 @@ pub struct EvalArgs {
     /// File format of both: kitti (paired by index) or tum (paired by timestamp).
     #[arg(long, default_value = "kitti")]
     format: Format,
+    /// The status CSV written with the estimate (`correct --status`, `replay --status`): also
+    /// report how well its covariances describe the errors (`cov95_coverage`, `nees_mean`).
+    #[arg(long)]
+    status: Option<PathBuf>,
     /// Print one JSON object instead of a table.
     #[arg(long)]
     json: bool,
@@ -34,32 +40,56 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let planar = |t: &Trajectory, idx: &mut dyn Iterator<Item = usize>| -> Vec<Pose3> {
         idx.map(|i| args.frame.to_planar(&t.poses[i])).collect()
     };
-    let (g, e) = match (&gt.stamps, &est.stamps) {
-        (Some(ts_gt), Some(ts_est)) => {
-            let pairs = associate_by_time(ts_gt, ts_est, 0.01);
-            (
-                planar(&gt, &mut pairs.iter().map(|p| p.0)),
-                planar(&est, &mut pairs.iter().map(|p| p.1)),
-            )
-        }
-        _ => (
+    let pairs: Vec<(usize, usize)> = match (&gt.stamps, &est.stamps) {
+        (Some(ts_gt), Some(ts_est)) => associate_by_time(ts_gt, ts_est, 0.01),
+        _ => (0..gt.poses.len().max(est.poses.len()))
+            .map(|i| (i, i))
+            .collect(),
+    };
+    let index_pairs = gt.stamps.is_none() || est.stamps.is_none();
+    let (g, e) = if index_pairs {
+        (
             planar(&gt, &mut (0..gt.poses.len())),
             planar(&est, &mut (0..est.poses.len())),
-        ),
+        )
+    } else {
+        (
+            planar(&gt, &mut pairs.iter().map(|p| p.0)),
+            planar(&est, &mut pairs.iter().map(|p| p.1)),
+        )
     };
     let m = ape_2d(&g, &e)?;
+    let calibration = match &args.status {
+        None => None,
+        Some(path) => {
+            let all = status_file::read_position_covariances(path)?;
+            if all.len() != est.poses.len() {
+                bail!(
+                    "{} has {} rows and {} {} poses: they were not written together",
+                    path.display(),
+                    all.len(),
+                    args.est.display(),
+                    est.poses.len()
+                );
+            }
+            let cov: Vec<[[f64; 2]; 2]> = pairs.iter().map(|p| all[p.1]).collect();
+            Some(calibration(&g, &e, &cov).with_context(|| path.display().to_string())?)
+        }
+    };
     if args.json {
-        println!(
-            "{}",
-            serde_json::json!({
-                "ape2d_mean_m": m.mean_m,
-                "rmse_m": m.rmse_m,
-                "lateral_rmse_m": m.lateral_rmse_m,
-                "heading_mean_deg": m.heading_mean_deg,
-                "max_m": m.max_m,
-                "poses": m.poses,
-            })
-        );
+        let mut json = serde_json::json!({
+            "ape2d_mean_m": m.mean_m,
+            "rmse_m": m.rmse_m,
+            "lateral_rmse_m": m.lateral_rmse_m,
+            "heading_mean_deg": m.heading_mean_deg,
+            "max_m": m.max_m,
+            "poses": m.poses,
+        });
+        if let Some(c) = calibration {
+            json["cov95_coverage"] = c.cov95_coverage.into();
+            json["nees_mean"] = c.nees_mean.into();
+        }
+        println!("{json}");
     } else {
         println!("APE-2D mean      {:.6} m", m.mean_m);
         println!("RMSE             {:.6} m", m.rmse_m);
@@ -67,6 +97,10 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         println!("heading mean     {:.6} deg", m.heading_mean_deg);
         println!("max              {:.6} m", m.max_m);
         println!("poses            {}", m.poses);
+        if let Some(c) = calibration {
+            println!("cov95 coverage   {:.6}", c.cov95_coverage);
+            println!("NEES mean        {:.6}", c.nees_mean);
+        }
     }
     Ok(())
 }

@@ -1,0 +1,113 @@
+//! The status CSV of `lanealign correct --status` and `lanealign replay --status`: one row per
+//! pose with what the corrector did, `map_from_odom`, and the covariance of the corrected pose;
+//! and reading the covariances back for `lanealign eval --status`.
+//!
+//! Columns: `index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,
+//! map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,
+//! cov_yawyaw,anchor_yaw`. The covariance is in the map plane (metres^2, metre-radians,
+//! radians^2); `anchor_yaw` (radians) is the rotation of the anchor's placement, which turns the
+//! source's planar odometry frame into the map plane before any correction: the error of a
+//! corrected pose in the map plane is that rotation applied to its error in the odometry frame.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{bail, Context};
+use lanealign_core::confidence::{position_covariance_in, Covariance};
+use lanealign_core::input::Lines;
+use lanealign_core::se2::Se2;
+
+/// The header line of the status CSV.
+pub const HEADER: &str = "index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw,anchor_yaw";
+
+/// One row of the status CSV.
+#[derive(Clone, Copy, Debug)]
+pub struct Row<'a> {
+    /// The status name.
+    pub status: &'a str,
+    /// The reject reason name, empty when there is none.
+    pub reason: &'a str,
+    /// Mean ICP residual (metres); NaN when no matching ran.
+    pub residual_m: f64,
+    /// Matched fraction of the window; NaN when no matching ran.
+    pub match_ratio: f64,
+    /// Poses in the window.
+    pub window_len: usize,
+    /// The exact correction (odometry plane to map plane).
+    pub map_from_odom: Se2,
+    /// Directions of the correction applied on an accepted step (0 otherwise).
+    pub applied_directions: u8,
+    /// Covariance of the corrected pose (map plane).
+    pub covariance: Covariance,
+}
+
+/// Appends one row (numbered `index`) to `out`.
+pub fn push_row(out: &mut String, index: usize, row: &Row<'_>, anchored_from_odom: &Se2) {
+    let [x, y] = row.map_from_odom.translation();
+    let c = &row.covariance;
+    let _ = writeln!(
+        out,
+        "{index},{},{},{},{},{},{x},{y},{},{},{},{},{},{},{},{},{}",
+        row.status,
+        row.reason,
+        row.residual_m,
+        row.match_ratio,
+        row.window_len,
+        row.map_from_odom.yaw(),
+        row.applied_directions,
+        c[0][0],
+        c[0][1],
+        c[0][2],
+        c[1][1],
+        c[1][2],
+        c[2][2],
+        anchored_from_odom.yaw()
+    );
+}
+
+/// The position covariances of a status CSV, turned into the source's planar odometry frame
+/// (metres^2), one per row in order.
+pub fn read_position_covariances(path: &Path) -> anyhow::Result<Vec<[[f64; 2]; 2]>> {
+    let mut lines = Lines::open(path)?;
+    let header = match lines.next() {
+        Some(line) => line?.1,
+        None => bail!("{}: empty, not a status CSV", path.display()),
+    };
+    let names: Vec<&str> = header.split(',').collect();
+    let column = |name: &str| {
+        names.iter().position(|&n| n == name).with_context(|| {
+            format!(
+                "{}: no column {name}: not a status CSV of this version of lanealign",
+                path.display()
+            )
+        })
+    };
+    let columns = [
+        column("cov_xx")?,
+        column("cov_xy")?,
+        column("cov_yy")?,
+        column("anchor_yaw")?,
+    ];
+    let mut out = Vec::new();
+    for line in lines {
+        let (number, text) = line?;
+        let fields: Vec<&str> = text.split(',').collect();
+        let value = |k: usize| -> anyhow::Result<f64> {
+            let field = fields
+                .get(columns[k])
+                .with_context(|| format!("{}:{number}: too few columns", path.display()))?;
+            field.parse().with_context(|| {
+                format!(
+                    "{}:{number}: {} is not a number",
+                    path.display(),
+                    lanealign_core::input::quote(field)
+                )
+            })
+        };
+        let (xx, xy, yy, yaw) = (value(0)?, value(1)?, value(2)?, value(3)?);
+        let covariance = [[xx, xy, 0.0], [xy, yy, 0.0], [0.0, 0.0, 0.0]];
+        let odom_from_map = Se2::new(-yaw, 0.0, 0.0);
+        out.push(position_covariance_in(&odom_from_map, &covariance));
+    }
+    Ok(out)
+}

@@ -1,0 +1,308 @@
+//! How sure a correction is, and how much of it the map's evidence supports
+//! (docs/method.md, "Confidence").
+//!
+//! The corrector carries the covariance of the error of its current corrected pose: planar
+//! position (x, y, metres) and heading (yaw, radians), in the map plane, at the newest pose. Three
+//! things move it:
+//! - **Driving** adds the odometry's drift: a random walk of `drift_var_per_m` m^2 per metre in
+//!   position and `yaw_drift_var_per_m` rad^2 per metre in heading, and a heading error turns
+//!   every metre driven into position error.
+//! - **An accepted alignment** adds the information the matched lanes give: each kept pair
+//!   constrains the pose only across its lane (along a straight lane it says nothing), with the
+//!   car's wander about the centreline as independent noise and the lane's own offset error
+//!   ([`lane_sigma_m`]: tagged or inferred lanes, road class) shared by every pair on that lane.
+//!   A sliding window sees the same lanes on many steps, so each step adds only the share of the
+//!   window's information that is new: the distance driven since the last accepted step over the
+//!   window's path length.
+//! - **What is applied.** Of the correction ICP proposes, only the directions in which the
+//!   window's information outweighs the current uncertainty by `min_evidence_ratio` are applied
+//!   (a generalised eigenproblem of the information against the prior covariance). On a straight
+//!   road the along-road direction carries no information, so the pose is not moved along the
+//!   road; where the odometry is more certain than the map, it is kept.
+//!
+//! Hand-written 3x3 algebra on nalgebra's fixed-size matrices: no crate models this filter.
+
+use nalgebra::{Matrix3, RowVector3, SymmetricEigen, Vector3};
+
+use crate::lane_geometry::{LaneInfo, RoadClass};
+use crate::lane_map::LaneMap;
+use crate::matching::Correspondence;
+use crate::params::Params;
+use crate::se2::Se2;
+
+/// Covariance of a planar pose error (x and y in metres, yaw in radians), row-major, in the map
+/// plane.
+pub type Covariance = [[f64; 3]; 3];
+
+/// How far a car wanders about the centreline of the lane it drives in, independently of the
+/// map (metres, 1 sigma).
+pub const WANDER_SIGMA_M: f64 = 0.3;
+
+/// Over what stretch a car's wander stays correlated (metres): poses closer than this add less
+/// than one independent observation each.
+pub const WANDER_CORRELATION_M: f64 = 20.0;
+
+/// How far the centreline of a lane may lie from where cars drive in it (metres, 1 sigma): the
+/// lane's offset error, shared by every pose matched to it. Surveyed lanelets are trusted most,
+/// OSM lanes whose count was tagged more than those inferred from the road class, unmarked
+/// streets and lanes shared by both directions least (cars choose their line there).
+pub fn lane_sigma_m(info: LaneInfo) -> f64 {
+    if info.class == RoadClass::Lanelet {
+        return 0.2;
+    }
+    if info.has(LaneInfo::SHARED) {
+        return 1.0;
+    }
+    if info.has(LaneInfo::UNMARKED) {
+        return 0.7;
+    }
+    if info.class == RoadClass::Unknown || info.has(LaneInfo::LANES_TAGGED) {
+        0.5
+    } else {
+        0.7
+    }
+}
+
+/// The information (inverse covariance) an alignment gives about a small correction
+/// `(dx, dy, dyaw)` of the window taken at `center` (metres, map plane): the kept pairs'
+/// sources after the fit, each constraining the distance across its matched lane.
+///
+/// `spacing_m(i)` is the path length from window pose `i` to the next (metres): a pose stands for
+/// that stretch of wander out of [`WANDER_CORRELATION_M`].
+pub fn alignment_information(
+    map: &LaneMap,
+    pairs: &[Correspondence],
+    kept: &[u32],
+    fitted_sources: &[[f64; 2]],
+    center: [f64; 2],
+    spacing_m: impl Fn(usize) -> f64,
+) -> Matrix3<f64> {
+    let wander_var = WANDER_SIGMA_M * WANDER_SIGMA_M;
+    let mut information = Matrix3::zeros();
+    // Pairs of one stretch of the window share its map offset error: with independent variances
+    // `a_i` and a shared `b`, the stretch's information is
+    // sum(J'J / a) - b / (1 + b sum(1 / a)) (sum J / a)'(sum J / a) (Sherman-Morrison).
+    let mut block = Block::default();
+    let mut block_start = f64::NEG_INFINITY;
+    let mut along = 0.0;
+    let mut last_index = None;
+    for &k in kept {
+        let pair = &pairs[k as usize];
+        let Some((_, _, direction)) = map.segment_of(pair.point) else {
+            continue;
+        };
+        if let Some(last) = last_index {
+            along += (last..pair.index).map(&spacing_m).sum::<f64>();
+        }
+        last_index = Some(pair.index);
+        if along - block_start >= MAP_CORRELATION_M {
+            information += block.information();
+            block = Block::default();
+            block_start = along;
+        }
+        let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
+        let normal = [-direction[1], direction[0]];
+        let p = fitted_sources[k as usize];
+        let arm = [p[0] - center[0], p[1] - center[1]];
+        // d(normal . p) / d(dx, dy, dyaw) for p moved by a rotation about `center`.
+        let j = RowVector3::new(
+            normal[0],
+            normal[1],
+            -normal[0] * arm[1] + normal[1] * arm[0],
+        );
+        let share = (spacing_m(pair.index) / WANDER_CORRELATION_M).clamp(1e-3, 1.0);
+        block.add(j, share / wander_var, sigma * sigma);
+    }
+    information + block.information()
+}
+
+/// Over what stretch of road the map's offset error stays the same (metres): OSM ways are
+/// traced from the same imagery by the same mappers, so neighbouring lanes are off together.
+pub const MAP_CORRELATION_M: f64 = 100.0;
+
+/// The pairs of one stretch of the window, summed for its information.
+#[derive(Default)]
+struct Block {
+    sum_jj: Matrix3<f64>,
+    sum_j: RowVector3<f64>,
+    sum_inv_a: f64,
+    sum_b: f64,
+    count: usize,
+}
+
+impl Block {
+    fn add(&mut self, j: RowVector3<f64>, inv_a: f64, b: f64) {
+        self.sum_jj += j.transpose() * j * inv_a;
+        self.sum_j += j * inv_a;
+        self.sum_inv_a += inv_a;
+        self.sum_b += b;
+        self.count += 1;
+    }
+
+    fn information(&self) -> Matrix3<f64> {
+        if self.count == 0 {
+            return Matrix3::zeros();
+        }
+        let b = self.sum_b / self.count as f64;
+        self.sum_jj - self.sum_j.transpose() * self.sum_j * (b / (1.0 + b * self.sum_inv_a))
+    }
+}
+
+/// A correction `corrected_from_current` as `(dx, dy, dyaw)` about `center`: the move of
+/// `center` (metres) and the rotation (radians).
+pub fn correction_at(correction: &Se2, center: [f64; 2]) -> Vector3<f64> {
+    let moved = correction.apply(center);
+    Vector3::new(moved[0] - center[0], moved[1] - center[1], correction.yaw())
+}
+
+/// The rigid transform that moves `center` by `(dx, dy)` and rotates about it by `dyaw`.
+pub fn correction_from(xi: &Vector3<f64>, center: [f64; 2]) -> Se2 {
+    let (sin, cos) = xi[2].sin_cos();
+    let rotated = [
+        cos * center[0] - sin * center[1],
+        sin * center[0] + cos * center[1],
+    ];
+    Se2::from_rotation(
+        cos,
+        sin,
+        center[0] + xi[0] - rotated[0],
+        center[1] + xi[1] - rotated[1],
+    )
+}
+
+/// The position block of `covariance` expressed in another plane: `frame_from_map`'s rotation
+/// `R` gives `R S R'` (metres^2).
+pub fn position_covariance_in(frame_from_map: &Se2, covariance: &Covariance) -> [[f64; 2]; 2] {
+    let (c, s) = frame_from_map.rotation();
+    let r = [[c, -s], [s, c]];
+    let p = [
+        [covariance[0][0], covariance[0][1]],
+        [covariance[1][0], covariance[1][1]],
+    ];
+    std::array::from_fn(|i| {
+        std::array::from_fn(|j| {
+            (0..2)
+                .map(|k| (0..2).map(|l| r[i][k] * p[k][l] * r[j][l]).sum::<f64>())
+                .sum()
+        })
+    })
+}
+
+/// The uncertainty of a corrector's current pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseUncertainty {
+    covariance: Matrix3<f64>,
+}
+
+/// What [`PoseUncertainty::supported`] kept of a proposed correction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Supported {
+    /// The correction to apply, `(dx, dy, dyaw)` about the same center (metres, radians).
+    pub correction: Vector3<f64>,
+    /// How many of the three directions the evidence supports (3: the whole proposal).
+    pub directions: usize,
+}
+
+impl PoseUncertainty {
+    /// The uncertainty at the start: the anchor's (`initial_sigma_m` in x and y,
+    /// `initial_sigma_yaw_deg` in yaw).
+    pub fn new(params: &Params) -> Self {
+        let s = params.initial_sigma_m;
+        let y = params.initial_sigma_yaw_deg.to_radians();
+        PoseUncertainty {
+            covariance: Matrix3::from_diagonal(&Vector3::new(s * s, s * s, y * y)),
+        }
+    }
+
+    /// A saved uncertainty (see [`PoseUncertainty::covariance`]).
+    pub fn from_covariance(covariance: &Covariance) -> Self {
+        PoseUncertainty {
+            covariance: Matrix3::from_fn(|r, c| covariance[r][c]),
+        }
+    }
+
+    /// The covariance (map plane; x, y in metres, yaw in radians).
+    pub fn covariance(&self) -> Covariance {
+        let c = &self.covariance;
+        std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)]))
+    }
+
+    /// The pose moved by `motion` (metres, map plane): the heading error turns the motion into
+    /// position error, and the odometry drifts by its rate per metre.
+    pub fn drive(&mut self, motion: [f64; 2], params: &Params) {
+        let step = motion[0].hypot(motion[1]);
+        if step == 0.0 {
+            return;
+        }
+        let f = Matrix3::new(
+            1.0, 0.0, -motion[1], //
+            0.0, 1.0, motion[0], //
+            0.0, 0.0, 1.0,
+        );
+        let q = Vector3::new(
+            params.drift_var_per_m * step,
+            params.drift_var_per_m * step,
+            params.yaw_drift_var_per_m * step,
+        );
+        self.covariance = f * self.covariance * f.transpose() + Matrix3::from_diagonal(&q);
+        self.symmetrize();
+    }
+
+    /// The part of `proposed` (a correction about the same center as `information`) the
+    /// evidence supports. In the eigen-directions of the window's `information` against the
+    /// current covariance, one whose ratio is at least `min_ratio` is applied whole; in the others
+    /// the Kalman gain of the new share (`share` of the information) applies.
+    pub fn supported(
+        &self,
+        information: &Matrix3<f64>,
+        proposed: &Vector3<f64>,
+        min_ratio: f64,
+        share: f64,
+    ) -> Supported {
+        let whole = Supported {
+            correction: *proposed,
+            directions: 3,
+        };
+        let Some(cholesky) = self.covariance.cholesky() else {
+            return whole;
+        };
+        let l = cholesky.l();
+        let whitened = SymmetricEigen::new(l.transpose() * information * l);
+        let Some(y) = l.solve_lower_triangular(proposed) else {
+            return whole;
+        };
+        let mut kept = Vector3::zeros();
+        let mut directions = 0;
+        for (k, &ratio) in whitened.eigenvalues.iter().enumerate() {
+            let v = whitened.eigenvectors.column(k);
+            let gain = if ratio >= min_ratio {
+                directions += 1;
+                1.0
+            } else {
+                let r = (ratio * share).max(0.0);
+                r / (1.0 + r)
+            };
+            kept += v * (gain * v.dot(&y));
+        }
+        Supported {
+            correction: l * kept,
+            directions,
+        }
+    }
+
+    /// Adds `information` (about a correction at the current pose), scaled by `share`: the part
+    /// of it that is new since the last update.
+    pub fn update(&mut self, information: &Matrix3<f64>, share: f64) {
+        let Some(prior_information) = self.covariance.try_inverse() else {
+            return;
+        };
+        if let Some(covariance) = (prior_information + information * share).try_inverse() {
+            self.covariance = covariance;
+            self.symmetrize();
+        }
+    }
+
+    fn symmetrize(&mut self) {
+        self.covariance = (self.covariance + self.covariance.transpose()) * 0.5;
+    }
+}
