@@ -14,8 +14,9 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use lanealign_core::confidence::{position_covariance_in, Covariance};
-use lanealign_core::input::Lines;
+use lanealign_core::input::{Lines, Outputs};
 use lanealign_core::se2::Se2;
+use lanealign_core::trajectory::{self, Format, Trajectory};
 
 /// The header line of the status CSV.
 pub const HEADER: &str = "index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw,anchor_yaw";
@@ -39,10 +40,22 @@ pub struct Row<'a> {
     pub applied_directions: u8,
     /// Covariance of the corrected pose (map plane).
     pub covariance: Covariance,
+    /// The rotation of the source's anchor (radians).
+    pub anchor_yaw: f64,
 }
 
-/// Appends one row (numbered `index`) to `out`.
-pub fn push_row(out: &mut String, index: usize, row: &Row<'_>, anchored_from_odom: &Se2) {
+/// The status CSV of `rows`, header first, rows numbered from 0.
+pub fn format<'a>(rows: impl ExactSizeIterator<Item = Row<'a>>) -> String {
+    let mut out = String::with_capacity((rows.len() + 1) * 250);
+    out.push_str(HEADER);
+    out.push('\n');
+    for (index, row) in rows.enumerate() {
+        push_row(&mut out, index, &row);
+    }
+    out
+}
+
+fn push_row(out: &mut String, index: usize, row: &Row<'_>) {
     let [x, y] = row.map_from_odom.translation();
     let c = &row.covariance;
     let _ = writeln!(
@@ -61,8 +74,28 @@ pub fn push_row(out: &mut String, index: usize, row: &Row<'_>, anchored_from_odo
         c[1][1],
         c[1][2],
         c[2][2],
-        anchored_from_odom.yaw()
+        row.anchor_yaw
     );
+}
+
+/// Writes a corrected trajectory to `output` and, when asked, its status CSV to `status`: both
+/// appear only when both were written.
+pub fn write_run(
+    output: &Path,
+    trajectory: &Trajectory,
+    format: Format,
+    status: Option<(&Path, String)>,
+) -> anyhow::Result<()> {
+    let mut outputs = Outputs::default();
+    outputs.stage(
+        output,
+        trajectory::format_text(trajectory, format, output)?.as_bytes(),
+    )?;
+    if let Some((path, csv)) = status {
+        outputs.stage(path, csv.as_bytes())?;
+    }
+    outputs.commit()?;
+    Ok(())
 }
 
 /// The position covariances of a status CSV, turned into the source's planar odometry frame

@@ -464,13 +464,12 @@ impl Corrector {
         let p = self.params;
         if let Some(last) = self.last_position_in_anchored {
             self.travelled_m += distance(last, position_in_anchored);
-            let (cos, sin) = self.map_from_anchored.rotation();
-            let (dx, dy) = (
+            let motion = [
                 position_in_anchored[0] - last[0],
                 position_in_anchored[1] - last[1],
-            );
+            ];
             self.uncertainty
-                .drive([cos * dx - sin * dy, sin * dx + cos * dy], &p);
+                .drive(self.map_from_anchored.rotate(motion), &p);
         }
         self.last_position_in_anchored = Some(position_in_anchored);
         self.window
@@ -595,24 +594,21 @@ impl Corrector {
             1.0
         };
         let min_ratio = self.params.min_evidence_ratio;
-        let (correction, directions) = if min_ratio > 0.0 {
+        let mut applied = (*proposed, 3);
+        if min_ratio > 0.0 {
             let xi = correction_at(proposed, current);
             let supported = self
                 .uncertainty
                 .supported(&information, &xi, min_ratio, share);
-            if supported.directions == 3 {
-                (*proposed, 3)
-            } else {
-                (
+            if supported.directions < 3 {
+                applied = (
                     correction_from(&supported.correction, current),
                     supported.directions as u8,
-                )
+                );
             }
-        } else {
-            (*proposed, 3)
-        };
+        }
         self.uncertainty.update(&information, share);
-        (correction, directions)
+        applied
     }
 
     /// `base` widened by the drift the odometry may have accumulated since the last accepted

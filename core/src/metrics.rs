@@ -42,6 +42,14 @@ pub enum MetricsError {
         /// The pair's index.
         index: usize,
     },
+    /// There is not one covariance per pose pair.
+    #[error("{pairs} pose pairs but {covariances} covariances")]
+    CovarianceCount {
+        /// Pose pairs.
+        pairs: usize,
+        /// Covariances.
+        covariances: usize,
+    },
     /// A published covariance is not a covariance.
     #[error("the covariance of pose {index} is not finite and positive definite")]
     NotPositiveDefinite {
@@ -115,10 +123,16 @@ pub fn calibration(
     est: &[Pose3],
     cov_xy: &[[[f64; 2]; 2]],
 ) -> Result<Calibration, MetricsError> {
-    if gt.len() != est.len() || gt.len() != cov_xy.len() {
+    if gt.len() != est.len() {
         return Err(MetricsError::LengthMismatch {
             gt: gt.len(),
-            est: est.len().min(cov_xy.len()),
+            est: est.len(),
+        });
+    }
+    if cov_xy.len() != est.len() {
+        return Err(MetricsError::CovarianceCount {
+            pairs: est.len(),
+            covariances: cov_xy.len(),
         });
     }
     if gt.is_empty() {

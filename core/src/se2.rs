@@ -75,6 +75,16 @@ impl Se2 {
         ]
     }
 
+    /// Rotates a vector (metres) from the source frame's axes into the target frame's, without
+    /// the translation: how a displacement maps.
+    #[inline]
+    pub fn rotate(&self, v: [f64; 2]) -> [f64; 2] {
+        [
+            self.cos * v[0] - self.sin * v[1],
+            self.sin * v[0] + self.cos * v[1],
+        ]
+    }
+
     /// The inverse transform `a_from_b`.
     pub fn inverse(&self) -> Se2 {
         Se2 {

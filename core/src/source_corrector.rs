@@ -61,6 +61,7 @@ pub struct SourceCorrector {
     corrector: Corrector,
     placement: Placement,
     odom_from_anchored: Se2,
+    anchor_yaw: f64,
     smoother: Option<Smoother>,
 }
 
@@ -71,14 +72,16 @@ impl SourceCorrector {
         SourceCorrector {
             corrector: Corrector::with_mode(map, params, mode),
             odom_from_anchored: placement.anchored_from_odom.inverse(),
+            anchor_yaw: placement.anchored_from_odom.yaw(),
             smoother: placement.smoothing.map(Smoother::new),
             placement,
         }
     }
 
-    /// Where the anchor places the source's planar odometry frame in the map plane.
-    pub fn anchored_from_odom(&self) -> Se2 {
-        self.placement.anchored_from_odom
+    /// The rotation of the source's anchor (radians): its planar odometry frame turned into the
+    /// map plane before any correction.
+    pub fn anchor_yaw(&self) -> f64 {
+        self.anchor_yaw
     }
 
     /// Poses in the corrector's window.
@@ -105,6 +108,7 @@ impl SourceCorrector {
         SourceCorrector {
             corrector: Corrector::restore(map, params, mode, state.corrector),
             odom_from_anchored: placement.anchored_from_odom.inverse(),
+            anchor_yaw: placement.anchored_from_odom.yaw(),
             smoother: placement
                 .smoothing
                 .map(|limits| Smoother::restore(limits, state.smoothed)),

@@ -263,7 +263,7 @@ impl Session {
         answer.applied_directions = u32::from(record.status.applied_directions());
         let c = &record.covariance;
         answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
-        answer.anchor_yaw = self.corrector.anchored_from_odom().yaw();
+        answer.anchor_yaw = self.corrector.anchor_yaw();
         self.expected_seq = input.seq + 1;
         answer.expected_seq = self.expected_seq;
         let entry = Record {

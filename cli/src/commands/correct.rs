@@ -9,7 +9,6 @@ use lanealign_cli::maps::{LoadedMap, MapSource};
 use lanealign_cli::status_file;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::input::Outputs;
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
 use lanealign_core::plausibility;
@@ -166,12 +165,10 @@ pub struct CorrectArgs {
 
 /// The status CSV ([`status_file`]) of a corrected run.
 pub fn status_csv(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
-    let mut out = String::with_capacity(run.len() * 250);
-    out.push_str(status_file::HEADER);
-    out.push('\n');
-    for (i, c) in run.iter().enumerate() {
+    let anchor_yaw = anchored_from_odom.yaw();
+    status_file::format(run.iter().map(|c| {
         let s = &c.status;
-        let row = status_file::Row {
+        status_file::Row {
             status: s.name(),
             reason: s.reason().map_or("", |r| r.name()),
             residual_m: s.residual_m().unwrap_or(f64::NAN),
@@ -180,10 +177,9 @@ pub fn status_csv(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
             map_from_odom: c.map_from_odom,
             applied_directions: s.applied_directions(),
             covariance: c.covariance,
-        };
-        status_file::push_row(&mut out, i, &row, anchored_from_odom);
-    }
-    out
+            anchor_yaw,
+        }
+    }))
 }
 
 /// Loads the map for `config` and refuses a tile whose lane geometry the method was not made
@@ -232,16 +228,11 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),
     };
-    // Every output appears only when all of them were written.
-    let mut outputs = Outputs::default();
-    outputs.stage(
-        &args.output,
-        trajectory::format_text(&output, args.format, &args.output)?.as_bytes(),
-    )?;
-    if let Some(path) = &args.status {
-        outputs.stage(path, status_csv(&run, &anchored_from_odom).as_bytes())?;
-    }
-    outputs.commit()?;
+    let status = args
+        .status
+        .as_deref()
+        .map(|path| (path, status_csv(&run, &anchored_from_odom)));
+    status_file::write_run(&args.output, &output, args.format, status)?;
     let c = counts(&run);
     eprintln!(
         "{} poses, method {}: {} match attempts, {} accepted, {} resets",

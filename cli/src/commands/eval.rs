@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 use lanealign_cli::status_file;
-use lanealign_core::metrics::{ape_2d, associate_by_time, calibration};
+use lanealign_core::metrics::{ape_2d, associate_by_time, calibration, MetricsError};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{self, Format, Trajectory};
 
@@ -37,27 +37,24 @@ pub struct EvalArgs {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let gt = trajectory::read(&args.gt, args.format)?;
     let est = trajectory::read(&args.est, args.format)?;
-    let planar = |t: &Trajectory, idx: &mut dyn Iterator<Item = usize>| -> Vec<Pose3> {
-        idx.map(|i| args.frame.to_planar(&t.poses[i])).collect()
-    };
     let pairs: Vec<(usize, usize)> = match (&gt.stamps, &est.stamps) {
         (Some(ts_gt), Some(ts_est)) => associate_by_time(ts_gt, ts_est, 0.01),
-        _ => (0..gt.poses.len().max(est.poses.len()))
-            .map(|i| (i, i))
-            .collect(),
+        _ if gt.poses.len() == est.poses.len() => (0..gt.poses.len()).map(|i| (i, i)).collect(),
+        _ => {
+            return Err(MetricsError::LengthMismatch {
+                gt: gt.poses.len(),
+                est: est.poses.len(),
+            }
+            .into())
+        }
     };
-    let index_pairs = gt.stamps.is_none() || est.stamps.is_none();
-    let (g, e) = if index_pairs {
-        (
-            planar(&gt, &mut (0..gt.poses.len())),
-            planar(&est, &mut (0..est.poses.len())),
-        )
-    } else {
-        (
-            planar(&gt, &mut pairs.iter().map(|p| p.0)),
-            planar(&est, &mut pairs.iter().map(|p| p.1)),
-        )
+    let planar = |t: &Trajectory, side: fn(&(usize, usize)) -> usize| -> Vec<Pose3> {
+        pairs
+            .iter()
+            .map(|p| args.frame.to_planar(&t.poses[side(p)]))
+            .collect()
     };
+    let (g, e) = (planar(&gt, |p| p.0), planar(&est, |p| p.1));
     let m = ape_2d(&g, &e)?;
     let calibration = match &args.status {
         None => None,

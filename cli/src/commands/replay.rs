@@ -7,7 +7,6 @@ use clap::Args;
 use lanealign_cli::replay::{replay, Rate, ReplayError};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
-use lanealign_core::input::Outputs;
 use lanealign_core::pose::Pose3;
 use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{self, Format, Trajectory};
@@ -47,27 +46,21 @@ pub struct ReplayArgs {
 
 /// The status CSV ([`status_file`]) of the daemon's answers.
 fn status_csv(answers: &[CorrectedPose]) -> String {
-    let mut out = String::with_capacity(answers.len() * 250);
-    out.push_str(status_file::HEADER);
-    out.push('\n');
-    for (i, a) in answers.iter().enumerate() {
-        let status = a.status().map_or("unknown", StatusCode::name);
-        let reason = ReasonCode::from_code(a.reason).map_or("unknown", ReasonCode::name);
+    status_file::format(answers.iter().map(|a| {
         let [x, y, yaw] = a.map_from_odom;
         let [xx, xy, xt, yy, yt, tt] = a.covariance;
-        let row = status_file::Row {
-            status,
-            reason,
+        status_file::Row {
+            status: a.status().map_or("unknown", StatusCode::name),
+            reason: ReasonCode::from_code(a.reason).map_or("unknown", ReasonCode::name),
             residual_m: a.residual_m,
             match_ratio: a.match_ratio,
             window_len: a.window_len as usize,
             map_from_odom: Se2::new(yaw, x, y),
             applied_directions: a.applied_directions.min(3) as u8,
             covariance: [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]],
-        };
-        status_file::push_row(&mut out, i, &row, &Se2::new(a.anchor_yaw, 0.0, 0.0));
-    }
-    out
+            anchor_yaw: a.anchor_yaw,
+        }
+    }))
 }
 
 /// Runs `lanealign replay`.
@@ -118,15 +111,11 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
             .map(|a| Pose3::from_row_major(&a.pose))
             .collect(),
     };
-    let mut outputs = Outputs::default();
-    outputs.stage(
-        &args.output,
-        trajectory::format_text(&output, args.format, &args.output)?.as_bytes(),
-    )?;
-    if let Some(path) = &args.status {
-        outputs.stage(path, status_csv(&result.answers).as_bytes())?;
-    }
-    outputs.commit()?;
+    let status = args
+        .status
+        .as_deref()
+        .map(|path| (path, status_csv(&result.answers)));
+    status_file::write_run(&args.output, &output, args.format, status)?;
     let mut rt = result.round_trip_ns.clone();
     rt.sort_unstable();
     let accepted = result
