@@ -1,8 +1,10 @@
 //! Trimmed ICP on fixed correspondences (docs/algorithm.md, section 3, step 3).
 //!
 //! The pairs are not re-matched: each iteration keeps the `k` smallest residuals of the currently
-//! transformed sources, fits a rigid transform to them (closed-form 2D Kabsch) and applies it to
-//! every source.
+//! transformed sources, fits a rigid transform to them and applies it to every source. Without a
+//! tolerance band the fit is the closed-form 2D Kabsch, exactly the paper's. With a band the
+//! objective (squared distance to the band's edge) has no closed form: each iteration takes a
+//! damped Newton step on it, halved until the trimmed objective does not grow.
 
 use crate::matching::Correspondence;
 use crate::se2::Se2;
@@ -38,10 +40,12 @@ pub struct IcpResult {
 pub struct IcpScratch {
     sources: Vec<[f64; 2]>,
     targets: Vec<[f64; 2]>,
-    band_targets: Vec<[f64; 2]>,
     residuals: Vec<f64>,
     sorted: Vec<f64>,
     kept: Vec<u32>,
+    trial_sources: Vec<[f64; 2]>,
+    trial_residuals: Vec<f64>,
+    trial_kept: Vec<u32>,
 }
 
 impl IcpScratch {
@@ -109,20 +113,6 @@ fn band_residual(source: [f64; 2], target: [f64; 2], band: f64) -> f64 {
     (residual(source, target) - band).max(0.0)
 }
 
-/// The point of the disc of radius `band` around `target` nearest to `source`.
-#[inline]
-fn band_target(source: [f64; 2], target: [f64; 2], band: f64) -> [f64; 2] {
-    let d = residual(source, target);
-    if d <= band {
-        return source;
-    }
-    let f = band / d;
-    [
-        target[0] + (source[0] - target[0]) * f,
-        target[1] + (source[1] - target[1]) * f,
-    ]
-}
-
 /// The indices of the `k` smallest residuals, in index order, ties at the cut going to the lowest
 /// indices: the set a stable sort by residual would keep. Linear time.
 fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut Vec<u32>) {
@@ -148,9 +138,8 @@ fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut 
 /// Runs trimmed ICP on fixed pairs. Needs at least two pairs (the caller checks the match ratio
 /// first); with fewer it returns the identity and an infinite residual.
 ///
-/// With a tolerance band `b > 0` each iteration fits the kept sources to their nearest points of
-/// the discs of radius `b` around the targets, which is alternating minimisation of the summed
-/// squared band residuals: the objective never grows. With `b = 0` it is exactly the paper's (docs/algorithm.md, section 3).
+/// With a tolerance band `b > 0` it minimises the trimmed sum of squared band residuals (see
+/// [`band_newton_step`]); with `b = 0` it is exactly the paper's (docs/algorithm.md, section 3).
 pub fn trimmed_icp(
     pairs: &[Correspondence],
     params: &IcpParams,
@@ -164,27 +153,37 @@ pub fn trimmed_icp(
             iterations: 0,
         };
     }
-    let k = kept_count(n, params.trim_ratio);
     let band = params.tolerance_band_m;
+    scratch.sources.clear();
+    scratch.sources.extend(pairs.iter().map(|c| c.source));
+    scratch.targets.clear();
+    scratch.targets.extend(pairs.iter().map(|c| c.target));
+    scratch.residuals.clear();
+    scratch.residuals.extend(
+        scratch
+            .sources
+            .iter()
+            .zip(scratch.targets.iter())
+            .map(|(&s, &q)| band_residual(s, q, band)),
+    );
+    if band > 0.0 {
+        banded_icp(n, params, scratch)
+    } else {
+        paper_icp(n, params, scratch)
+    }
+}
+
+/// The paper's iteration: trim, Kabsch on the kept pairs, apply to every source.
+fn paper_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResult {
+    let k = kept_count(n, params.trim_ratio);
     let IcpScratch {
         sources,
         targets,
-        band_targets,
         residuals,
         sorted,
         kept,
+        ..
     } = scratch;
-    sources.clear();
-    sources.extend(pairs.iter().map(|c| c.source));
-    targets.clear();
-    targets.extend(pairs.iter().map(|c| c.target));
-    residuals.clear();
-    residuals.extend(
-        sources
-            .iter()
-            .zip(targets.iter())
-            .map(|(&s, &q)| band_residual(s, q, band)),
-    );
     let mut transform = Se2::IDENTITY;
     let mut previous = f64::INFINITY;
     let mut residual_m = f64::INFINITY;
@@ -192,24 +191,13 @@ pub fn trimmed_icp(
     while iterations < params.max_iterations {
         iterations += 1;
         keep_smallest(residuals, k, sorted, kept);
-        let step = if band > 0.0 {
-            band_targets.clear();
-            band_targets.extend(
-                sources
-                    .iter()
-                    .zip(targets.iter())
-                    .map(|(&s, &q)| band_target(s, q, band)),
-            );
-            fit_rigid(sources, band_targets, kept)
-        } else {
-            fit_rigid(sources, targets, kept)
-        };
+        let step = fit_rigid(sources, targets, kept);
         for (s, (r, &q)) in sources
             .iter_mut()
             .zip(residuals.iter_mut().zip(targets.iter()))
         {
             *s = step.apply(*s);
-            *r = band_residual(*s, q, band);
+            *r = residual(*s, q);
         }
         transform = step * transform;
         residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
@@ -223,6 +211,183 @@ pub fn trimmed_icp(
         residual_m,
         iterations,
     }
+}
+
+/// Halvings of a Newton step before the iteration gives up on it.
+const MAX_HALVINGS: u32 = 12;
+
+/// The banded iteration: trim, a Newton step on the kept pairs outside the band, halved until the
+/// trimmed sum of squares does not grow, apply to every source. Stops when the mean kept residual
+/// changes by less than the tolerance or no step reduces the objective.
+fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResult {
+    let k = kept_count(n, params.trim_ratio);
+    let band = params.tolerance_band_m;
+    let IcpScratch {
+        sources,
+        targets,
+        residuals,
+        sorted,
+        kept,
+        trial_sources,
+        trial_residuals,
+        trial_kept,
+        ..
+    } = scratch;
+    keep_smallest(residuals, k, sorted, kept);
+    let mut cost = sum_of_squares(residuals, kept);
+    let mut residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
+    let mut transform = Se2::IDENTITY;
+    let mut iterations = 0;
+    while iterations < params.max_iterations && cost > 0.0 {
+        iterations += 1;
+        let Some(full) = band_newton_step(sources, targets, kept, band) else {
+            break;
+        };
+        let mut accepted = None;
+        let mut scale = 1.0;
+        for _ in 0..=MAX_HALVINGS {
+            let step = full.scaled(scale).transform();
+            trial_sources.clear();
+            trial_sources.extend(sources.iter().map(|&s| step.apply(s)));
+            trial_residuals.clear();
+            trial_residuals.extend(
+                trial_sources
+                    .iter()
+                    .zip(targets.iter())
+                    .map(|(&s, &q)| band_residual(s, q, band)),
+            );
+            keep_smallest(trial_residuals, k, sorted, trial_kept);
+            let trial_cost = sum_of_squares(trial_residuals, trial_kept);
+            if trial_cost <= cost {
+                accepted = Some((step, trial_cost));
+                break;
+            }
+            scale *= 0.5;
+        }
+        let Some((step, trial_cost)) = accepted else {
+            break;
+        };
+        std::mem::swap(sources, trial_sources);
+        std::mem::swap(residuals, trial_residuals);
+        std::mem::swap(kept, trial_kept);
+        transform = step * transform;
+        cost = trial_cost;
+        let previous = residual_m;
+        residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
+        if (previous - residual_m).abs() < params.tolerance_m {
+            break;
+        }
+    }
+    IcpResult {
+        transform,
+        residual_m,
+        iterations,
+    }
+}
+
+fn sum_of_squares(residuals: &[f64], kept: &[u32]) -> f64 {
+    kept.iter().map(|&i| residuals[i as usize].powi(2)).sum()
+}
+
+/// A small rigid motion: rotation by `yaw` (radians) about `center` (metres, map plane), then a
+/// translation (metres).
+#[derive(Clone, Copy, Debug)]
+struct LocalStep {
+    yaw: f64,
+    translation: [f64; 2],
+    center: [f64; 2],
+}
+
+impl LocalStep {
+    fn scaled(&self, f: f64) -> LocalStep {
+        LocalStep {
+            yaw: self.yaw * f,
+            translation: [self.translation[0] * f, self.translation[1] * f],
+            center: self.center,
+        }
+    }
+
+    /// The motion as a transform: `x -> R (x - c) + c + t`.
+    fn transform(&self) -> Se2 {
+        let r = Se2::new(self.yaw, 0.0, 0.0).apply(self.center);
+        Se2::new(
+            self.yaw,
+            self.center[0] + self.translation[0] - r[0],
+            self.center[1] + self.translation[1] - r[1],
+        )
+    }
+}
+
+/// One Newton step on `F = 1/2 sum (|x_i - q_i| - b)^2` over the kept pairs outside the band
+/// (those inside have zero residual and zero gradient), parametrised by a rotation about their
+/// centroid and a translation. The Hessian keeps each residual's full curvature in the point
+/// (`u u^T` across the disc's edge plus `(rho / d) (I - u u^T)` along it) and drops only the
+/// rotation's own second derivative, so it is positive semi-definite; a relative damping of
+/// 1e-9 of its trace makes it definite where the pairs leave a direction free (a straight road),
+/// and there the gradient has no component, so the step does not move along it. `None` when no
+/// kept pair lies outside the band.
+fn band_newton_step(
+    sources: &[[f64; 2]],
+    targets: &[[f64; 2]],
+    kept: &[u32],
+    band: f64,
+) -> Option<LocalStep> {
+    let (mut center, mut active) = ([0.0; 2], 0usize);
+    for &i in kept {
+        let (s, q) = (sources[i as usize], targets[i as usize]);
+        if residual(s, q) > band {
+            center = [center[0] + s[0], center[1] + s[1]];
+            active += 1;
+        }
+    }
+    if active == 0 {
+        return None;
+    }
+    center = [center[0] / active as f64, center[1] / active as f64];
+    let mut h = nalgebra::Matrix3::<f64>::zeros();
+    let mut g = nalgebra::Vector3::<f64>::zeros();
+    for &i in kept {
+        let (s, q) = (sources[i as usize], targets[i as usize]);
+        let d = residual(s, q);
+        if d <= band {
+            continue;
+        }
+        let rho = d - band;
+        let u = [(s[0] - q[0]) / d, (s[1] - q[1]) / d];
+        let w = [-(s[1] - center[1]), s[0] - center[0]];
+        // M = u u^T + (rho / d) (I - u u^T), the point's curvature.
+        let f = rho / d;
+        let m = [
+            [u[0] * u[0] * (1.0 - f) + f, u[0] * u[1] * (1.0 - f)],
+            [u[0] * u[1] * (1.0 - f), u[1] * u[1] * (1.0 - f) + f],
+        ];
+        let mw = [
+            m[0][0] * w[0] + m[0][1] * w[1],
+            m[1][0] * w[0] + m[1][1] * w[1],
+        ];
+        h[(0, 0)] += w[0] * mw[0] + w[1] * mw[1];
+        h[(0, 1)] += mw[0];
+        h[(0, 2)] += mw[1];
+        h[(1, 1)] += m[0][0];
+        h[(1, 2)] += m[0][1];
+        h[(2, 2)] += m[1][1];
+        g[0] += rho * (u[0] * w[0] + u[1] * w[1]);
+        g[1] += rho * u[0];
+        g[2] += rho * u[1];
+    }
+    h[(1, 0)] = h[(0, 1)];
+    h[(2, 0)] = h[(0, 2)];
+    h[(2, 1)] = h[(1, 2)];
+    let damping = 1e-9 * h.trace().max(f64::MIN_POSITIVE);
+    for j in 0..3 {
+        h[(j, j)] += damping;
+    }
+    let delta = h.cholesky()?.solve(&-g);
+    delta.iter().all(|v| v.is_finite()).then_some(LocalStep {
+        yaw: delta[0],
+        translation: [delta[1], delta[2]],
+        center,
+    })
 }
 
 #[cfg(test)]

@@ -1,0 +1,231 @@
+//! Whole-process speed, side by side in one run: the paper's loop in Python (NumPy + SciPy, as its
+//! authors' stack runs it) against `lanealign correct` with both methods and both match modes, on
+//! the same input (docs/performance.md, "Whole process").
+//!
+//! `cargo bench -p lanealign-cli --bench speed [-- --poses 1500 --runs 7 --no-literal]`
+//!
+//! Input: the first `--poses` poses of KITTI 00's LiDAR odometry, the reference lanes of 00, the
+//! kiss-icp preset. Every row is the wall time of a whole process (start, read, correct, write),
+//! the median of `--runs` runs (the Python loops run once: they take seconds to minutes). It
+//! checks that the fast and reference match modes write identical files, and that the Python
+//! loop agrees with `--method paper` (largest position difference).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use clap::Parser;
+use lanealign_cli::kitti::default_data_dir;
+
+#[derive(Parser)]
+struct Args {
+    /// Poses of KITTI 00 (LiDAR odometry) to correct.
+    #[arg(long, default_value_t = 1500)]
+    poses: usize,
+    /// Runs of each lanealign configuration; the table shows the median.
+    #[arg(long, default_value_t = 7)]
+    runs: usize,
+    /// Skip the per-candidate Python loop (the slowest row, about 30 s for 1500 poses).
+    #[arg(long)]
+    no_literal: bool,
+    /// Cargo passes this to every bench.
+    #[arg(long, hide = true)]
+    bench: bool,
+}
+
+/// One timed process: wall time in seconds and what it wrote.
+fn timed(command: &mut Command) -> anyhow::Result<f64> {
+    let start = Instant::now();
+    let output = command.output().context("starting a process")?;
+    let seconds = start.elapsed().as_secs_f64();
+    if !output.status.success() {
+        bail!(
+            "{:?} failed: {}",
+            command,
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    Ok(seconds)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Planar positions (`u = z`, `v = -x`) of a KITTI camera pose file.
+fn planar_positions(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
+    let text = std::fs::read_to_string(path)?;
+    text.lines()
+        .map(|line| {
+            let v: Vec<f64> = line
+                .split_whitespace()
+                .map(str::parse)
+                .collect::<Result<_, _>>()?;
+            match v.as_slice() {
+                [_, _, _, x, _, _, _, _, _, _, _, z] => Ok([*z, -*x]),
+                _ => bail!("{}: not a KITTI pose line", path.display()),
+            }
+        })
+        .collect()
+}
+
+/// `x y` lines, as the Python loop writes them.
+fn xy_lines(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
+    let text = std::fs::read_to_string(path)?;
+    text.lines()
+        .map(|line| {
+            let v: Vec<f64> = line
+                .split_whitespace()
+                .map(str::parse)
+                .collect::<Result<_, _>>()?;
+            match v.as_slice() {
+                [x, y] => Ok([*x, *y]),
+                _ => bail!("{}: not an `x y` line", path.display()),
+            }
+        })
+        .collect()
+}
+
+fn largest_difference(a: &[[f64; 2]], b: &[[f64; 2]]) -> f64 {
+    if a.len() != b.len() {
+        return f64::INFINITY;
+    }
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p[0] - q[0]).hypot(p[1] - q[1]))
+        .fold(0.0, f64::max)
+}
+
+struct Row {
+    name: String,
+    seconds: f64,
+    runs: usize,
+}
+
+fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    let data = default_data_dir();
+    let lanes = data.join("reference/lanes/lanes_00.csv");
+    let odometry = data.join("odometry/lidar/00.txt");
+    if !lanes.is_file() || !odometry.is_file() {
+        println!("SKIPPED: no KITTI data at {}", data.display());
+        return Ok(());
+    }
+    let dir = tempfile::tempdir()?;
+    let input = dir.path().join("input.txt");
+    let text = std::fs::read_to_string(&odometry)?;
+    let lines: Vec<&str> = text.lines().take(args.poses).collect();
+    std::fs::write(&input, lines.join("\n") + "\n")?;
+    let poses = lines.len();
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/paper_loop.py");
+    let lanealign = env!("CARGO_BIN_EXE_lanealign");
+
+    let mut rows = Vec::new();
+    let mut python_paper = None;
+    let python_variants: &[(&str, &[&str])] = if args.no_literal {
+        &[("vectorized", &["--vectorized"])]
+    } else {
+        &[("vectorized", &["--vectorized"]), ("literal", &[])]
+    };
+    for (name, extra) in python_variants {
+        let out = dir.path().join(format!("python_{name}.txt"));
+        let mut command = Command::new("python3");
+        command
+            .arg(&script)
+            .arg(&lanes)
+            .arg(&input)
+            .arg("kiss-icp")
+            .arg(&out)
+            .args(*extra);
+        match timed(&mut command) {
+            Ok(seconds) => {
+                rows.push(Row {
+                    name: format!("paper's loop, Python ({name} matching)"),
+                    seconds,
+                    runs: 1,
+                });
+                python_paper.get_or_insert(out);
+            }
+            Err(e) => println!("Python loop ({name}) not run: {e:#} (needs numpy and scipy)"),
+        }
+    }
+
+    let mut outputs = Vec::new();
+    for method in ["paper", "robust"] {
+        for mode in ["fast", "reference"] {
+            let out = dir.path().join(format!("{method}_{mode}.txt"));
+            let runs = if mode == "reference" {
+                args.runs.min(3)
+            } else {
+                args.runs
+            };
+            let times = (0..runs)
+                .map(|_| {
+                    timed(
+                        Command::new(lanealign)
+                            .args(["correct", "--lanes"])
+                            .arg(&lanes)
+                            .args(["--frame", "kitti-camera", "--preset", "kiss-icp"])
+                            .args(["--method", method, "--match-mode", mode])
+                            .arg(&input)
+                            .arg("-o")
+                            .arg(&out),
+                    )
+                })
+                .collect::<anyhow::Result<Vec<f64>>>()?;
+            rows.push(Row {
+                name: format!("lanealign --method {method} --match-mode {mode}"),
+                seconds: median(times),
+                runs,
+            });
+            outputs.push((method, mode, out));
+        }
+    }
+
+    let literal = rows
+        .iter()
+        .find(|r| r.name.contains("literal"))
+        .map(|r| r.seconds);
+    let vectorized = rows
+        .iter()
+        .find(|r| r.name.contains("vectorized"))
+        .map(|r| r.seconds);
+    let ratio = |base: Option<f64>, s: f64| base.map_or("-".into(), |b| format!("{:.0}x", b / s));
+    println!(
+        "Whole process on the first {poses} poses of KITTI 00 (LiDAR odometry), reference lanes, \
+         kiss-icp preset; median wall time of the runs."
+    );
+    println!("| run | runs | whole process (ms) | per pose (us) | vs Python literal | vs Python vectorized |");
+    println!("|---|---|---|---|---|---|");
+    for r in &rows {
+        println!(
+            "| {} | {} | {:.1} | {:.1} | {} | {} |",
+            r.name,
+            r.runs,
+            r.seconds * 1e3,
+            r.seconds * 1e6 / poses as f64,
+            ratio(literal, r.seconds),
+            ratio(vectorized, r.seconds),
+        );
+    }
+    for method in ["paper", "robust"] {
+        let files: Vec<&PathBuf> = outputs
+            .iter()
+            .filter(|(m, _, _)| *m == method)
+            .map(|(_, _, p)| p)
+            .collect();
+        let same = std::fs::read(files[0])? == std::fs::read(files[1])?;
+        println!(
+            "--method {method}: fast and reference outputs {}",
+            if same { "identical" } else { "DIFFER" }
+        );
+    }
+    if let Some(python) = python_paper {
+        let (_, _, paper) = &outputs[0];
+        let d = largest_difference(&xy_lines(&python)?, &planar_positions(paper)?);
+        println!("Python loop vs --method paper: largest position difference {d:.2e} m");
+    }
+    Ok(())
+}
