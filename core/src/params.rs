@@ -214,11 +214,18 @@ impl Preset {
             Preset::Liodom | Preset::KissIcp => 0.1,
             Preset::Basalt | Preset::OrbSlam3 => 1.0,
         };
+        // The correspondence gate opens at a few times the worst drift rate of the odometry kind
+        // the preset is for (LiDAR 0.1-0.7 % of the distance, visual 1-15 %,
+        // ../shared/data/README.md), as the covariance's drift model does.
+        let drift_per_m = match self {
+            Preset::Liodom | Preset::KissIcp => 0.02,
+            Preset::Basalt | Preset::OrbSlam3 => 0.2,
+        };
         Params {
             max_window_path_m,
             lane_tolerance_m: 1.0,
             max_match_distance_m: 3.0,
-            drift_per_m: 0.2,
+            drift_per_m,
             min_evidence_ratio,
             ..self.params()
         }
