@@ -174,6 +174,8 @@ pub struct StepTiming {
     pub matching: Duration,
     /// Trimmed ICP.
     pub icp: Duration,
+    /// The correction's covariance and the share of it the evidence supports (accepted steps).
+    pub confidence: Duration,
     /// The whole step, bookkeeping included.
     pub total: Duration,
 }
@@ -532,7 +534,9 @@ impl Corrector {
                 let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);
                 timing.icp = icp_start.elapsed();
                 if fit.residual_m < p.max_residual_m {
+                    let confidence_start = Instant::now();
                     let (correction, applied_directions) = self.supported(&fit.transform);
+                    timing.confidence = confidence_start.elapsed();
                     self.map_from_anchored = correction * self.map_from_anchored;
                     for x in self.window.as_mut_slice() {
                         *x = correction.apply(*x);
@@ -577,7 +581,7 @@ impl Corrector {
         let current = window[window.len() - 1];
         let center = proposed.apply(current);
         let spacing = |i: usize| match (window.get(i), window.get(i + 1)) {
-            (Some(&a), Some(&b)) => distance(a, b),
+            (Some(&a), Some(&b)) => ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt(),
             _ => 0.0,
         };
         let information = alignment_information(

@@ -41,6 +41,7 @@ pub struct SourceMetrics {
     /// Time in lane matching, in ICP, and in the rest of the corrector step (nanoseconds).
     matching: Histogram<u64>,
     icp: Histogram<u64>,
+    confidence: Histogram<u64>,
     bookkeeping: Histogram<u64>,
 }
 
@@ -77,6 +78,7 @@ impl Default for SourceMetrics {
             in_daemon: histogram(),
             matching: histogram(),
             icp: histogram(),
+            confidence: histogram(),
             bookkeeping: histogram(),
         }
     }
@@ -104,9 +106,10 @@ impl SourceMetrics {
         }
         let matching_ns = timing.matching.as_nanos() as u64;
         let icp_ns = timing.icp.as_nanos() as u64;
+        let confidence_ns = timing.confidence.as_nanos() as u64;
         let bookkeeping_ns = timing
             .total
-            .saturating_sub(timing.matching + timing.icp)
+            .saturating_sub(timing.matching + timing.icp + timing.confidence)
             .as_nanos() as u64;
         self.count += 1;
         // Saturating: values beyond the range are clamped, never an error.
@@ -114,6 +117,7 @@ impl SourceMetrics {
         self.in_daemon.saturating_record(in_daemon_ns.max(1));
         self.matching.saturating_record(matching_ns.max(1));
         self.icp.saturating_record(icp_ns.max(1));
+        self.confidence.saturating_record(confidence_ns.max(1));
         self.bookkeeping.saturating_record(bookkeeping_ns.max(1));
     }
 
@@ -132,6 +136,7 @@ impl SourceMetrics {
         let [d50, d99, d999, dmax] = quantiles(&self.in_daemon);
         let [m50, m99, _, mmax] = quantiles(&self.matching);
         let [i50, i99, _, imax] = quantiles(&self.icp);
+        let [c50, c99, _, cmax] = quantiles(&self.confidence);
         let [b50, b99, _, bmax] = quantiles(&self.bookkeeping);
         tracing::info!(
             source,
@@ -159,6 +164,9 @@ impl SourceMetrics {
             icp_p50_us = i50,
             icp_p99_us = i99,
             icp_max_us = imax,
+            confidence_p50_us = c50,
+            confidence_p99_us = c99,
+            confidence_max_us = cmax,
             bookkeeping_p50_us = b50,
             bookkeeping_p99_us = b99,
             bookkeeping_max_us = bmax,
@@ -178,6 +186,7 @@ impl SourceMetrics {
             &mut self.in_daemon,
             &mut self.matching,
             &mut self.icp,
+            &mut self.confidence,
             &mut self.bookkeeping,
         ] {
             h.reset();
@@ -196,6 +205,7 @@ mod tests {
         let timing = StepTiming {
             matching: Duration::from_micros(5),
             icp: Duration::from_micros(7),
+            confidence: Duration::from_micros(3),
             total: Duration::from_micros(100),
         };
         m.record(&Outcome::Flagged, 1000, 500, &timing);
@@ -206,6 +216,7 @@ mod tests {
             &m.in_daemon,
             &m.matching,
             &m.icp,
+            &m.confidence,
             &m.bookkeeping,
         ] {
             assert_eq!(h.len(), 0);
