@@ -172,4 +172,10 @@ fn the_demo_runs_without_data() {
         stdout.contains("identical to offline `lanealign correct`: yes"),
         "{stdout}"
     );
+    // Latency is measured without queueing, throughput separately, and both runs agree.
+    assert!(stdout.contains("latency, one pose in flight"), "{stdout}");
+    assert!(
+        stdout.contains("throughput, 64 poses in flight (a new session, same answers: yes)"),
+        "{stdout}"
+    );
 }
