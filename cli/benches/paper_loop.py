@@ -52,6 +52,17 @@ def read_lanes(path):
     return pts, seg_a, seg_b, dirs, valid
 
 
+def trajectory_directions(window):
+    """Unit forward differences (backward for the last pose), and which poses moved."""
+    d_traj = np.empty_like(window)
+    d_traj[:-1] = window[1:] - window[:-1]
+    d_traj[-1] = window[-1] - window[-2]
+    length = np.linalg.norm(d_traj, axis=1)
+    moving = length > 0
+    d_traj[moving] /= length[moving, None]
+    return d_traj, moving
+
+
 def nearest_by_index(tree, window, k):
     """The k nearest lane points of every window pose, equal distances ordered by point index."""
     dist, nearest = tree.query(window, k=k)
@@ -63,12 +74,7 @@ def nearest_by_index(tree, window, k):
 def lane_match(window, tree, lanes, n):
     pts, seg_a, seg_b, dirs, valid = lanes
     k = min(n, len(pts))
-    d_traj = np.empty_like(window)
-    d_traj[:-1] = window[1:] - window[:-1]
-    d_traj[-1] = window[-1] - window[-2]
-    length = np.linalg.norm(d_traj, axis=1)
-    moving = length > 0
-    d_traj[moving] /= length[moving, None]
+    d_traj, moving = trajectory_directions(window)
     nearest = nearest_by_index(tree, window, k)
     sources, targets = [], []
     for i in np.flatnonzero(moving):
@@ -95,12 +101,7 @@ def lane_match_vectorized(window, tree, lanes, n):
     """The same matches, every window pose and candidate tested at once in arrays."""
     pts, seg_a, seg_b, dirs, valid = lanes
     k = min(n, len(pts))
-    d_traj = np.empty_like(window)
-    d_traj[:-1] = window[1:] - window[:-1]
-    d_traj[-1] = window[-1] - window[-2]
-    length = np.linalg.norm(d_traj, axis=1)
-    moving = length > 0
-    d_traj[moving] /= length[moving, None]
+    d_traj, moving = trajectory_directions(window)
     nearest = nearest_by_index(tree, window, k)
     a, ab = seg_a[nearest], seg_b[nearest] - seg_a[nearest]
     normal = np.stack([-d_traj[:, 1], d_traj[:, 0]], axis=1)[:, None, :]

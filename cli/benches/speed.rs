@@ -54,36 +54,39 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Planar positions (`u = z`, `v = -x`) of a KITTI camera pose file.
-fn planar_positions(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
+/// The whitespace-separated numbers of each line of a file.
+fn rows(path: &Path) -> anyhow::Result<Vec<Vec<f64>>> {
     let text = std::fs::read_to_string(path)?;
     text.lines()
         .map(|line| {
-            let v: Vec<f64> = line
-                .split_whitespace()
-                .map(str::parse)
-                .collect::<Result<_, _>>()?;
-            match v.as_slice() {
-                [_, _, _, x, _, _, _, _, _, _, _, z] => Ok([*z, -*x]),
-                _ => bail!("{}: not a KITTI pose line", path.display()),
-            }
+            line.split_whitespace()
+                .map(|v| {
+                    v.parse()
+                        .with_context(|| format!("{}: {v:?}", path.display()))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Planar positions (`u = z`, `v = -x`) of a KITTI camera pose file.
+fn planar_positions(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
+    rows(path)?
+        .iter()
+        .map(|v| match v.as_slice() {
+            [_, _, _, x, _, _, _, _, _, _, _, z] => Ok([*z, -*x]),
+            _ => bail!("{}: not a KITTI pose line", path.display()),
         })
         .collect()
 }
 
 /// `x y` lines, as the Python loop writes them.
 fn xy_lines(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
-    let text = std::fs::read_to_string(path)?;
-    text.lines()
-        .map(|line| {
-            let v: Vec<f64> = line
-                .split_whitespace()
-                .map(str::parse)
-                .collect::<Result<_, _>>()?;
-            match v.as_slice() {
-                [x, y] => Ok([*x, *y]),
-                _ => bail!("{}: not an `x y` line", path.display()),
-            }
+    rows(path)?
+        .iter()
+        .map(|v| match v.as_slice() {
+            [x, y] => Ok([*x, *y]),
+            _ => bail!("{}: not an `x y` line", path.display()),
         })
         .collect()
 }
