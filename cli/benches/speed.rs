@@ -17,6 +17,8 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use clap::Parser;
 use lanealign_cli::kitti::default_data_dir;
+use lanealign_core::pose::AxisConvention;
+use lanealign_core::trajectory::{read, Format};
 
 #[derive(Parser)]
 struct Args {
@@ -54,39 +56,29 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// The whitespace-separated numbers of each line of a file.
-fn rows(path: &Path) -> anyhow::Result<Vec<Vec<f64>>> {
-    let text = std::fs::read_to_string(path)?;
-    text.lines()
-        .map(|line| {
-            line.split_whitespace()
-                .map(|v| {
-                    v.parse()
-                        .with_context(|| format!("{}: {v:?}", path.display()))
-                })
-                .collect()
-        })
-        .collect()
-}
-
-/// Planar positions (`u = z`, `v = -x`) of a KITTI camera pose file.
+/// Planar positions of a KITTI camera pose file.
 fn planar_positions(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
-    rows(path)?
+    let camera = AxisConvention::KittiCamera;
+    Ok(read(path, Format::Kitti)?
+        .poses
         .iter()
-        .map(|v| match v.as_slice() {
-            [_, _, _, x, _, _, _, _, _, _, _, z] => Ok([*z, -*x]),
-            _ => bail!("{}: not a KITTI pose line", path.display()),
-        })
-        .collect()
+        .map(|p| camera.to_planar(p).planar_position())
+        .collect())
 }
 
 /// `x y` lines, as the Python loop writes them.
 fn xy_lines(path: &Path) -> anyhow::Result<Vec<[f64; 2]>> {
-    rows(path)?
-        .iter()
-        .map(|v| match v.as_slice() {
-            [x, y] => Ok([*x, *y]),
-            _ => bail!("{}: not an `x y` line", path.display()),
+    let text = std::fs::read_to_string(path)?;
+    text.lines()
+        .map(|line| {
+            let v: Vec<f64> = line
+                .split_whitespace()
+                .map(str::parse)
+                .collect::<Result<_, _>>()?;
+            match v.as_slice() {
+                [x, y] => Ok([*x, *y]),
+                _ => bail!("{}: not an `x y` line", path.display()),
+            }
         })
         .collect()
 }

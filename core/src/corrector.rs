@@ -581,7 +581,7 @@ impl Corrector {
         let current = window[window.len() - 1];
         let center = proposed.apply(current);
         let spacing = |i: usize| match (window.get(i), window.get(i + 1)) {
-            (Some(&a), Some(&b)) => ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt(),
+            (Some(&a), Some(&b)) => distance(a, b),
             _ => 0.0,
         };
         let information = alignment_information(

@@ -158,13 +158,11 @@ pub fn trimmed_icp(
     scratch.sources.extend(pairs.iter().map(|c| c.source));
     scratch.targets.clear();
     scratch.targets.extend(pairs.iter().map(|c| c.target));
-    scratch.residuals.clear();
-    scratch.residuals.extend(
-        scratch
-            .sources
-            .iter()
-            .zip(scratch.targets.iter())
-            .map(|(&s, &q)| band_residual(s, q, band)),
+    fill_band_residuals(
+        &scratch.sources,
+        &scratch.targets,
+        band,
+        &mut scratch.residuals,
     );
     if band > 0.0 {
         banded_icp(n, params, scratch)
@@ -200,7 +198,7 @@ fn paper_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResul
             *r = residual(*s, q);
         }
         transform = step * transform;
-        residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
+        residual_m = mean_kept(residuals, kept, k);
         if (previous - residual_m).abs() < params.tolerance_m {
             break;
         }
@@ -235,12 +233,12 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
     } = scratch;
     keep_smallest(residuals, k, sorted, kept);
     let mut cost = sum_of_squares(residuals, kept);
-    let mut residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
+    let mut residual_m = mean_kept(residuals, kept, k);
     let mut transform = Se2::IDENTITY;
     let mut iterations = 0;
     while iterations < params.max_iterations && cost > 0.0 {
         iterations += 1;
-        let Some(full) = band_newton_step(sources, targets, kept, band) else {
+        let Some(full) = band_newton_step(sources, targets, residuals, kept, band) else {
             break;
         };
         let mut accepted = None;
@@ -249,13 +247,7 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
             let step = full.scaled(scale).transform();
             trial_sources.clear();
             trial_sources.extend(sources.iter().map(|&s| step.apply(s)));
-            trial_residuals.clear();
-            trial_residuals.extend(
-                trial_sources
-                    .iter()
-                    .zip(targets.iter())
-                    .map(|(&s, &q)| band_residual(s, q, band)),
-            );
+            fill_band_residuals(trial_sources, targets, band, trial_residuals);
             keep_smallest(trial_residuals, k, sorted, trial_kept);
             let trial_cost = sum_of_squares(trial_residuals, trial_kept);
             if trial_cost <= cost {
@@ -273,7 +265,7 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
         transform = step * transform;
         cost = trial_cost;
         let previous = residual_m;
-        residual_m = kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64;
+        residual_m = mean_kept(residuals, kept, k);
         if (previous - residual_m).abs() < params.tolerance_m {
             break;
         }
@@ -283,6 +275,22 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
         residual_m,
         iterations,
     }
+}
+
+/// `out[i]` = the band residual of pair `i` (metres).
+fn fill_band_residuals(sources: &[[f64; 2]], targets: &[[f64; 2]], band: f64, out: &mut Vec<f64>) {
+    out.clear();
+    out.extend(
+        sources
+            .iter()
+            .zip(targets)
+            .map(|(&s, &q)| band_residual(s, q, band)),
+    );
+}
+
+/// The mean residual of the `k` kept pairs (metres).
+fn mean_kept(residuals: &[f64], kept: &[u32], k: usize) -> f64 {
+    kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64
 }
 
 fn sum_of_squares(residuals: &[f64], kept: &[u32]) -> f64 {
@@ -309,9 +317,12 @@ impl LocalStep {
 
     /// The motion as a transform: `x -> R (x - c) + c + t`.
     fn transform(&self) -> Se2 {
-        let r = Se2::new(self.yaw, 0.0, 0.0).apply(self.center);
-        Se2::new(
-            self.yaw,
+        let rotation = Se2::new(self.yaw, 0.0, 0.0);
+        let r = rotation.apply(self.center);
+        let (cos, sin) = rotation.rotation();
+        Se2::from_rotation(
+            cos,
+            sin,
             self.center[0] + self.translation[0] - r[0],
             self.center[1] + self.translation[1] - r[1],
         )
@@ -329,16 +340,15 @@ impl LocalStep {
 fn band_newton_step(
     sources: &[[f64; 2]],
     targets: &[[f64; 2]],
+    residuals: &[f64],
     kept: &[u32],
     band: f64,
 ) -> Option<LocalStep> {
     let (mut center, mut active) = ([0.0; 2], 0usize);
-    for &i in kept {
-        let (s, q) = (sources[i as usize], targets[i as usize]);
-        if residual(s, q) > band {
-            center = [center[0] + s[0], center[1] + s[1]];
-            active += 1;
-        }
+    for &i in kept.iter().filter(|&&i| residuals[i as usize] > 0.0) {
+        let s = sources[i as usize];
+        center = [center[0] + s[0], center[1] + s[1]];
+        active += 1;
     }
     if active == 0 {
         return None;
