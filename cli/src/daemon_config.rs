@@ -8,6 +8,7 @@ use lanealign_core::geo::Anchor;
 use lanealign_core::params::CorrectorConfig;
 use lanealign_core::pose::AxisConvention;
 use lanealign_service::config::{Config, LogFormat, SourceConfig};
+use lanealign_wire::wait::WaitStrategy;
 
 /// One source of a generated configuration.
 #[derive(Clone, Debug)]
@@ -22,6 +23,8 @@ pub struct Source {
     pub anchor: Anchor,
     /// Echo without correcting.
     pub pass_through: bool,
+    /// How its worker waits for poses.
+    pub wait: WaitStrategy,
 }
 
 /// A configuration for `tile` in `namespace` with `sources`, metrics every
@@ -51,6 +54,7 @@ pub fn config(
                 anchor: s.anchor,
                 pass_through: s.pass_through,
                 corrector: s.corrector,
+                wait: s.wait,
             })
             .collect(),
     }

@@ -26,7 +26,8 @@ enum Command {
     Params(commands::params::ParamsArgs),
     /// Stream a trajectory through a running lanealignd and write the corrected one.
     Replay(commands::replay::ReplayArgs),
-    /// Many sources through one daemon: latency and loss, corrected and pass-through.
+    /// Many sources through a daemon it starts itself: latency and loss, with correction and in
+    /// pass-through, for each wait strategy; the phases run one after another.
     Soak(commands::soak::SoakArgs),
     /// Compile a map, start lanealignd, replay an odometry run through it, print the result.
     Demo,

@@ -70,6 +70,45 @@ fn sessions_have_their_own_correctors_and_answers() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: workers and clients that poll (busy-spin, and spin-then-block with pauses
+/// longer than its budget, so that it blocks too) answer every pose once, equal to offline
+/// correction bit for bit.
+#[test]
+fn spinning_workers_and_clients_answer_every_pose_as_offline() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (busy, spin) = (unique("busy"), unique("spin"));
+    let setup = town_setup(&[&busy, &spin]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(2, 42);
+    let poses = &odometry[..800];
+    for name in [&busy, &spin] {
+        let mut conn = connect(&setup, name);
+        conn.set_wait_strategy(wait_of(name));
+        wait_for_daemon(&mut conn);
+        let r = replay(
+            &mut conn,
+            name,
+            poses,
+            &[],
+            Rate::Hz(1000.0),
+            Duration::from_secs(10),
+            Duration::from_secs(10),
+        )
+        .unwrap();
+        let seqs: Vec<u64> = r.answers.iter().map(|x| x.seq).collect();
+        assert_eq!(seqs, (1..=poses.len() as u64).collect::<Vec<_>>());
+        assert!(
+            poses_of(&r.answers) == offline(&setup, name, poses),
+            "{name}"
+        );
+    }
+    let log = daemon.log();
+    assert!(daemon.stop().unwrap(), "clean exit");
+    for wait in ["busy-spin", "spin-then-block:200"] {
+        assert!(log.contains(&format!("wait={wait}")), "{log}");
+    }
+}
+
 #[test]
 fn two_kitti_sources_at_once_match_offline_bit_for_bit() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());

@@ -30,6 +30,7 @@ use lanealign_wire::service::{
     NameError, Namespace, NodeCreateError, NodeListError, PortCreateError, PoseServices,
     ServiceOpenError, SessionServices, SourceName,
 };
+use lanealign_wire::wait::WaitStrategy;
 
 /// Shortest wait handed to iceoryx2: a shorter remainder is not waited for at all (a wait that
 /// rounds to zero at the socket would block until the next event).
@@ -152,6 +153,7 @@ pub struct Connection {
     notifier: Notifier<ipc::Service>,
     subscriber: Subscriber<ipc::Service, CorrectedPose, ()>,
     listener: Listener<ipc::Service>,
+    wait: WaitStrategy,
     poses: PoseServices,
     _answers: SessionServices,
     _node: Node<ipc::Service>,
@@ -199,6 +201,7 @@ impl Connection {
             last_daemon: daemon,
             last_check: Some(Instant::now()),
             events: ConnectionEvents::default(),
+            wait: WaitStrategy::Event,
             publisher: poses.publisher()?,
             notifier: poses.notifier()?,
             subscriber: answers.subscriber()?,
@@ -371,7 +374,8 @@ impl Connection {
         }
     }
 
-    /// The next answer of this session, waiting (without polling) up to `timeout` for one.
+    /// The next answer of this session, waiting up to `timeout` for one as the connection's
+    /// [`WaitStrategy`] says (by default without polling).
     /// While waiting it checks the daemon's liveness and sends unanswered poses again when a
     /// daemon comes back.
     pub fn recv(&mut self, timeout: Duration) -> Result<Option<CorrectedPose>, ReceiveError> {
@@ -386,9 +390,30 @@ impl Connection {
             if left < MIN_WAIT {
                 return self.try_recv();
             }
-            self.listener
-                .timed_wait(|_| {}, left.min(LIVENESS_PERIOD))
-                .map_err(ReceiveError::Wait)?;
+            let (subscriber, listener) = (&self.subscriber, &self.listener);
+            if self.wait.spins() {
+                // Notifications the last spin did not sleep on: drop them while idle, before
+                // they pile up.
+                listener.try_wait(|_| {}).map_err(ReceiveError::Wait)?;
+            }
+            let mut failed = None;
+            self.wait.wait(
+                left.min(LIVENESS_PERIOD),
+                || subscriber.has_samples().unwrap_or(true),
+                |left| {
+                    failed = listener.timed_wait(|_| {}, left).err();
+                },
+            );
+            if let Some(e) = failed {
+                return Err(ReceiveError::Wait(e));
+            }
         }
+    }
+
+    /// How [`Connection::recv`] waits for answers (default: sleeps until notified). A strategy
+    /// that names a core does not pin the caller: call [`WaitStrategy::pin_current_thread`] on
+    /// the thread that receives.
+    pub fn set_wait_strategy(&mut self, wait: WaitStrategy) {
+        self.wait = wait;
     }
 }

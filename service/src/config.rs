@@ -11,6 +11,7 @@ use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::tile::{key_hex, parse_key_hex, TileInfo};
 use lanealign_wire::service::{Namespace, SourceName};
+use lanealign_wire::wait::WaitStrategy;
 use serde::{Deserialize, Serialize};
 
 /// The whole configuration file.
@@ -131,6 +132,13 @@ pub struct SourceConfig {
     pub pass_through: bool,
     /// The corrector: preset, method, matching, smoothing, overrides.
     pub corrector: CorrectorConfig,
+    /// How the source's worker waits for poses (default: sleep until notified).
+    #[serde(default, skip_serializing_if = "is_event")]
+    pub wait: WaitStrategy,
+}
+
+fn is_event(wait: &WaitStrategy) -> bool {
+    *wait == WaitStrategy::Event
 }
 
 /// Everything the configuration resolves to.
@@ -159,6 +167,8 @@ pub struct ResolvedSource {
     pub anchor: Anchor,
     /// Echo without correcting.
     pub pass_through: bool,
+    /// How its worker waits for poses.
+    pub wait: WaitStrategy,
 }
 
 /// A configuration that cannot be used.
@@ -320,6 +330,9 @@ impl Config {
                 .corrector
                 .params()
                 .map_err(|e| value(format!("source.{name}.corrector"), e.to_string()))?;
+            s.wait
+                .validate()
+                .map_err(|e| value(format!("source.{name}.wait"), e.to_string()))?;
             resolved.push(ResolvedSource {
                 name,
                 corrector: s.corrector,
@@ -327,6 +340,7 @@ impl Config {
                 convention: s.frame,
                 anchor: s.anchor,
                 pass_through: s.pass_through,
+                wait: s.wait,
             });
         }
         Ok(Resolved {

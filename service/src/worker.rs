@@ -59,6 +59,15 @@ pub enum WorkerError {
         #[source]
         source: PortCreateError,
     },
+    /// Its wait strategy could not be applied.
+    #[error("source {name}: wait strategy")]
+    Wait {
+        /// The source.
+        name: String,
+        /// What failed.
+        #[source]
+        source: lanealign_wire::wait::WaitError,
+    },
     /// Its journal folder could not be made.
     #[error("source {name}: creating the journal folder {dir}")]
     Journal {
@@ -401,10 +410,15 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         summary: WorkerSummary::default(),
         journal_warned: false,
     };
+    let wait = worker.setup.source.wait;
+    if let Err(e) = wait.pin_current_thread() {
+        let _ = ready.send(Err(WorkerError::Wait { name, source: e }));
+        return WorkerSummary::default();
+    }
     worker.restore_sessions();
     let _ = ready.send(Ok(()));
     let s = &worker.setup.source;
-    tracing::info!(source = %name, method = s.corrector.method.name(), preset = s.corrector.preset.name(), pass_through = s.pass_through, "worker started");
+    tracing::info!(source = %name, method = s.corrector.method.name(), preset = s.corrector.preset.name(), pass_through = s.pass_through, wait = %wait, "worker started");
     let mut next_report = Instant::now() + worker.setup.metrics_interval;
     loop {
         worker
@@ -414,8 +428,15 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         // On shutdown, answer what is already queued once more, then stop.
         let stopping = worker.setup.shutdown.load(Ordering::Relaxed);
         if !stopping {
-            // An interrupted wait (a signal) is a wake-up like any other.
-            let _ = listener.timed_wait(|_| {}, WAKE_UP);
+            // An interrupted wait (a signal) is a wake-up like any other; a failed look for
+            // samples too (the receive below reports it).
+            wait.wait(
+                WAKE_UP,
+                || subscriber.has_samples().unwrap_or(true),
+                |left| {
+                    let _ = listener.timed_wait(|_| {}, left);
+                },
+            );
         }
         while let Ok(reload) = worker.setup.reloads.try_recv() {
             worker.setup.sessions.map = reload.map;
@@ -435,6 +456,10 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
             let input = *sample;
             drop(sample);
             worker.serve(input, received);
+        }
+        if wait.spins() {
+            // Notifications this loop did not sleep on: drop them before they pile up.
+            let _ = listener.try_wait(|_| {});
         }
         if stopping {
             break;

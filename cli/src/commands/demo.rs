@@ -24,6 +24,7 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::payload::StatusCode;
+use lanealign_wire::wait::WaitStrategy;
 
 use super::percentile_us;
 
@@ -107,6 +108,7 @@ pub fn run() -> anyhow::Result<()> {
                 frame: s.convention,
                 anchor: s.anchor,
                 pass_through: false,
+                wait: WaitStrategy::Event,
             }],
         ),
     )?;

@@ -1,5 +1,6 @@
 //! `lanealign replay`: streams a trajectory through a running lanealignd.
 
+use lanealign_wire::wait::WaitStrategy;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -27,6 +28,10 @@ pub struct ReplayArgs {
     /// Poses per second, or max (flow-controlled, 64 in flight).
     #[arg(long, default_value = "max")]
     rate: Rate,
+    /// How to wait for answers: event (sleep until notified), busy-spin[:CORE] (poll; a core
+    /// pins this process's receiving thread) or spin-then-block:SPIN_US.
+    #[arg(long, default_value = "event")]
+    wait: WaitStrategy,
     /// Seconds to wait for a daemon to serve the source at the start.
     #[arg(long, default_value_t = 10.0)]
     wait_for_daemon: f64,
@@ -76,6 +81,8 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         &args.source,
         lanealign_client::connection::new_session_id(),
     )?;
+    args.wait.pin_current_thread()?;
+    conn.set_wait_strategy(args.wait);
     let result = match replay(
         &mut conn,
         args.source.as_str(),

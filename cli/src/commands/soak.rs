@@ -1,5 +1,6 @@
 //! `lanealign soak`: many sources at once through one daemon, latency and loss, with and without
-//! correction (pass-through measures the iceoryx2 round trip alone).
+//! correction (pass-through measures the iceoryx2 round trip alone), for each wait strategy of
+//! the daemon's workers and the clients.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -14,6 +15,7 @@ use lanealign_cli::synthetic;
 use lanealign_client::Connection;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::AxisConvention;
+use lanealign_wire::wait::WaitStrategy;
 
 use super::percentile_us;
 
@@ -26,9 +28,20 @@ pub struct SoakArgs {
     /// Poses per second per source.
     #[arg(long, default_value_t = 100.0)]
     rate: f64,
-    /// Seconds per mode.
+    /// Seconds per phase. A phase is one wait strategy with correction or in pass-through, each
+    /// with a daemon of its own: the soak takes about 2 x strategies x this.
     #[arg(long, default_value_t = 10.0)]
     duration: f64,
+    /// Wait strategies to compare (comma-separated: event, spin-then-block:SPIN_US,
+    /// busy-spin[:CORE]), used by the daemon's workers and the clients alike; a core pins the
+    /// daemon's worker. A spinning strategy keeps two cores busy per source (worker and client),
+    /// so it runs at most one source per two cores of this machine.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "event,spin-then-block:100,busy-spin"
+    )]
+    waits: Vec<WaitStrategy>,
 }
 
 /// One source's outcome: round trips (ns) of the answered poses, and the poses not answered.
@@ -57,15 +70,29 @@ fn rss_kib(pid: u32) -> u64 {
         .unwrap_or(0)
 }
 
+/// What one phase runs: how many sources, corrected or passed through, waiting how; `index`
+/// tells its sources and files apart from the other phases'.
+struct PhaseSpec {
+    sources: usize,
+    pass_through: bool,
+    wait: WaitStrategy,
+    index: usize,
+}
+
 fn run_phase(
     dir: &Path,
     tile_path: &Path,
-    sources: usize,
-    rate: f64,
-    duration: f64,
-    pass_through: bool,
+    args: &SoakArgs,
+    spec: PhaseSpec,
 ) -> anyhow::Result<Phase> {
-    let tag = if pass_through { "pass" } else { "corr" };
+    let PhaseSpec {
+        sources,
+        pass_through,
+        wait,
+        index,
+    } = spec;
+    let (rate, duration) = (args.rate, args.duration);
+    let tag = format!("{}{index}", if pass_through { "pass" } else { "corr" });
     let names: Vec<String> = (0..sources)
         .map(|k| format!("soak-{}-{tag}-{k}", std::process::id()))
         .collect();
@@ -79,6 +106,7 @@ fn run_phase(
             frame: AxisConvention::Flu,
             anchor,
             pass_through,
+            wait,
         })
         .collect();
     let namespace = format!("soak-{}", std::process::id());
@@ -86,7 +114,11 @@ fn run_phase(
         &config,
         &daemon_config::config(tile_path, &namespace, 5.0, &dir.join("state"), &entries),
     )?;
-    let daemon = DaemonProcess::start(&config, &dir.join(format!("{tag}.log")))?;
+    let daemon = DaemonProcess::start_ready(
+        &config,
+        &dir.join(format!("{tag}.log")),
+        Duration::from_secs(20),
+    )?;
     let rss_start_kib = rss_kib(daemon.id());
     let (_, odometry) = synthetic::drive(3, 7);
     let odometry = Arc::new(odometry);
@@ -102,6 +134,7 @@ fn run_phase(
                     &name.parse()?,
                     lanealign_client::connection::new_session_id(),
                 )?;
+                conn.set_wait_strategy(wait);
                 let poses: Vec<_> = (0..count).map(|i| odometry[i % odometry.len()]).collect();
                 match replay(
                     &mut conn,
@@ -153,57 +186,57 @@ fn run_phase(
 pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let (sources, rate, duration) = (args.sources, args.rate, args.duration);
     anyhow::ensure!(
-        sources > 0 && rate > 0.0 && duration > 0.0,
-        "sources, rate and duration must be positive"
+        sources > 0 && rate > 0.0 && duration > 0.0 && !args.waits.is_empty(),
+        "sources, rate, duration and wait strategies must be positive"
     );
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let dir = tempfile::tempdir().context("creating a temporary folder")?;
     let tile_path = dir.path().join("town.tile");
     synthetic::write_town_tile(&tile_path)?;
-    println!("soak: {sources} sources x {rate} Hz x {duration} s, synthetic town, kiss-icp; round trip = client send to client receive");
-    println!("| mode | source | poses | lost | p50 (us) | p99 (us) | max (us) |");
-    println!("|---|---|---|---|---|---|---|");
-    for pass_through in [false, true] {
-        let mode = if pass_through {
-            "pass-through (iceoryx2 only)"
+    println!("soak: {rate} Hz x {duration} s per phase, synthetic town, kiss-icp; round trip = client send to client receive; {cores} cores");
+    println!("| mode | wait | sources | poses | lost | p50 (us) | p99 (us) | max (us) | daemon memory start / end (KiB) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let mut phase_index = 0;
+    for &wait in &args.waits {
+        let sources = if wait.spins() {
+            sources.min((cores / 2).max(1))
         } else {
-            "correct"
+            sources
         };
-        let phase = run_phase(
-            dir.path(),
-            &tile_path,
-            sources,
-            rate,
-            duration,
-            pass_through,
-        )?;
-        let mut all: Vec<u64> = Vec::new();
-        let mut lost = 0;
-        for (k, r) in phase.sources.iter().enumerate() {
-            let mut v = r.round_trip_ns.clone();
-            v.sort_unstable();
+        for pass_through in [false, true] {
+            let mode = if pass_through {
+                "pass-through (iceoryx2 only)"
+            } else {
+                "correct"
+            };
+            phase_index += 1;
+            let spec = PhaseSpec {
+                sources,
+                pass_through,
+                wait,
+                index: phase_index,
+            };
+            let phase = run_phase(dir.path(), &tile_path, args, spec)?;
+            let mut all: Vec<u64> = Vec::new();
+            let mut lost = 0;
+            for (k, r) in phase.sources.iter().enumerate() {
+                if r.lost > 0 {
+                    eprintln!("{mode}, {wait}: source {k} lost {} poses", r.lost);
+                }
+                all.extend(&r.round_trip_ns);
+                lost += r.lost;
+            }
+            all.sort_unstable();
             println!(
-                "| {mode} | {k} | {} | {} | {:.1} | {:.1} | {:.1} |",
-                v.len() + r.lost,
-                r.lost,
-                percentile_us(&v, 0.5),
-                percentile_us(&v, 0.99),
-                percentile_us(&v, 1.0)
+                "| {mode} | {wait} | {sources} | {} | {lost} | {:.1} | {:.1} | {:.1} | {} / {} |",
+                all.len() + lost,
+                percentile_us(&all, 0.5),
+                percentile_us(&all, 0.99),
+                percentile_us(&all, 1.0),
+                phase.rss_start_kib,
+                phase.rss_end_kib
             );
-            all.extend(v);
-            lost += r.lost;
         }
-        all.sort_unstable();
-        println!(
-            "| {mode} | **all** | {} | {lost} | {:.1} | {:.1} | {:.1} |",
-            all.len() + lost,
-            percentile_us(&all, 0.5),
-            percentile_us(&all, 0.99),
-            percentile_us(&all, 1.0)
-        );
-        eprintln!(
-            "{mode}: lanealignd resident memory {} KiB after start, {} KiB at the end",
-            phase.rss_start_kib, phase.rss_end_kib
-        );
     }
     Ok(())
 }

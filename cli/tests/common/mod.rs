@@ -23,6 +23,7 @@ use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{CorrectedPose, OdomPose};
 use lanealign_wire::service::{Namespace, PoseServices, SessionServices};
+use lanealign_wire::wait::WaitStrategy;
 
 /// A tile, a config with the given sources (name, anchor), and what offline correction needs.
 pub struct Setup {
@@ -65,6 +66,18 @@ impl Drop for Setup {
     }
 }
 
+/// Sources whose name starts with `busy` wait by busy-spinning, `spin` by spinning 200 us and
+/// then blocking; others by events.
+pub fn wait_of(name: &str) -> WaitStrategy {
+    if name.starts_with("busy") {
+        WaitStrategy::BusySpin { core: None }
+    } else if name.starts_with("spin") {
+        WaitStrategy::SpinThenBlock { spin_us: 200 }
+    } else {
+        WaitStrategy::Event
+    }
+}
+
 /// Sources whose name starts with `smooth` are configured with smooth output, `pass` as
 /// pass-through.
 fn corrector(name: &str) -> CorrectorConfig {
@@ -90,6 +103,7 @@ fn write_setup(
             frame: convention,
             anchor: *anchor,
             pass_through: name.starts_with("pass"),
+            wait: wait_of(name),
         })
         .collect();
     let config = dir.path().join("lanealignd.toml");

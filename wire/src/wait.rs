@@ -1,0 +1,258 @@
+//! How a thread waits for the next message: the daemon's worker for poses, a client for
+//! answers. Blocking on an iceoryx2 event costs a wake-up (tens of microseconds, more when the
+//! core has gone idle) but no CPU; polling costs a core but answers within microseconds.
+
+use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
+
+/// A wait strategy. In a daemon configuration:
+/// `wait = { strategy = "event" }` (the default), `{ strategy = "busy-spin", core = 1 }`,
+/// `{ strategy = "spin-then-block", spin_us = 50 }`. On command lines: `event`, `busy-spin`,
+/// `busy-spin:CORE`, `spin-then-block:SPIN_US`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "strategy", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum WaitStrategy {
+    /// Sleep until a notification arrives: no CPU while idle.
+    #[default]
+    Event,
+    /// Poll without sleeping: the lowest latency, one core busy all the time.
+    BusySpin {
+        /// Pin the waiting thread to this CPU core (0-based), so that nothing else is
+        /// scheduled on its cache; `None` leaves placement to the kernel.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        core: Option<usize>,
+    },
+    /// Poll for `spin_us` microseconds, then sleep until a notification arrives: low latency
+    /// for messages that follow each other closely, no CPU through long pauses.
+    SpinThenBlock {
+        /// How long to poll before sleeping (microseconds, at most 1 000 000).
+        spin_us: u64,
+    },
+}
+
+/// Longest spin budget accepted (microseconds): beyond a second, block instead.
+pub const MAX_SPIN_US: u64 = 1_000_000;
+
+/// A strategy that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum WaitError {
+    /// The text names no strategy.
+    #[error("{0:?}: expected event, busy-spin, busy-spin:CORE or spin-then-block:SPIN_US")]
+    Unknown(String),
+    /// The spin budget is out of range.
+    #[error("spin_us = {0}: must be 1 to {MAX_SPIN_US}")]
+    SpinBudget(u64),
+    /// The core does not exist on this machine.
+    #[error("core {core}: this machine has cores 0 to {}", available - 1)]
+    NoSuchCore {
+        /// The core asked for.
+        core: usize,
+        /// Cores this process may run on.
+        available: usize,
+    },
+    /// The kernel refused to pin the thread.
+    #[error("pinning the thread to core {core}")]
+    Pin {
+        /// The core.
+        core: usize,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+impl std::str::FromStr for WaitStrategy {
+    type Err = WaitError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let unknown = || WaitError::Unknown(s.to_string());
+        let strategy = match s.split_once(':') {
+            None if s == "event" => WaitStrategy::Event,
+            None if s == "busy-spin" => WaitStrategy::BusySpin { core: None },
+            Some(("busy-spin", core)) => WaitStrategy::BusySpin {
+                core: Some(core.parse().map_err(|_| unknown())?),
+            },
+            Some(("spin-then-block", us)) => WaitStrategy::SpinThenBlock {
+                spin_us: us.parse().map_err(|_| unknown())?,
+            },
+            _ => return Err(unknown()),
+        };
+        strategy.validate()?;
+        Ok(strategy)
+    }
+}
+
+impl std::fmt::Display for WaitStrategy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            WaitStrategy::Event => write!(f, "event"),
+            WaitStrategy::BusySpin { core: None } => write!(f, "busy-spin"),
+            WaitStrategy::BusySpin { core: Some(c) } => write!(f, "busy-spin:{c}"),
+            WaitStrategy::SpinThenBlock { spin_us } => write!(f, "spin-then-block:{spin_us}"),
+        }
+    }
+}
+
+impl WaitStrategy {
+    /// Checks the spin budget and that the core exists.
+    pub fn validate(&self) -> Result<(), WaitError> {
+        match *self {
+            WaitStrategy::SpinThenBlock { spin_us } if !(1..=MAX_SPIN_US).contains(&spin_us) => {
+                Err(WaitError::SpinBudget(spin_us))
+            }
+            WaitStrategy::BusySpin { core: Some(core) } => {
+                let available = std::thread::available_parallelism().map_or(1, |n| n.get());
+                if core < available {
+                    Ok(())
+                } else {
+                    Err(WaitError::NoSuchCore { core, available })
+                }
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Pins the calling thread to the strategy's core, if it names one.
+    pub fn pin_current_thread(&self) -> Result<(), WaitError> {
+        let WaitStrategy::BusySpin { core: Some(core) } = *self else {
+            return Ok(());
+        };
+        self.validate()?;
+        let mut set = rustix::thread::CpuSet::new();
+        set.set(core);
+        rustix::thread::sched_setaffinity(None, &set).map_err(|e| WaitError::Pin {
+            core,
+            source: e.into(),
+        })
+    }
+
+    /// True when the strategy polls, so the waiter must drain notifications it did not sleep on.
+    pub fn spins(&self) -> bool {
+        !matches!(self, WaitStrategy::Event)
+    }
+
+    /// Waits until `ready()` says a message is there or `timeout` has passed: polls `ready`
+    /// for as long as the strategy spins, and otherwise (or after) calls `block` with the time
+    /// left, which sleeps until a notification or that time. Returns `ready()` at the end.
+    pub fn wait(
+        &self,
+        timeout: Duration,
+        mut ready: impl FnMut() -> bool,
+        block: impl FnOnce(Duration),
+    ) -> bool {
+        let start = Instant::now();
+        let spin = match *self {
+            WaitStrategy::Event => Duration::ZERO,
+            WaitStrategy::BusySpin { .. } => timeout,
+            WaitStrategy::SpinThenBlock { spin_us } => Duration::from_micros(spin_us).min(timeout),
+        };
+        // Spinning with a budget yields the core between polls: the kernel tends to wake the
+        // other side of the exchange on the waker's core, and a spin that kept it would hold
+        // that wake-up back for the whole budget (measured: round trips of twice the budget).
+        let yields = matches!(self, WaitStrategy::SpinThenBlock { .. });
+        if !spin.is_zero() {
+            loop {
+                if ready() {
+                    return true;
+                }
+                if start.elapsed() >= spin {
+                    break;
+                }
+                if yields {
+                    std::thread::yield_now();
+                } else {
+                    std::hint::spin_loop();
+                }
+            }
+        }
+        let left = timeout.saturating_sub(start.elapsed());
+        if !left.is_zero() {
+            block(left);
+        }
+        ready()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_prints_and_checks_every_form() {
+        for text in ["event", "busy-spin", "busy-spin:0", "spin-then-block:50"] {
+            let s: WaitStrategy = text.parse().unwrap();
+            assert_eq!(s.to_string(), text);
+        }
+        assert!(matches!(
+            "spin-then-block:0".parse::<WaitStrategy>(),
+            Err(WaitError::SpinBudget(0))
+        ));
+        assert!(matches!(
+            "busy-spin:100000".parse::<WaitStrategy>(),
+            Err(WaitError::NoSuchCore { core: 100000, .. })
+        ));
+        assert!(matches!(
+            "spin".parse::<WaitStrategy>(),
+            Err(WaitError::Unknown(_))
+        ));
+    }
+
+    #[test]
+    fn spinning_sees_a_message_without_blocking_and_event_blocks_first() {
+        let mut polls = 0;
+        let mut blocked = false;
+        let busy = WaitStrategy::BusySpin { core: None };
+        let got = busy.wait(
+            Duration::from_secs(5),
+            || {
+                polls += 1;
+                polls >= 3
+            },
+            |_| blocked = true,
+        );
+        assert!(got && !blocked && polls == 3);
+
+        let (mut polls, mut blocked_for) = (0, None);
+        let got = WaitStrategy::Event.wait(
+            Duration::from_millis(20),
+            || {
+                polls += 1;
+                false
+            },
+            |d| blocked_for = Some(d),
+        );
+        assert!(!got && polls == 1, "event polls only after blocking");
+        assert!(blocked_for.is_some_and(|d| d <= Duration::from_millis(20)));
+    }
+
+    #[test]
+    fn spin_then_block_blocks_for_what_is_left_after_its_budget() {
+        let s = WaitStrategy::SpinThenBlock { spin_us: 200 };
+        let mut blocked_for = None;
+        let start = Instant::now();
+        let got = s.wait(
+            Duration::from_millis(50),
+            || false,
+            |d| blocked_for = Some(d),
+        );
+        assert!(!got);
+        assert!(start.elapsed() >= Duration::from_micros(200));
+        let left = blocked_for.unwrap();
+        assert!(left < Duration::from_millis(50) && left > Duration::from_millis(40));
+    }
+
+    #[test]
+    fn reads_the_daemon_configuration_form() {
+        #[derive(Deserialize)]
+        struct Source {
+            wait: WaitStrategy,
+        }
+        let s: Source = toml::from_str("wait = { strategy = \"busy-spin\", core = 1 }").unwrap();
+        assert_eq!(s.wait, WaitStrategy::BusySpin { core: Some(1) });
+        let s: Source =
+            toml::from_str("wait = { strategy = \"spin-then-block\", spin_us = 50 }").unwrap();
+        assert_eq!(s.wait, WaitStrategy::SpinThenBlock { spin_us: 50 });
+        assert!(toml::from_str::<Source>("wait = { strategy = \"spin\" }").is_err());
+    }
+}
