@@ -5,9 +5,10 @@
 //! at all. Each window pose therefore keeps:
 //!
 //! - its last query and answer, reused outright when neither position nor direction changed;
-//! - a proof (`Proof`) that its answer cannot change while it moves less than `PROOF_MOVE` (0.25 m) and its
-//!   direction turns by less than a margin: checked with one distance and, for a match, one
-//!   segment test that also recomputes the matched point;
+//! - a proof (`Proof`) that its answer is one of two known candidates while it moves less than
+//!   `PROOF_MOVE` (0.25 m) and its direction turns by less than a margin (the second one covers
+//!   a pose near the joint of two segments): checked with one distance and, for a match, one or
+//!   two segment tests that also recompute the matched point;
 //! - a wide candidate set, complete within an exclusive radius around where it was built. After a
 //!   move by `delta`, every lane point closer than `radius - delta` is in it, so the reference
 //!   answer (the first passing candidate in (distance, index) order among the `N` nearest) is
@@ -48,11 +49,12 @@ struct CandidateSet {
     points: Vec<u32>,
 }
 
-/// Proof that a pose's answer stays the same while it moves less than [`PROOF_MOVE`] from
-/// `anchor` and its unit direction changes by less than `direction_margin`: at `anchor`, every
-/// lane point that could then rank ahead of the answer (or among the `N` nearest, when there is
-/// no answer) failed a test by more than such a change can undo, the answer passed both tests by
-/// more, and fewer than `N` points can get ahead of it.
+/// Proof that a pose's answer is its `answer` or its `partner` while it moves less than
+/// [`PROOF_MOVE`] from `anchor` and its unit direction changes by less than `direction_margin`:
+/// at `anchor`, every other lane point that could then rank ahead of either (or among the `N`
+/// nearest, when there is no answer) failed a test by more than such a change can undo, and
+/// fewer than `N` points can get ahead. The check tests the two exactly and falls back to
+/// deciding from the candidate set when neither passes.
 ///
 /// With `n` normal to the direction `d`, the normal shot's `t` is `((x - a) . d) / ((b - a) . d)`,
 /// so both tests are signs of dot products: a change of `d` by `e` moves `u . d` by at most
@@ -63,7 +65,12 @@ struct Proof {
     direction: [f64; 2],
     direction_margin: f64,
     answer: Option<u32>,
+    /// A second candidate tested with the answer (see [`prove`]).
+    partner: Option<u32>,
 }
+
+/// A proof with less room than this (a direction change) is no proof: rounding could undo it.
+const MIN_MARGIN: f64 = 1e-9;
 
 /// A query (position, direction) and its answer.
 #[derive(Clone, Copy, Debug)]
@@ -202,13 +209,18 @@ fn match_one(
         if (dx * dx + dy * dy).sqrt() < PROOF_MOVE
             && (ex * ex + ey * ey).sqrt() < proof.direction_margin
         {
-            match proof.answer {
-                None => return None,
-                Some(j) => {
-                    if let Some(q) = try_candidate(map, j, x, dir, params.min_direction_cos) {
-                        return Some((q, j));
-                    }
-                }
+            let j = proof.answer?;
+            let tried = |k: u32| {
+                try_candidate(map, k, x, dir, params.min_direction_cos)
+                    .map(|q| ((map.squared_distance(x, k), k), q))
+            };
+            // Of the answer and its partner, the first in the reference order that passes.
+            let first = match (tried(j), proof.partner.and_then(tried)) {
+                (Some(a), Some(b)) => Some(if key_less(b.0, a.0) { b } else { a }),
+                (a, b) => a.or(b),
+            };
+            if let Some(((_, k), q)) = first {
+                return Some((q, k));
             }
         }
     }
@@ -216,13 +228,14 @@ fn match_one(
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
             // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
-            // within the deciding distance plus the contender margin.
-            let wanted = (reach.sqrt() + CONTENDER_MARGIN) * (1.0 - RADIUS_MARGIN);
+            // within the deciding distance plus twice the contender margin (a partner may lie
+            // up to one margin beyond the answer, and its contenders one more).
+            let wanted = (reach.sqrt() + 2.0 * CONTENDER_MARGIN) * (1.0 - RADIUS_MARGIN);
             cache.proof = None;
             if wanted <= reliable_radius(map, &cache.wide, x) {
                 let w2 = wanted * wanted;
                 keys.retain(|k| k.0 < w2);
-                cache.proof = prove(map, keys, x, dir, params, answer.map(|a| a.0));
+                cache.proof = prove(map, keys, x, dir, params, answer.map(|a| a.0), reach);
             }
             return answer.map(|(key, q)| (q, key.1));
         }
@@ -231,9 +244,14 @@ fn match_one(
     }
 }
 
-/// Builds a [`Proof`] for the answer `best` at `x`, from `keys`: every lane point within the
-/// deciding distance plus [`CONTENDER_MARGIN`]. `None` when some candidate is too close to a
-/// test's boundary for a proof.
+/// Builds a [`Proof`] for the answer `best` at `x`, decided within squared distance `reach`,
+/// from `keys`: every lane point within the deciding distance plus twice [`CONTENDER_MARGIN`].
+/// Every point that could rank ahead of the answer must fail a test by more than the proof's
+/// bounds can undo, except at most one, the partner (typically the neighbouring segment of the
+/// same lane, where the pose is near their joint, or the lane's last point, which shares its
+/// segment): the check tests the answer and the partner exactly and takes the first that
+/// passes in the reference order. `None` when more than one candidate is too close to a test's
+/// boundary, or too many could rank ahead.
 fn prove(
     map: &LaneMap,
     keys: &[Key],
@@ -241,6 +259,7 @@ fn prove(
     dir: [f64; 2],
     params: &MatchParams,
     best: Option<Key>,
+    reach: f64,
 ) -> Option<Proof> {
     // Per candidate: how far the direction test passes, how far (metres along `dir`) the normal
     // shot lands inside the segment, and the larger of |x - a|, |x - b|. Negative means fails.
@@ -257,34 +276,54 @@ fn prove(
         None => f64::INFINITY,
         Some((direction, inside, reach)) => (-direction).max((-inside - PROOF_MOVE) / reach),
     };
-    let margin = match best {
-        None => keys
-            .iter()
-            .map(|k| fails_within(k.1))
-            .fold(f64::INFINITY, f64::min),
+    // Could `k` rank ahead of `lead` once the pose has moved less than `PROOF_MOVE`?
+    let could_lead =
+        |k: Key, lead: Key| key_less(k, lead) || k.0.sqrt() - lead.0.sqrt() <= 2.0 * PROOF_MOVE;
+    let (partner, margin) = match best {
+        None => {
+            let limit = reach.sqrt() + CONTENDER_MARGIN;
+            let margin = keys
+                .iter()
+                .filter(|k| k.0.sqrt() < limit)
+                .map(|k| fails_within(k.1))
+                .fold(f64::INFINITY, f64::min);
+            (None, margin)
+        }
         Some(best) => {
-            let (direction, inside, reach) = margins(best.1)?;
-            let mut margin = direction.min((inside - PROOF_MOVE) / reach);
-            let best_distance = best.0.sqrt();
-            let mut can_get_ahead = 0;
-            for &k in keys.iter().filter(|k| k.1 != best.1) {
-                if key_less(k, best) || k.0.sqrt() - best_distance <= 2.0 * PROOF_MOVE {
-                    margin = margin.min(fails_within(k.1));
-                    can_get_ahead += 1;
+            let mut partner = None;
+            for &k in keys
+                .iter()
+                .filter(|k| k.1 != best.1 && could_lead(**k, best))
+            {
+                if fails_within(k.1) <= MIN_MARGIN {
+                    if partner.is_some() {
+                        return None;
+                    }
+                    partner = Some(k);
                 }
+            }
+            // Whichever of the two ranks later decides who could get ahead of the chosen one.
+            let last = partner.filter(|&p| key_less(best, p)).unwrap_or(best);
+            let mut margin = f64::INFINITY;
+            let mut can_get_ahead = usize::from(partner.is_some());
+            let others = |k: &&Key| k.1 != best.1 && Some(k.1) != partner.map(|p| p.1);
+            for &k in keys.iter().filter(others).filter(|k| could_lead(**k, last)) {
+                margin = margin.min(fails_within(k.1));
+                can_get_ahead += 1;
             }
             if can_get_ahead >= params.neighbours {
                 return None;
             }
-            margin
+            (partner.map(|p| p.1), margin)
         }
     };
     // Keep clear of rounding: a proof with almost no room is no proof.
-    (margin > 1e-9).then(|| Proof {
+    (margin > MIN_MARGIN).then(|| Proof {
         anchor: x,
         direction: dir,
         direction_margin: margin * (1.0 - 1e-6),
         answer: best.map(|k| k.1),
+        partner,
     })
 }
 
