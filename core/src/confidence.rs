@@ -67,15 +67,15 @@ pub fn lane_sigma_m(info: LaneInfo) -> f64 {
 /// `(dx, dy, dyaw)` of the window taken at `center` (metres, map plane): the kept pairs'
 /// sources after the fit, each constraining the distance across its matched lane.
 ///
-/// `spacing_m(i)` is the path length from window pose `i` to the next (metres): a pose stands for
-/// that stretch of wander out of [`WANDER_CORRELATION_M`].
+/// `spacing_m[i]` is the path length from window pose `i` to the next (metres; 0 for the newest):
+/// a pose stands for that stretch of wander out of [`WANDER_CORRELATION_M`].
 pub fn alignment_information(
     map: &LaneMap,
     pairs: &[Correspondence],
     kept: &[u32],
     fitted_sources: &[[f64; 2]],
     center: [f64; 2],
-    spacing_m: impl Fn(usize) -> f64,
+    spacing_m: &[f64],
 ) -> Matrix3<f64> {
     let wander_var = WANDER_SIGMA_M * WANDER_SIGMA_M;
     let mut information = Matrix3::zeros();
@@ -92,7 +92,7 @@ pub fn alignment_information(
             continue;
         };
         if let Some(last) = last_index {
-            along += (last..pair.index).map(&spacing_m).sum::<f64>();
+            along += spacing_m[last..pair.index].iter().sum::<f64>();
         }
         last_index = Some(pair.index);
         if along - block_start >= MAP_CORRELATION_M {
@@ -110,7 +110,7 @@ pub fn alignment_information(
             normal[1],
             -normal[0] * arm[1] + normal[1] * arm[0],
         );
-        let share = (spacing_m(pair.index) / WANDER_CORRELATION_M).clamp(1e-3, 1.0);
+        let share = (spacing_m[pair.index] / WANDER_CORRELATION_M).clamp(1e-3, 1.0);
         block.add(j, share / wander_var, sigma * sigma);
     }
     information + block.information()

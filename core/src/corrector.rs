@@ -201,6 +201,21 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
+/// `distance(a, b) <= r` (metres), the same answer for less: the squared distance decides
+/// where it is clear of the boundary by far more than rounding, `distance` itself where not.
+#[inline]
+fn within(a: [f64; 2], b: [f64; 2], r: f64) -> bool {
+    let d2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+    let r2 = r * r;
+    if d2 < r2 * (1.0 - 1e-9) {
+        true
+    } else if d2 > r2 * (1.0 + 1e-9) {
+        false
+    } else {
+        distance(a, b) <= r
+    }
+}
+
 /// The window of corrected positions, oldest first, kept contiguous for matching.
 /// Dropping from the front moves a start offset; the buffer is compacted when the dead prefix
 /// outgrows the live part, so every operation is amortised O(1).
@@ -354,6 +369,9 @@ pub struct Corrector {
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
+    /// Path length from each window pose to the next (metres; 0 for the newest), for the
+    /// covariance.
+    spacings: Vec<f64>,
 }
 
 impl Corrector {
@@ -380,6 +398,7 @@ impl Corrector {
             },
             correspondences: Vec::new(),
             icp: IcpScratch::default(),
+            spacings: Vec::new(),
         }
     }
 
@@ -516,7 +535,7 @@ impl Corrector {
         if p.max_match_distance_m.is_finite() {
             let gate = self.widened(p.max_match_distance_m);
             self.correspondences
-                .retain(|c| distance(c.source, c.target) <= gate);
+                .retain(|c| within(c.source, c.target, gate));
         }
         let matched = self.correspondences.len();
         let match_ratio = matched as f64 / window_len as f64;
@@ -580,17 +599,17 @@ impl Corrector {
         let window = self.window.as_slice();
         let current = window[window.len() - 1];
         let center = proposed.apply(current);
-        let spacing = |i: usize| match (window.get(i), window.get(i + 1)) {
-            (Some(&a), Some(&b)) => distance(a, b),
-            _ => 0.0,
-        };
+        self.spacings.clear();
+        self.spacings
+            .extend(window.windows(2).map(|s| distance(s[0], s[1])));
+        self.spacings.push(0.0);
         let information = alignment_information(
             &self.map,
             &self.correspondences,
             self.icp.kept(),
             self.icp.fitted_sources(),
             center,
-            spacing,
+            &self.spacings,
         );
         let share = if self.window.path_m > 0.0 {
             (self.travelled_m / self.window.path_m).min(1.0)

@@ -85,6 +85,8 @@ pub struct LaneMap {
     lane_offsets: Vec<u32>,
     lane_ids: Vec<u64>,
     lane_info: Vec<LaneInfo>,
+    /// The lane of each point (an index into the lane arrays).
+    point_lane: Vec<u32>,
     tree: LaneTree,
 }
 
@@ -243,6 +245,11 @@ impl LaneMap {
                 directions.push(dir);
             }
         }
+        let point_lane = lane_offsets
+            .windows(2)
+            .enumerate()
+            .flat_map(|(k, w)| std::iter::repeat_n(k as u32, (w[1] - w[0]) as usize))
+            .collect();
         let tree = LaneTree::new_from_slice(&points)
             .map_err(|e| LaneMapError::KdTree(format!("{e:?}")))?;
         Ok(LaneMap {
@@ -252,6 +259,7 @@ impl LaneMap {
             lane_offsets,
             lane_ids,
             lane_info,
+            point_lane,
             tree,
         })
     }
@@ -300,7 +308,7 @@ impl LaneMap {
 
     /// The lane (index in map order) that point `j` belongs to.
     pub fn lane_of(&self, j: u32) -> usize {
-        self.lane_offsets.partition_point(|&o| o <= j) - 1
+        self.point_lane[j as usize] as usize
     }
 
     /// The lanes as `(id, info, points)`, in map order.
