@@ -121,10 +121,18 @@ fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut 
         kept.extend(0..residuals.len() as u32);
         return;
     }
-    sorted.clear();
-    sorted.extend_from_slice(residuals);
-    let (below, &mut cut, _) = sorted.select_nth_unstable_by(k - 1, f64::total_cmp);
-    let mut ties_kept = k - below.iter().filter(|&&r| r < cut).count();
+    // Residuals are never negative, and with a tolerance band most are zero (poses inside it):
+    // the cut is looked for among the others only.
+    let zeros = residuals.iter().filter(|&&r| r == 0.0).count();
+    let (cut, below) = if zeros >= k {
+        (0.0, 0)
+    } else {
+        sorted.clear();
+        sorted.extend(residuals.iter().copied().filter(|&r| r != 0.0));
+        let (left, &mut cut, _) = sorted.select_nth_unstable_by(k - zeros - 1, f64::total_cmp);
+        (cut, zeros + left.iter().filter(|&&r| r < cut).count())
+    };
+    let mut ties_kept = k - below;
     for (i, &r) in residuals.iter().enumerate() {
         if r < cut {
             kept.push(i as u32);
@@ -541,6 +549,11 @@ mod tests {
         assert_eq!(kept, vec![1, 2, 3, 6]);
         keep_smallest(&[1.0, 1.0, 1.0], 2, &mut sorted, &mut kept);
         assert_eq!(kept, vec![0, 1]);
+        // Zeros (inside a tolerance band) decide alone, or with the smallest of the rest.
+        keep_smallest(&[0.0, 2.0, 0.0, 1.0, 0.0], 2, &mut sorted, &mut kept);
+        assert_eq!(kept, vec![0, 2]);
+        keep_smallest(&[0.0, 2.0, 0.0, 1.0, 1.0], 3, &mut sorted, &mut kept);
+        assert_eq!(kept, vec![0, 2, 3]);
     }
 
     #[test]
