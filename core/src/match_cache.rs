@@ -29,6 +29,10 @@ use crate::matching::{trajectory_direction, try_candidate, Correspondence, Match
 /// metres apart, so this usually holds a handful of lanes.
 const FIRST_RADIUS: f64 = 8.0;
 
+/// A set too small for a proof is rebuilt this many times wider than the proof needs, so that
+/// it stays wide enough while the pose moves.
+const WIDEN_FOR_PROOF: f64 = 1.5;
+
 /// How far beyond the deciding distance a proof checks candidates (metres).
 const CONTENDER_MARGIN: f64 = 0.5;
 
@@ -225,12 +229,26 @@ fn match_one(
         }
     }
     let mut radius = FIRST_RADIUS;
+    let mut widened_for_proof = false;
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
             // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
             // within the deciding distance plus twice the contender margin (a partner may lie
             // up to one margin beyond the answer, and its contenders one more).
             let wanted = (reach.sqrt() + 2.0 * CONTENDER_MARGIN) * (1.0 - RADIUS_MARGIN);
+            if wanted > reliable_radius(map, &cache.wide, x) && !widened_for_proof {
+                // Too small a set for a proof: widen it once, so that the following steps can
+                // rest on a proof instead of deciding again.
+                widened_for_proof = true;
+                rebuild(
+                    map,
+                    &mut cache.wide,
+                    tree_scratch,
+                    x,
+                    WIDEN_FOR_PROOF * wanted,
+                );
+                continue;
+            }
             cache.proof = None;
             if wanted <= reliable_radius(map, &cache.wide, x) {
                 let w2 = wanted * wanted;
