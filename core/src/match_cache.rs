@@ -29,10 +29,6 @@ use crate::matching::{trajectory_direction, try_candidate, Correspondence, Match
 /// metres apart, so this usually holds a handful of lanes.
 const FIRST_RADIUS: f64 = 8.0;
 
-/// A set too small for a proof is rebuilt this many times wider than the proof needs, so that
-/// it stays wide enough while the pose moves.
-const WIDEN_FOR_PROOF: f64 = 1.5;
-
 /// How far beyond the deciding distance a proof checks candidates (metres).
 const CONTENDER_MARGIN: f64 = 0.5;
 
@@ -114,10 +110,17 @@ pub struct MatchCache {
     spare: Vec<PoseCache>,
     keys: Vec<Key>,
     tree_scratch: TreeScratch,
-    /// The most points any wide set has held: every pose's buffer is given this capacity when
-    /// it joins the window, so that steady-state rebuilds never grow a buffer.
+    /// The most points any wide set has held: every pose's buffer is given this capacity (up
+    /// to [`RESERVED_POINTS`]) when it joins the window, so that steady-state rebuilds never
+    /// grow a buffer.
     widest: usize,
 }
+
+/// The most candidate points a pose's buffer keeps reserved (8 KiB; 8 MiB for a 1000-pose
+/// window). A rare set far larger (a pose far from every lane, or turned against them, gathers
+/// points until `N` of them are in; 1851 points, the whole synthetic town, in the soak) would
+/// otherwise make every later pose reserve as much: with a city map, gigabytes per session.
+const RESERVED_POINTS: usize = 2048;
 
 /// What the wide set told.
 enum Decision {
@@ -142,7 +145,8 @@ impl MatchCache {
     pub fn push(&mut self) {
         let mut c = self.spare.pop().unwrap_or_default();
         c.wide.points.clear();
-        c.wide.points.reserve(self.widest);
+        c.wide.points.shrink_to(RESERVED_POINTS);
+        c.wide.points.reserve(self.widest.min(RESERVED_POINTS));
         c.wide.radius = f64::NEG_INFINITY;
         c.proof = None;
         c.last = None;
@@ -229,26 +233,12 @@ fn match_one(
         }
     }
     let mut radius = FIRST_RADIUS;
-    let mut widened_for_proof = false;
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
             // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
             // within the deciding distance plus twice the contender margin (a partner may lie
             // up to one margin beyond the answer, and its contenders one more).
             let wanted = (reach.sqrt() + 2.0 * CONTENDER_MARGIN) * (1.0 - RADIUS_MARGIN);
-            if wanted > reliable_radius(map, &cache.wide, x) && !widened_for_proof {
-                // Too small a set for a proof: widen it once, so that the following steps can
-                // rest on a proof instead of deciding again.
-                widened_for_proof = true;
-                rebuild(
-                    map,
-                    &mut cache.wide,
-                    tree_scratch,
-                    x,
-                    WIDEN_FOR_PROOF * wanted,
-                );
-                continue;
-            }
             cache.proof = None;
             if wanted <= reliable_radius(map, &cache.wide, x) {
                 let w2 = wanted * wanted;

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
@@ -50,12 +50,11 @@ struct SourceResult {
     lost: usize,
 }
 
-/// A phase's outcome: per source, and the daemon's resident memory (KiB) after start-up and at
-/// the end.
+/// A phase's outcome: per source, and the daemon's resident memory (KiB) after start-up, at each
+/// quarter of the phase and at the end.
 struct Phase {
     sources: Vec<SourceResult>,
-    rss_start_kib: u64,
-    rss_end_kib: u64,
+    rss_kib: Vec<u64>,
 }
 
 /// Resident memory of process `pid` in KiB (from /proc; 0 where unavailable).
@@ -119,7 +118,7 @@ fn run_phase(
         &dir.join(format!("{tag}.log")),
         Duration::from_secs(20),
     )?;
-    let rss_start_kib = rss_kib(daemon.id());
+    let mut rss = vec![rss_kib(daemon.id())];
     let (_, odometry) = synthetic::drive(3, 7);
     let odometry = Arc::new(odometry);
     let count = (rate * duration).round() as usize;
@@ -165,6 +164,12 @@ fn run_phase(
             })
         })
         .collect();
+    let started = Instant::now();
+    for quarter in 1..4 {
+        let at = Duration::from_secs_f64(duration * quarter as f64 / 4.0);
+        std::thread::sleep(at.saturating_sub(started.elapsed()));
+        rss.push(rss_kib(daemon.id()));
+    }
     let mut results = Vec::new();
     for h in handles {
         results.push(
@@ -172,13 +177,12 @@ fn run_phase(
                 .map_err(|_| anyhow::anyhow!("a soak thread panicked"))??,
         );
     }
-    let rss_end_kib = rss_kib(daemon.id());
+    rss.push(rss_kib(daemon.id()));
     let clean = daemon.stop()?;
     anyhow::ensure!(clean, "the daemon did not exit cleanly");
     Ok(Phase {
         sources: results,
-        rss_start_kib,
-        rss_end_kib,
+        rss_kib: rss,
     })
 }
 
@@ -194,7 +198,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let tile_path = dir.path().join("town.tile");
     synthetic::write_town_tile(&tile_path)?;
     println!("soak: {rate} Hz x {duration} s per phase, synthetic town, kiss-icp; round trip = client send to client receive; {cores} cores");
-    println!("| mode | wait | sources | poses | lost | p50 (us) | p99 (us) | max (us) | daemon memory start / end (KiB) |");
+    println!("| mode | wait | sources | poses | lost | p50 (us) | p99 (us) | max (us) | daemon memory at start / 25 / 50 / 75 % / end (KiB) |");
     println!("|---|---|---|---|---|---|---|---|---|");
     let mut phase_index = 0;
     for &wait in &args.waits {
@@ -227,14 +231,14 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
                 lost += r.lost;
             }
             all.sort_unstable();
+            let rss: Vec<String> = phase.rss_kib.iter().map(u64::to_string).collect();
             println!(
-                "| {mode} | {wait} | {sources} | {} | {lost} | {:.1} | {:.1} | {:.1} | {} / {} |",
+                "| {mode} | {wait} | {sources} | {} | {lost} | {:.1} | {:.1} | {:.1} | {} |",
                 all.len() + lost,
                 percentile_us(&all, 0.5),
                 percentile_us(&all, 0.99),
                 percentile_us(&all, 1.0),
-                phase.rss_start_kib,
-                phase.rss_end_kib
+                rss.join(" / ")
             );
         }
     }
