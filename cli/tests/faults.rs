@@ -201,3 +201,54 @@ fn killed_daemons_lose_nothing_on_kitti() {
     let poses = read(&input, Format::Kitti).unwrap().poses;
     killed_daemons(&setup, &name, &input, &poses, 22, "150");
 }
+
+/// Overload over time, counted in and out: `lanealign soak` sends 10^6 poses over 8 sources
+/// (2000 Hz each for 62.5 s) with correction and again in pass-through; every pose is answered,
+/// and the daemon's resident memory does not grow with the poses it has served. Between a
+/// quarter and three quarters of the run (500 000 poses) it may move by 10 % at most; to the
+/// end by at most what the match caches may reserve (8 MiB a session) plus 10 %.
+#[test]
+fn a_million_poses_over_eight_sources_lose_none_and_memory_stays_flat() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+        .args([
+            "soak",
+            "--sources",
+            "8",
+            "--rate",
+            "2000",
+            "--duration",
+            "62.5",
+        ])
+        .args(["--waits", "event"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    println!("{stdout}");
+    let rows: Vec<Vec<&str>> = stdout
+        .lines()
+        .filter(|l| l.starts_with("| correct") || l.starts_with("| pass-through"))
+        .map(|l| l.trim_matches('|').split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "{stdout}");
+    for row in rows {
+        assert_eq!((row[3], row[4]), ("1000000", "0"), "{row:?}: poses, lost");
+        let rss: Vec<f64> = row[8].split(" / ").map(|v| v.parse().unwrap()).collect();
+        let [_, quarter, _, three_quarters, end] = rss[..] else {
+            panic!("{row:?}: five memory readings");
+        };
+        assert!(
+            three_quarters <= quarter * 1.1,
+            "{row:?}: grew while serving"
+        );
+        assert!(
+            end <= (quarter + 8.0 * 8192.0) * 1.1,
+            "{row:?}: grew while serving"
+        );
+    }
+}
