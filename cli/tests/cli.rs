@@ -324,3 +324,110 @@ fn eval_reports_how_well_the_covariance_describes_the_errors() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("99 rows"));
 }
+
+/// `correct --results DIR --gt GT` keeps each run in a folder of its own with `latest` pointing
+/// at the newest: the corrected trajectory and status, every effective parameter (what
+/// `lanealign params` prints for the same flags), the metrics `eval` reports, and the plots;
+/// `eval --plot` draws the error plot too.
+#[test]
+fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = dir.path().join("lanes.csv");
+    let lane: String = (0..100)
+        .map(|i| format!("1,{},0\n", i as f64 * 3.0))
+        .collect();
+    std::fs::write(&lanes, format!("lane_id,x,y\n{lane}")).unwrap();
+    let line = |y: f64| -> String {
+        (0..200)
+            .map(|i| format!("{} {} {y} 0 0 0 0 1\n", i as f64 * 0.1, i as f64 * 1.2))
+            .collect()
+    };
+    let (input, gt) = (dir.path().join("in.tum"), dir.path().join("gt.tum"));
+    std::fs::write(&input, line(0.8)).unwrap();
+    std::fs::write(&gt, line(0.0)).unwrap();
+    let results = dir.path().join("results");
+    let flags = [
+        "--preset",
+        "kiss-icp",
+        "--method",
+        "paper",
+        "--set",
+        "min_window=20",
+    ];
+    let run = || {
+        let mut args = vec!["correct", "--lanes", s(&lanes), "--format", "tum"];
+        args.extend(flags);
+        args.extend([s(&input), "--results", s(&results), "--gt", s(&gt)]);
+        let out = lanealign(&args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    run();
+    run();
+    let runs = std::fs::read_dir(&results).unwrap().count();
+    assert_eq!(runs, 3, "two run folders and latest");
+    let latest = results.join("latest");
+    let corrected = std::fs::read_to_string(latest.join("corrected.tum")).unwrap();
+    assert_eq!(corrected.lines().count(), 200);
+    let status = std::fs::read_to_string(latest.join("status.csv")).unwrap();
+    assert_eq!(status.lines().count(), 201);
+
+    let params: toml::Table = std::fs::read_to_string(latest.join("params.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let mut args = vec!["params"];
+    args.extend(flags);
+    let printed: toml::Table = String::from_utf8(lanealign(&args).stdout)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert_eq!(params["params"], printed["params"]);
+    assert_eq!(params["corrector"], printed["corrector"]);
+    assert_eq!(params["run"]["map"].as_str(), Some("lanes-csv"));
+
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(latest.join("metrics.json")).unwrap())
+            .unwrap();
+    let out = lanealign(&[
+        "eval",
+        "--gt",
+        s(&gt),
+        "--est",
+        s(&latest.join("corrected.tum")),
+        "--format",
+        "tum",
+        "--json",
+        "--plot",
+        s(&dir.path().join("eval.svg")),
+    ]);
+    let eval: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(metrics["corrected"]["ape2d_mean_m"], eval["ape2d_mean_m"]);
+    let raw_mean = metrics["raw"]["ape2d_mean_m"].as_f64().unwrap();
+    assert!((raw_mean - 0.8).abs() < 1e-9, "{metrics}");
+    assert!(eval["ape2d_mean_m"].as_f64().unwrap() < raw_mean);
+
+    let svg = |name: &Path| std::fs::read_to_string(name).unwrap();
+    let trajectory = svg(&latest.join("trajectory.svg"));
+    for legend in [
+        "lanes (OpenStreetMap)",
+        "ground truth",
+        "raw odometry",
+        "corrected",
+        "(m)",
+    ] {
+        assert!(
+            trajectory.contains(legend),
+            "trajectory plot lacks {legend}"
+        );
+    }
+    for plot in [
+        svg(&latest.join("error.svg")),
+        svg(&dir.path().join("eval.svg")),
+    ] {
+        assert!(plot.starts_with("<svg") && plot.contains("distance driven (m)"));
+    }
+}

@@ -1,16 +1,18 @@
 //! `lanealign correct`: corrects a recorded trajectory offline, exactly as the daemon would.
 
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use lanealign_cli::maps::{LoadedMap, MapSource};
-use lanealign_cli::status_file;
-use lanealign_core::corrector::MatchMode;
+use lanealign_cli::{evaluation, plots, results, status_file};
+use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
-use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
+use lanealign_core::lane_map::LaneMap;
+use lanealign_core::metrics::{ape_2d, Ape2d};
+use lanealign_core::params::{CorrectorConfig, Method, Overrides, Params, Preset};
 use lanealign_core::plausibility;
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::se2::Se2;
@@ -18,6 +20,7 @@ use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::compile::InputReport;
 use lanealign_map::osm_lanes::LaneOptions;
+use serde::Serialize;
 
 /// Where the lanes come from and where the odometry lies on them.
 #[derive(Args)]
@@ -156,11 +159,71 @@ pub struct CorrectArgs {
     /// The odometry trajectory to correct.
     input: PathBuf,
     /// Where to write the corrected trajectory (same format and convention).
-    #[arg(short, long)]
-    output: PathBuf,
+    #[arg(short, long, required_unless_present = "results")]
+    output: Option<PathBuf>,
     /// Also write a CSV of what happened at each pose.
     #[arg(long)]
     status: Option<PathBuf>,
+    /// Also write a results folder below this one (`<UTC time>/`, with `latest` pointing at it):
+    /// the corrected trajectory, the status CSV and `params.toml` (every effective parameter, the
+    /// map and the anchor); with `--gt`, `metrics.json` and SVG plots.
+    #[arg(long)]
+    results: Option<PathBuf>,
+    /// Ground truth (same format and convention as the input) for the results folder's metrics
+    /// and plots.
+    #[arg(long, requires = "results")]
+    gt: Option<PathBuf>,
+}
+
+/// What `params.toml` of a results folder holds: the run, then the effective configuration.
+#[derive(Serialize)]
+struct ParamsFile<'a> {
+    unmarked_offset_scale: f64,
+    run: RunRecord<'a>,
+    corrector: CorrectorConfig,
+    params: Params,
+}
+
+/// The input and the map of a run.
+#[derive(Serialize)]
+struct RunRecord<'a> {
+    input: &'a Path,
+    frame: AxisConvention,
+    format: &'static str,
+    map: &'static str,
+    map_path: &'a Path,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    anchor: Option<Anchor>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    projection: Option<Projection>,
+}
+
+impl<'a> RunRecord<'a> {
+    fn new(args: &'a CorrectArgs, source: &'a MapSource) -> Self {
+        let (map, map_path, anchor, projection) = match source {
+            MapSource::Osm {
+                path,
+                anchor,
+                projection,
+                ..
+            } => ("osm", path.as_path(), Some(*anchor), Some(*projection)),
+            MapSource::Tile {
+                path,
+                anchor,
+                projection,
+            } => ("tile", path.as_path(), Some(*anchor), *projection),
+            MapSource::LanesCsv(path) => ("lanes-csv", path.as_path(), None, None),
+        };
+        RunRecord {
+            input: &args.input,
+            frame: args.frame,
+            format: args.format.name(),
+            map,
+            map_path,
+            anchor,
+            projection,
+        }
+    }
 }
 
 /// The status CSV ([`status_file`]) of a corrected run.
@@ -202,7 +265,8 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     if input.poses.is_empty() {
         bail!("{}: no poses", args.input.display());
     }
-    let loaded = load_map(&args.map.source(&config)?, &config)?;
+    let source = args.map.source(&config)?;
+    let loaded = load_map(&source, &config)?;
     if let Some(InputReport::Osm(r)) = &loaded.report {
         if r.missing_node_refs > 0 || r.ways_without_geometry > 0 {
             eprintln!(
@@ -228,11 +292,48 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),
     };
-    let status = args
-        .status
-        .as_deref()
-        .map(|path| (path, status_csv(&run, &anchored_from_odom)));
-    status_file::write_run(&args.output, &output, args.format, status)?;
+    let status = status_csv(&run, &anchored_from_odom);
+    if let Some(path) = &args.output {
+        let status = args.status.as_deref().map(|p| (p, status.clone()));
+        status_file::write_run(path, &output, args.format, status)?;
+    }
+    if let Some(parent) = &args.results {
+        let dir = results::create(parent)?;
+        let extension = match args.format {
+            Format::Kitti => "txt",
+            Format::Tum => "tum",
+        };
+        let corrected = dir.join(format!("corrected.{extension}"));
+        status_file::write_run(
+            &corrected,
+            &output,
+            args.format,
+            Some((&dir.join("status.csv"), status)),
+        )?;
+        let params_file = ParamsFile {
+            unmarked_offset_scale: config.unmarked_offset_scale(),
+            run: RunRecord::new(args, &source),
+            corrector: config,
+            params,
+        };
+        let path = dir.join("params.toml");
+        std::fs::write(&path, toml::to_string(&params_file)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        if let Some(gt_path) = &args.gt {
+            let gt = trajectory::read(gt_path, args.format)?;
+            write_comparison(
+                &dir,
+                &gt,
+                &input,
+                &output,
+                &run,
+                &loaded_map,
+                &anchored_from_odom,
+                args.frame,
+            )?;
+        }
+        eprintln!("results in {}", dir.display());
+    }
     let c = counts(&run);
     eprintln!(
         "{} poses, method {}: {} match attempts, {} accepted, {} resets",
@@ -254,5 +355,93 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     for warning in warnings.into_iter().flatten() {
         eprintln!("WARN {warning}");
     }
+    Ok(())
+}
+
+/// `metrics.json` and the plots of a results folder: raw and corrected against ground truth.
+#[allow(clippy::too_many_arguments)]
+fn write_comparison(
+    dir: &Path,
+    gt: &Trajectory,
+    raw: &Trajectory,
+    corrected: &Trajectory,
+    run: &[CorrectedPose],
+    map: &LaneMap,
+    anchored_from_odom: &Se2,
+    frame: AxisConvention,
+) -> anyhow::Result<()> {
+    let raw_pairs = evaluation::pair(gt, raw, frame)?;
+    let corrected_pairs = evaluation::pair(gt, corrected, frame)?;
+    let (raw_m, corrected_m) = (
+        ape_2d(&raw_pairs.gt, &raw_pairs.est)?,
+        ape_2d(&corrected_pairs.gt, &corrected_pairs.est)?,
+    );
+    let figures = |m: &Ape2d| {
+        serde_json::json!({
+            "ape2d_mean_m": m.mean_m,
+            "rmse_m": m.rmse_m,
+            "lateral_rmse_m": m.lateral_rmse_m,
+            "heading_mean_deg": m.heading_mean_deg,
+            "max_m": m.max_m,
+            "poses": m.poses,
+        })
+    };
+    let metrics = serde_json::json!({
+        "raw": figures(&raw_m),
+        "corrected": figures(&corrected_m),
+    });
+    let path = dir.join("metrics.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&metrics)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
+    // In the map plane, where the lanes are.
+    let placed = |t: &Trajectory| -> Vec<[f64; 2]> {
+        t.poses
+            .iter()
+            .map(|p| anchored_from_odom.apply(frame.to_planar(p).planar_position()))
+            .collect()
+    };
+    let (gt_xy, raw_xy, corrected_xy) = (placed(gt), placed(raw), placed(corrected));
+    let rejected: Vec<[f64; 2]> = run
+        .iter()
+        .zip(&corrected_xy)
+        .filter(|(c, _)| matches!(c.status, Status::Rejected { .. } | Status::Reset { .. }))
+        .map(|(_, p)| *p)
+        .collect();
+    let lanes: Vec<&[[f64; 2]]> = map.lanes().map(|(_, _, points)| points).collect();
+    plots::trajectories(
+        &dir.join("trajectory.svg"),
+        &format!(
+            "APE-2D mean: raw {:.2} m, corrected {:.2} m",
+            raw_m.mean_m, corrected_m.mean_m
+        ),
+        &lanes,
+        &[
+            plots::Track {
+                name: "ground truth",
+                points: &gt_xy,
+                color: plots::GROUND_TRUTH,
+            },
+            plots::Track {
+                name: "raw odometry",
+                points: &raw_xy,
+                color: plots::RAW,
+            },
+            plots::Track {
+                name: "corrected",
+                points: &corrected_xy,
+                color: plots::CORRECTED,
+            },
+        ],
+        ("correction rejected", &rejected),
+    )?;
+    plots::error_over_distance(
+        &dir.join("error.svg"),
+        "Position error over distance (APE-2D, no alignment)",
+        &corrected_pairs.distance_m(),
+        &[
+            ("raw odometry", &raw_pairs.errors_m(), plots::RAW),
+            ("corrected", &corrected_pairs.errors_m(), plots::CORRECTED),
+        ],
+    )?;
     Ok(())
 }

@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use clap::Args;
-use lanealign_cli::status_file;
-use lanealign_core::metrics::{ape_2d, associate_by_time, calibration, MetricsError};
-use lanealign_core::pose::{AxisConvention, Pose3};
-use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_cli::{evaluation, plots, status_file};
+use lanealign_core::metrics::{ape_2d, calibration};
+use lanealign_core::pose::AxisConvention;
+use lanealign_core::trajectory::{self, Format};
 
 /// The `lanealign eval` arguments.
 #[derive(Args)]
@@ -31,31 +31,18 @@ pub struct EvalArgs {
     /// Print one JSON object instead of a table.
     #[arg(long)]
     json: bool,
+    /// Also draw the position error over the distance driven into this SVG file.
+    #[arg(long)]
+    plot: Option<PathBuf>,
 }
 
 /// Runs `lanealign eval`.
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let gt = trajectory::read(&args.gt, args.format)?;
     let est = trajectory::read(&args.est, args.format)?;
-    let pairs: Vec<(usize, usize)> = match (&gt.stamps, &est.stamps) {
-        (Some(ts_gt), Some(ts_est)) => associate_by_time(ts_gt, ts_est, 0.01),
-        _ if gt.poses.len() == est.poses.len() => (0..gt.poses.len()).map(|i| (i, i)).collect(),
-        _ => {
-            return Err(MetricsError::LengthMismatch {
-                gt: gt.poses.len(),
-                est: est.poses.len(),
-            }
-            .into())
-        }
-    };
-    let planar = |t: &Trajectory, side: fn(&(usize, usize)) -> usize| -> Vec<Pose3> {
-        pairs
-            .iter()
-            .map(|p| args.frame.to_planar(&t.poses[side(p)]))
-            .collect()
-    };
-    let (g, e) = (planar(&gt, |p| p.0), planar(&est, |p| p.1));
-    let m = ape_2d(&g, &e)?;
+    let paired = evaluation::pair(&gt, &est, args.frame)?;
+    let (g, e, pairs) = (&paired.gt, &paired.est, &paired.pairs);
+    let m = ape_2d(g, e)?;
     let calibration = match &args.status {
         None => None,
         Some(path) => {
@@ -70,9 +57,17 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 );
             }
             let cov: Vec<[[f64; 2]; 2]> = pairs.iter().map(|p| all[p.1]).collect();
-            Some(calibration(&g, &e, &cov).with_context(|| path.display().to_string())?)
+            Some(calibration(g, e, &cov).with_context(|| path.display().to_string())?)
         }
     };
+    if let Some(path) = &args.plot {
+        plots::error_over_distance(
+            path,
+            "Position error over distance (APE-2D, no alignment)",
+            &paired.distance_m(),
+            &[("estimate", &paired.errors_m(), plots::CORRECTED)],
+        )?;
+    }
     if args.json {
         let mut json = serde_json::json!({
             "ape2d_mean_m": m.mean_m,

@@ -1,0 +1,78 @@
+//! Ground truth and an estimate side by side: paired (by timestamp for TUM files, by index for
+//! KITTI files) and rotated into the planar frame, as `lanealign eval` and `correct --gt` compare
+//! them.
+
+use lanealign_core::metrics::{associate_by_time, MetricsError};
+use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::trajectory::Trajectory;
+
+/// Paired planar poses: `gt[k]` and `est[k]` are the `k`-th pair.
+pub struct Paired {
+    /// Ground truth, planar frame.
+    pub gt: Vec<Pose3>,
+    /// Estimate, planar frame.
+    pub est: Vec<Pose3>,
+    /// Indices `(ground truth, estimate)` of each pair in the files.
+    pub pairs: Vec<(usize, usize)>,
+}
+
+/// Pairs `est` with `gt`: by timestamp (within 10 ms) when both have them, else by index (then
+/// they must be as long).
+pub fn pair(
+    gt: &Trajectory,
+    est: &Trajectory,
+    frame: AxisConvention,
+) -> Result<Paired, MetricsError> {
+    let pairs: Vec<(usize, usize)> = match (&gt.stamps, &est.stamps) {
+        (Some(ts_gt), Some(ts_est)) => associate_by_time(ts_gt, ts_est, 0.01),
+        _ if gt.poses.len() == est.poses.len() => (0..gt.poses.len()).map(|i| (i, i)).collect(),
+        _ => {
+            return Err(MetricsError::LengthMismatch {
+                gt: gt.poses.len(),
+                est: est.poses.len(),
+            })
+        }
+    };
+    Ok(Paired {
+        gt: pairs
+            .iter()
+            .map(|p| frame.to_planar(&gt.poses[p.0]))
+            .collect(),
+        est: pairs
+            .iter()
+            .map(|p| frame.to_planar(&est.poses[p.1]))
+            .collect(),
+        pairs,
+    })
+}
+
+impl Paired {
+    /// The distance driven along the ground truth up to each pair (metres, from 0).
+    pub fn distance_m(&self) -> Vec<f64> {
+        let mut total = 0.0;
+        let mut last: Option<[f64; 2]> = None;
+        self.gt
+            .iter()
+            .map(|g| {
+                let p = g.planar_position();
+                if let Some(l) = last {
+                    total += (p[0] - l[0]).hypot(p[1] - l[1]);
+                }
+                last = Some(p);
+                total
+            })
+            .collect()
+    }
+
+    /// The planar position error of each pair (metres).
+    pub fn errors_m(&self) -> Vec<f64> {
+        self.gt
+            .iter()
+            .zip(&self.est)
+            .map(|(g, e)| {
+                let (g, e) = (g.planar_position(), e.planar_position());
+                (g[0] - e[0]).hypot(g[1] - e[1])
+            })
+            .collect()
+    }
+}
