@@ -11,14 +11,21 @@
 //! `--pairs RUN:PRESET,...` replaces the (run, preset) pairs; the run `gt` feeds the ground truth
 //! itself as odometry, which shows the error the map alone induces (a perfect corrector leaves
 //! it untouched).
+//!
+//! It keeps the tables (markdown and CSV) and, per pair, a plot of each variant's mean APE-2D per
+//! sequence in `results/ablation/<UTC time>/` (`--results DIR` for another parent), `latest`
+//! pointing at it.
 
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::Context;
 use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_cli::maps::MapSource;
+use lanealign_cli::report::{self, Table};
+use lanealign_cli::{plots, results};
 use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
@@ -251,6 +258,7 @@ fn main() -> anyhow::Result<()> {
         .collect();
     let next = AtomicUsize::new(0);
     let results = Mutex::new(HashMap::new());
+    let progress = report::progress(jobs.len(), "correcting");
     std::thread::scope(|scope| {
         for _ in 0..2 {
             scope.spawn(|| loop {
@@ -266,25 +274,58 @@ fn main() -> anyhow::Result<()> {
                     .lock()
                     .expect("no worker panics")
                     .insert((p, v, seq), outcome);
+                progress.inc(1);
             });
         }
     });
+    progress.finish_and_clear();
+    let parent = args
+        .iter()
+        .position(|a| a == "--results")
+        .and_then(|i| args.get(i + 1))
+        .map_or_else(|| PathBuf::from("results/ablation"), PathBuf::from);
+    let dir = results::create(&parent)?;
     let results = results.into_inner().expect("no worker panics");
     let get = |p: usize, v: usize, seq: &'static str| -> anyhow::Result<&Outcome> {
         results[&(p, v, seq)]
             .as_ref()
             .map_err(|e| anyhow::anyhow!("{} {seq}: {e:#}", pairs[p].0))
     };
-    println!("Mean APE-2D over the ten sequences (metres); worst excess: the largest (corrected - raw) mean APE of a sequence; worst max excess: the largest (corrected - raw) maximum error; jumps: the largest frame-to-frame change beyond the odometry's motion.\n");
-    println!("| odometry | preset | variant | mean APE-2D | worst excess | worst max excess | jumps (m / deg) |");
-    println!("|---|---|---|---|---|---|---|");
+    let names = |first: &[&str]| -> Vec<String> {
+        first
+            .iter()
+            .map(|s| s.to_string())
+            .chain(variants.iter().map(|v| v.name.clone()))
+            .collect()
+    };
+    let mut summary = Table::new(
+        "Mean APE-2D over the ten sequences (metres); worst excess: the largest (corrected - raw) mean APE of a sequence; worst max excess: the largest (corrected - raw) maximum error; jumps: the largest frame-to-frame change beyond the odometry's motion.",
+        [
+            "odometry",
+            "preset",
+            "variant",
+            "mean APE-2D",
+            "worst excess",
+            "worst max excess",
+            "jumps (m / deg)",
+        ]
+        .map(String::from)
+        .to_vec(),
+    );
     for (p, (odometry, preset)) in pairs.iter().enumerate() {
         let raw: f64 = SEQUENCES
             .iter()
             .map(|&s| get(p, 0, s).map(|o| o.raw_mean))
             .sum::<anyhow::Result<f64>>()?
             / SEQUENCES.len() as f64;
-        println!("| {odometry} | {} | raw | {raw:.3} | | | |", preset.name());
+        let row = |cells: [&str; 5]| {
+            [odometry.as_str(), preset.name()]
+                .into_iter()
+                .chain(cells)
+                .map(String::from)
+                .collect()
+        };
+        summary.push(row(["raw", &format!("{raw:.3}"), "", "", ""]));
         for (v, variant) in variants.iter().enumerate() {
             let (mut mean, mut excess, mut max_excess, mut jm, mut jd) =
                 (0.0, f64::MIN, f64::MIN, 0.0f64, 0.0f64);
@@ -296,58 +337,93 @@ fn main() -> anyhow::Result<()> {
                 jm = jm.max(o.jump_m);
                 jd = jd.max(o.jump_deg);
             }
-            println!(
-                "| {odometry} | {} | {} | {mean:.3} | {excess:+.3} | {max_excess:+.2} | {jm:.3} / {jd:.3} |",
-                preset.name(),
-                variant.name
-            );
+            summary.push(row([
+                &variant.name,
+                &format!("{mean:.3}"),
+                &format!("{excess:+.3}"),
+                &format!("{max_excess:+.2}"),
+                &format!("{jm:.3} / {jd:.3}"),
+            ]));
         }
+        let seqs: Vec<f64> = SEQUENCES
+            .iter()
+            .map(|s| s.parse().unwrap_or(f64::NAN))
+            .collect();
+        let means: Vec<Vec<f64>> = (0..variants.len())
+            .map(|v| {
+                SEQUENCES
+                    .iter()
+                    .map(|&s| get(p, v, s).map(|o| o.mean))
+                    .collect::<anyhow::Result<_>>()
+            })
+            .collect::<anyhow::Result<_>>()?;
+        let raw_means: Vec<f64> = SEQUENCES
+            .iter()
+            .map(|&s| get(p, 0, s).map(|o| o.raw_mean))
+            .collect::<anyhow::Result<_>>()?;
+        let mut series = vec![("raw", raw_means.as_slice(), plots::GROUND_TRUTH)];
+        for (v, variant) in variants.iter().enumerate() {
+            let color = plots::PALETTE[v % plots::PALETTE.len()];
+            series.push((variant.name.as_str(), means[v].as_slice(), color));
+        }
+        plots::lines(
+            &dir.join(format!("ape_{odometry}_{}.svg", preset.name())),
+            &format!(
+                "{odometry}, {} preset: mean APE-2D per sequence",
+                preset.name()
+            ),
+            ("KITTI sequence", "mean APE-2D (m)"),
+            &seqs,
+            &series,
+        )?;
     }
+    print!("{}", summary.markdown());
+    summary.save(&dir, "summary")?;
     if args.iter().any(|a| a == "--calibration") {
-        println!("\nCalibration per sequence: fraction of poses inside the 95 % ellipse of their covariance / mean NEES of the planar position (2 when calibrated).\n");
-        let header: Vec<String> = variants.iter().map(|v| v.name.clone()).collect();
-        println!("| odometry | preset | seq | {} |", header.join(" | "));
-        println!("|---|---|---|{}", "---|".repeat(variants.len()));
+        let mut table = Table::new(
+            "Calibration per sequence: fraction of poses inside the 95 % ellipse of their covariance / mean NEES of the planar position (2 when calibrated).",
+            names(&["odometry", "preset", "seq"]),
+        );
         for (p, (odometry, preset)) in pairs.iter().enumerate() {
             for seq in SEQUENCES {
-                let cells: Vec<String> = (0..variants.len())
-                    .map(|v| {
-                        get(p, v, seq).map(|o| {
-                            format!(
-                                "{:.3} / {:.2}",
-                                o.calibration.cov95_coverage, o.calibration.nees_mean
-                            )
-                        })
-                    })
-                    .collect::<anyhow::Result<_>>()?;
-                println!(
-                    "| {odometry} | {} | {seq} | {} |",
-                    preset.name(),
-                    cells.join(" | ")
-                );
+                let mut cells = vec![odometry.clone(), preset.name().into(), seq.into()];
+                for v in 0..variants.len() {
+                    let o = get(p, v, seq)?;
+                    cells.push(format!(
+                        "{:.3} / {:.2}",
+                        o.calibration.cov95_coverage, o.calibration.nees_mean
+                    ));
+                }
+                table.push(cells);
             }
         }
+        print!("\n{}", table.markdown());
+        table.save(&dir, "calibration")?;
     }
     if per_sequence {
-        println!("\nPer sequence: mean APE-2D (max error), metres.\n");
-        let header: Vec<String> = variants.iter().map(|v| v.name.clone()).collect();
-        println!("| odometry | preset | seq | raw | {} |", header.join(" | "));
-        println!("|---|---|---|---|{}", "---|".repeat(variants.len()));
+        let mut table = Table::new(
+            "Per sequence: mean APE-2D (max error), metres.",
+            names(&["odometry", "preset", "seq", "raw"]),
+        );
         for (p, (odometry, preset)) in pairs.iter().enumerate() {
             for seq in SEQUENCES {
                 let raw = get(p, 0, seq)?;
-                let cells: Vec<String> = (0..variants.len())
-                    .map(|v| get(p, v, seq).map(|o| format!("{:.3} ({:.1})", o.mean, o.max)))
-                    .collect::<anyhow::Result<_>>()?;
-                println!(
-                    "| {odometry} | {} | {seq} | {:.3} ({:.1}) | {} |",
-                    preset.name(),
-                    raw.raw_mean,
-                    raw.raw_max,
-                    cells.join(" | ")
-                );
+                let mut cells = vec![
+                    odometry.clone(),
+                    preset.name().into(),
+                    seq.into(),
+                    format!("{:.3} ({:.1})", raw.raw_mean, raw.raw_max),
+                ];
+                for v in 0..variants.len() {
+                    let o = get(p, v, seq)?;
+                    cells.push(format!("{:.3} ({:.1})", o.mean, o.max));
+                }
+                table.push(cells);
             }
         }
+        print!("\n{}", table.markdown());
+        table.save(&dir, "per_sequence")?;
     }
+    eprintln!("results in {}", dir.display());
     Ok(())
 }

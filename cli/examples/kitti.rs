@@ -6,16 +6,21 @@
 //! `cargo run --release -p lanealign-cli --example kitti [-- --data DIR] [-- --all-presets]`
 //!
 //! By default it runs `lidar` with kiss-icp and `stereo_vo` with orb-slam3 (as the paper pairs
-//! them); `--all-presets` adds liodom and basalt (the four pairs of `results.csv`).
+//! them); `--all-presets` adds liodom and basalt (the four pairs of `results.csv`). It keeps the
+//! table (markdown and CSV) and a plot of the error over distance per run in
+//! `results/kitti/<UTC time>/` (`--results DIR` for another parent), `latest` pointing at it.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use anyhow::Context;
+use lanealign_cli::evaluation::Paired;
 use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_cli::maps::MapSource;
+use lanealign_cli::report::{self, Table};
+use lanealign_cli::{plots, results};
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::metrics::{ape_2d, Ape2d};
@@ -36,6 +41,10 @@ struct Row {
     osm: Ape2d,
     osm_counts: Counts,
     reference_lanes: Ape2d,
+    /// Distance driven (m), and the position error (m) of raw, OSM-corrected and
+    /// reference-lanes-corrected poses at each.
+    distance_m: Vec<f64>,
+    errors_m: [Vec<f64>; 3],
 }
 
 /// `(odometry, preset, seq) -> ape2d_mean_m` of the reference implementation.
@@ -56,7 +65,7 @@ fn corrected(
     preset: Preset,
     odom: &[Pose3],
     gt: &[Pose3],
-) -> anyhow::Result<(Ape2d, Counts)> {
+) -> anyhow::Result<(Ape2d, Counts, Vec<Pose3>)> {
     let cam = AxisConvention::KittiCamera;
     let loaded = map_source.load()?;
     let placement = Placement {
@@ -72,7 +81,16 @@ fn corrected(
         odom,
     );
     let est: Vec<Pose3> = run.iter().map(|c| cam.to_planar(&c.pose)).collect();
-    Ok((ape_2d(gt, &est)?, counts(&run)))
+    Ok((ape_2d(gt, &est)?, counts(&run), est))
+}
+
+/// `gt` and `est` as pairs, by index.
+fn paired(gt: &[Pose3], est: Vec<Pose3>) -> Paired {
+    Paired {
+        gt: gt.to_vec(),
+        pairs: (0..est.len()).map(|i| (i, i)).collect(),
+        est,
+    }
 }
 
 fn run(data: &Path, job: &Job, anchor: &Anchor) -> anyhow::Result<Row> {
@@ -91,11 +109,20 @@ fn run(data: &Path, job: &Job, anchor: &Anchor) -> anyhow::Result<Row> {
         projection: Projection::Kitti,
         options: LaneOptions::paper(),
     };
-    let (osm, osm_counts) = corrected(osm_map, job.preset, &odom.poses, &gt)?;
+    let (osm, osm_counts, osm_est) = corrected(osm_map, job.preset, &odom.poses, &gt)?;
     let reference_map = MapSource::LanesCsv(data.join(format!("reference/lanes/lanes_{seq}.csv")));
-    let (reference_lanes, _) = corrected(reference_map, job.preset, &odom.poses, &gt)?;
+    let (reference_lanes, _, reference_est) =
+        corrected(reference_map, job.preset, &odom.poses, &gt)?;
+    let raw_ape = ape_2d(&gt, &raw)?;
+    let raw = paired(&gt, raw);
     Ok(Row {
-        raw: ape_2d(&gt, &raw)?,
+        distance_m: raw.distance_m(),
+        errors_m: [
+            raw.errors_m(),
+            paired(&gt, osm_est).errors_m(),
+            paired(&gt, reference_est).errors_m(),
+        ],
+        raw: raw_ape,
         osm,
         osm_counts,
         reference_lanes,
@@ -123,6 +150,7 @@ fn main() -> anyhow::Result<()> {
         .collect();
     let next = AtomicUsize::new(0);
     let rows = Mutex::new(Vec::new());
+    let progress = report::progress(jobs.len(), "correcting");
     std::thread::scope(|scope| {
         for _ in 0..2 {
             scope.spawn(|| loop {
@@ -133,14 +161,35 @@ fn main() -> anyhow::Result<()> {
                     .with_context(|| format!("no anchor for sequence {}", job.seq))
                     .and_then(|a| run(&data, job, a));
                 rows.lock().expect("no worker panics").push((i, row));
+                progress.inc(1);
             });
         }
     });
+    progress.finish_and_clear();
     let mut rows = rows.into_inner().expect("no worker panics");
     rows.sort_by_key(|r| r.0);
-    println!("Mean APE-2D in metres (no alignment). OSM: lanealign's lanes from OpenStreetMap; reference lanes: the paper pipeline's (OSM -> CommonRoad -> Lanelet2); reference impl.: reference/results.csv.\n");
-    println!("| odometry | preset | seq | raw | lanealign, OSM lanes | lanealign, reference lanes | reference impl., reference lanes | OSM: max err | OSM: attempts / accepted / resets |");
-    println!("|---|---|---|---|---|---|---|---|---|");
+    let parent = args
+        .iter()
+        .position(|a| a == "--results")
+        .and_then(|i| args.get(i + 1))
+        .map_or_else(|| PathBuf::from("results/kitti"), PathBuf::from);
+    let dir = results::create(&parent)?;
+    let mut table = Table::new(
+        "Mean APE-2D in metres (no alignment). OSM: lanealign's lanes from OpenStreetMap; reference lanes: the paper pipeline's (OSM -> CommonRoad -> Lanelet2); reference impl.: reference/results.csv.",
+        [
+            "odometry",
+            "preset",
+            "seq",
+            "raw",
+            "lanealign, OSM lanes",
+            "lanealign, reference lanes",
+            "reference impl., reference lanes",
+            "OSM: max err",
+            "OSM: attempts / accepted / resets",
+        ]
+        .map(String::from)
+        .to_vec(),
+    );
     let mut sums: Vec<(String, [f64; 4], usize)> = Vec::new();
     for (i, row) in rows {
         let job = &jobs[i];
@@ -158,17 +207,38 @@ fn main() -> anyhow::Result<()> {
             r.osm_counts.accepted,
             r.osm_counts.resets,
         );
-        println!(
-            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {a} / {b} / {c} |",
-            job.odometry,
-            job.preset.name(),
-            job.seq,
-            r.raw.mean_m,
-            r.osm.mean_m,
-            r.reference_lanes.mean_m,
-            reference_ape,
-            r.osm.max_m
-        );
+        table.push(vec![
+            job.odometry.into(),
+            job.preset.name().into(),
+            job.seq.into(),
+            format!("{:.3}", r.raw.mean_m),
+            format!("{:.3}", r.osm.mean_m),
+            format!("{:.3}", r.reference_lanes.mean_m),
+            format!("{reference_ape:.3}"),
+            format!("{:.2}", r.osm.max_m),
+            format!("{a} / {b} / {c}"),
+        ]);
+        let [raw_err, osm_err, reference_err] = &r.errors_m;
+        plots::error_over_distance(
+            &dir.join(format!(
+                "error_{}_{}_{}.svg",
+                job.odometry,
+                job.preset.name(),
+                job.seq
+            )),
+            &format!(
+                "KITTI {} {}, {} preset, paper's method: error over distance",
+                job.seq,
+                job.odometry,
+                job.preset.name()
+            ),
+            &r.distance_m,
+            &[
+                ("raw odometry", raw_err, plots::RAW),
+                ("OSM lanes", osm_err, plots::CORRECTED),
+                ("reference lanes", reference_err, plots::PALETTE[2]),
+            ],
+        )?;
         let key = format!("{} | {}", job.odometry, job.preset.name());
         let values = [
             r.raw.mean_m,
@@ -188,13 +258,21 @@ fn main() -> anyhow::Result<()> {
     }
     for (key, v, n) in sums {
         let n = n as f64;
-        println!(
-            "| {key} | **mean** | {:.3} | **{:.3}** | {:.3} | {:.3} | | |",
-            v[0] / n,
-            v[1] / n,
-            v[2] / n,
-            v[3] / n
-        );
+        let (odometry, preset) = key.split_once(" | ").unwrap_or((&key, ""));
+        table.push(vec![
+            odometry.into(),
+            preset.into(),
+            "**mean**".into(),
+            format!("{:.3}", v[0] / n),
+            format!("**{:.3}**", v[1] / n),
+            format!("{:.3}", v[2] / n),
+            format!("{:.3}", v[3] / n),
+            String::new(),
+            String::new(),
+        ]);
     }
+    print!("{}", table.markdown());
+    table.save(&dir, "results")?;
+    eprintln!("results in {}", dir.display());
     Ok(())
 }

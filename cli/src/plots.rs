@@ -144,8 +144,39 @@ pub fn error_over_distance(
     distance_m: &[f64],
     series: &[(&str, &[f64], RGBColor)],
 ) -> Result<(), PlotError> {
+    lines(
+        path,
+        title,
+        ("distance driven (m)", "position error, 2D (m)"),
+        distance_m,
+        series,
+    )
+}
+
+/// Colours for series without a meaning of their own, in order.
+pub const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(23, 190, 207),
+];
+
+/// Lines over a shared x axis from 0, one per series (`axes`: the x and y descriptions, with
+/// units).
+pub fn lines(
+    path: &Path,
+    title: &str,
+    axes: (&str, &str),
+    x: &[f64],
+    series: &[(&str, &[f64], RGBColor)],
+) -> Result<(), PlotError> {
     let fail = draw_error(path);
-    let x_max = distance_m.last().copied().unwrap_or(0.0).max(1.0);
+    let distance_m = x;
+    let x_max = distance_m.iter().copied().fold(0.0f64, f64::max).max(1.0);
     let y_max = series
         .iter()
         .flat_map(|s| s.1.iter().copied())
@@ -164,8 +195,8 @@ pub fn error_over_distance(
         .map_err(|e| fail(&e))?;
     chart
         .configure_mesh()
-        .x_desc("distance driven (m)")
-        .y_desc("position error, 2D (m)")
+        .x_desc(axes.0)
+        .y_desc(axes.1)
         .draw()
         .map_err(|e| fail(&e))?;
     for &(name, errors, color) in series {
