@@ -1,5 +1,5 @@
 //! What the examples print and keep: tables (markdown on the terminal, markdown and CSV in a
-//! results folder) and a progress bar on the terminal while they run.
+//! results folder), and progress on the terminal while long work runs.
 
 use std::path::{Path, PathBuf};
 
@@ -84,6 +84,17 @@ pub fn progress(total: usize, message: &'static str) -> ProgressBar {
     {
         bar.set_style(style.progress_chars("=> "));
     }
+    bar
+}
+
+/// A spinner with `message` and the time elapsed, ticking on standard error (only on a terminal)
+/// until finished.
+pub fn spinner(message: String) -> ProgressBar {
+    let bar = ProgressBar::new_spinner().with_message(message);
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        bar.set_style(style);
+    }
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
     bar
 }
 

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use lanealign_cli::maps::{LoadedMap, MapSource};
-use lanealign_cli::{evaluation, plots, results, status_file};
+use lanealign_cli::{evaluation, plots, report, results, status_file};
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
@@ -281,6 +281,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         smoothing: config.smoothing(),
     };
     let (loaded_map, anchored_from_odom) = (loaded.map.clone(), loaded.anchored_from_odom);
+    let spinner = report::spinner(format!("correcting {} poses", input.poses.len()));
     let run = correct_trajectory(
         loaded.map,
         params,
@@ -288,6 +289,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         placement,
         &input.poses,
     );
+    spinner.finish_and_clear();
     let output = Trajectory {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),

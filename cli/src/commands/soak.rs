@@ -8,10 +8,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
-use lanealign_cli::daemon_config;
 use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::replay::{replay, Rate, ReplayError};
 use lanealign_cli::synthetic;
+use lanealign_cli::{daemon_config, report};
 use lanealign_client::Connection;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::AxisConvention;
@@ -214,13 +214,19 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
                 "correct"
             };
             phase_index += 1;
+            let spinner = report::spinner(format!(
+                "phase {phase_index} of {}: {mode}, {wait}, {sources} sources, {duration} s",
+                2 * args.waits.len()
+            ));
             let spec = PhaseSpec {
                 sources,
                 pass_through,
                 wait,
                 index: phase_index,
             };
-            let phase = run_phase(dir.path(), &tile_path, args, spec)?;
+            let phase = run_phase(dir.path(), &tile_path, args, spec);
+            spinner.finish_and_clear();
+            let phase = phase?;
             let mut all: Vec<u64> = Vec::new();
             let mut lost = 0;
             for (k, r) in phase.sources.iter().enumerate() {
