@@ -17,7 +17,6 @@
 //! pointing at it.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
@@ -279,12 +278,7 @@ fn main() -> anyhow::Result<()> {
         }
     });
     progress.finish_and_clear();
-    let parent = args
-        .iter()
-        .position(|a| a == "--results")
-        .and_then(|i| args.get(i + 1))
-        .map_or_else(|| PathBuf::from("results/ablation"), PathBuf::from);
-    let dir = results::create(&parent)?;
+    let dir = results::create(&results::parent_from_args(&args, "results/ablation"))?;
     let results = results.into_inner().expect("no worker panics");
     let get = |p: usize, v: usize, seq: &'static str| -> anyhow::Result<&Outcome> {
         results[&(p, v, seq)]

@@ -11,7 +11,7 @@
 //! `results/kitti/<UTC time>/` (`--results DIR` for another parent), `latest` pointing at it.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
@@ -168,12 +168,7 @@ fn main() -> anyhow::Result<()> {
     progress.finish_and_clear();
     let mut rows = rows.into_inner().expect("no worker panics");
     rows.sort_by_key(|r| r.0);
-    let parent = args
-        .iter()
-        .position(|a| a == "--results")
-        .and_then(|i| args.get(i + 1))
-        .map_or_else(|| PathBuf::from("results/kitti"), PathBuf::from);
-    let dir = results::create(&parent)?;
+    let dir = results::create(&results::parent_from_args(&args, "results/kitti"))?;
     let mut table = Table::new(
         "Mean APE-2D in metres (no alignment). OSM: lanealign's lanes from OpenStreetMap; reference lanes: the paper pipeline's (OSM -> CommonRoad -> Lanelet2); reference impl.: reference/results.csv.",
         [

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 /// A plot that could not be drawn or written.
@@ -45,6 +46,23 @@ fn draw_error(path: &Path) -> impl Fn(&dyn std::fmt::Display) -> PlotError + '_ 
         path: path.to_path_buf(),
         message: e.to_string(),
     }
+}
+
+/// Draws the legend in the upper left corner and writes the file.
+fn finish<'a, 'b: 'a>(
+    mut chart: ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    root: DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    path: &Path,
+) -> Result<(), PlotError> {
+    let fail = draw_error(path);
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| fail(&e))?;
+    root.present().map_err(|e| fail(&e))
 }
 
 /// A square view holding every point of `tracks`, with a 5 % margin (metres).
@@ -127,14 +145,7 @@ pub fn trajectories(
         .map_err(|e| fail(&e))?
         .label(mark_name)
         .legend(|(x, y)| Circle::new((x + 10, y), 3, MARKS.filled()));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| fail(&e))?;
-    root.present().map_err(|e| fail(&e))
+    finish(chart, root, path)
 }
 
 /// Position error (metres) over distance driven (metres), one line per series.
@@ -211,12 +222,5 @@ pub fn lines(
                 PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
             });
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| fail(&e))?;
-    root.present().map_err(|e| fail(&e))
+    finish(chart, root, path)
 }

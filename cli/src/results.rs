@@ -55,6 +55,14 @@ pub fn create(parent: &Path) -> Result<PathBuf, ResultsError> {
     Ok(dir)
 }
 
+/// The parent folder a tool's `--results DIR` names, else `default`.
+pub fn parent_from_args(args: &[String], default: &str) -> PathBuf {
+    args.iter()
+        .position(|a| a == "--results")
+        .and_then(|i| args.get(i + 1))
+        .map_or_else(|| PathBuf::from(default), PathBuf::from)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

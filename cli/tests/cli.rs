@@ -16,6 +16,16 @@ fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
+/// A lane CSV in `dir`: one eastbound lane along y = 0, 300 m long.
+fn straight_lane(dir: &Path) -> std::path::PathBuf {
+    let lanes = dir.join("lanes.csv");
+    let lane: String = (0..100)
+        .map(|i| format!("1,{},0\n", i as f64 * 3.0))
+        .collect();
+    std::fs::write(&lanes, format!("lane_id,x,y\n{lane}")).unwrap();
+    lanes
+}
+
 /// `lanealign eval --json` of `est` against `gt` (KITTI format, camera axes); panics on failure.
 fn eval_json(gt: &Path, est: &Path) -> serde_json::Value {
     let out = lanealign(&[
@@ -206,11 +216,7 @@ fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
 #[test]
 fn correct_writes_every_pose_and_a_status_row_each() {
     let dir = tempfile::tempdir().unwrap();
-    let lanes = dir.path().join("lanes.csv");
-    let lane: String = (0..100)
-        .map(|i| format!("1,{},0\n", i as f64 * 3.0))
-        .collect();
-    std::fs::write(&lanes, format!("lane_id,x,y\n{lane}")).unwrap();
+    let lanes = straight_lane(dir.path());
     // TUM input drifted 0.8 m left of the lane (within the robust method's 1 m tolerance band,
     // so the paper's method, which pulls onto the line).
     let tum: String = (0..200)
@@ -332,11 +338,7 @@ fn eval_reports_how_well_the_covariance_describes_the_errors() {
 #[test]
 fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     let dir = tempfile::tempdir().unwrap();
-    let lanes = dir.path().join("lanes.csv");
-    let lane: String = (0..100)
-        .map(|i| format!("1,{},0\n", i as f64 * 3.0))
-        .collect();
-    std::fs::write(&lanes, format!("lane_id,x,y\n{lane}")).unwrap();
+    let lanes = straight_lane(dir.path());
     let line = |y: f64| -> String {
         (0..200)
             .map(|i| format!("{} {} {y} 0 0 0 0 1\n", i as f64 * 0.1, i as f64 * 1.2))

@@ -4,9 +4,11 @@ use crate::pose::Pose3;
 use crate::se2::wrap_angle;
 
 /// Absolute pose error of an estimate against ground truth, both planar (`flu`) and paired.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Serialised with the keys `lanealign eval --json` prints.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Ape2d {
     /// Mean of `|t_xy - t_xy_gt|` (metres).
+    #[serde(rename = "ape2d_mean_m")]
     pub mean_m: f64,
     /// Root mean square of the same (metres).
     pub rmse_m: f64,

@@ -11,7 +11,7 @@ use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::metrics::{ape_2d, Ape2d};
+use lanealign_core::metrics::ape_2d;
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Params, Preset};
 use lanealign_core::plausibility;
 use lanealign_core::pose::AxisConvention;
@@ -378,20 +378,7 @@ fn write_comparison(
         ape_2d(&raw_pairs.gt, &raw_pairs.est)?,
         ape_2d(&corrected_pairs.gt, &corrected_pairs.est)?,
     );
-    let figures = |m: &Ape2d| {
-        serde_json::json!({
-            "ape2d_mean_m": m.mean_m,
-            "rmse_m": m.rmse_m,
-            "lateral_rmse_m": m.lateral_rmse_m,
-            "heading_mean_deg": m.heading_mean_deg,
-            "max_m": m.max_m,
-            "poses": m.poses,
-        })
-    };
-    let metrics = serde_json::json!({
-        "raw": figures(&raw_m),
-        "corrected": figures(&corrected_m),
-    });
+    let metrics = serde_json::json!({ "raw": raw_m, "corrected": corrected_m });
     let path = dir.join("metrics.json");
     std::fs::write(&path, serde_json::to_string_pretty(&metrics)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;

@@ -69,14 +69,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         )?;
     }
     if args.json {
-        let mut json = serde_json::json!({
-            "ape2d_mean_m": m.mean_m,
-            "rmse_m": m.rmse_m,
-            "lateral_rmse_m": m.lateral_rmse_m,
-            "heading_mean_deg": m.heading_mean_deg,
-            "max_m": m.max_m,
-            "poses": m.poses,
-        });
+        let mut json = serde_json::to_value(m)?;
         if let Some(c) = calibration {
             json["cov95_coverage"] = c.cov95_coverage.into();
             json["nees_mean"] = c.nees_mean.into();
