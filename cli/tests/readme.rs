@@ -56,6 +56,8 @@ fn script(block: &[String], bin: &Path) -> String {
                     "{binary} was built (cargo test builds a binary for its package's integration tests)"
                 );
             }
+        } else if line == "pip install ./python" {
+            // tests/tests/python.rs runs it (and the package's tests) from the checkout.
         } else if line.starts_with("cargo test") {
             assert_eq!(
                 line, "cargo test --release --workspace",

@@ -1,0 +1,79 @@
+"""lanealign for Python: correct and evaluate trajectories, numpy arrays in and out.
+
+``correct`` runs exactly what ``lanealign correct`` runs (same defaults, bit-identical
+results); ``eval`` reports what ``lanealign eval --json`` reports. Errors are ``ValueError``
+with the command line's messages.
+"""
+
+from typing import NamedTuple, Optional, Tuple
+
+import numpy as np
+
+from . import _lanealign
+
+#: The status names; ``Corrected.status`` holds indices into this tuple.
+STATUS_NAMES: Tuple[str, ...] = tuple(_lanealign.STATUS_NAMES)
+
+
+class Corrected(NamedTuple):
+    """The result of :func:`correct`."""
+
+    #: Corrected poses: the input's shape, axis convention and frame.
+    poses: np.ndarray
+    #: One status code per pose (uint8), an index into :data:`STATUS_NAMES`.
+    status: np.ndarray
+    #: (N, 3, 3) covariance of each corrected pose (map plane; x, y in metres, yaw in radians).
+    covariance: np.ndarray
+
+
+def correct(
+    poses: np.ndarray,
+    *,
+    preset: str,
+    osm: Optional[str] = None,
+    tile: Optional[str] = None,
+    lanes: Optional[str] = None,
+    anchor: Optional[Tuple[float, float, float, float, float]] = None,
+    projection: Optional[str] = None,
+    method: str = "robust",
+    frame: str = "flu",
+) -> Corrected:
+    """Correct a trajectory against lane centrelines, as ``lanealign correct`` does.
+
+    ``poses``: (N, 3, 4) or (N, 4, 4) poses, or planar (N, 3) ``[x, y, yaw]`` (metres, radians;
+    ``frame="flu"`` only). Exactly one map: ``osm`` (raw OSM or Lanelet2, ``.osm``/``.osm.pbf``),
+    ``tile`` (from ``lanealign-map compile``) or ``lanes`` (a ``lane_id,x,y`` CSV in the odometry
+    frame). ``anchor`` = (lat, lon, yaw_deg, east_m, north_m) places the odometry frame on Earth
+    (needed with ``osm`` and ``tile``); ``projection``: ``"tangent"`` (default for osm) or
+    ``"kitti"``. ``preset``: liodom, basalt, kiss-icp or orb-slam3; ``method``: robust or paper;
+    ``frame``: ``"flu"`` or ``"kitti-camera"``.
+    """
+    array = np.ascontiguousarray(poses, dtype=np.float64)
+    out, status, covariance = _lanealign.correct(
+        array,
+        preset=preset,
+        osm=osm,
+        tile=tile,
+        lanes=lanes,
+        anchor=anchor,
+        projection=projection,
+        method=method,
+        frame=frame,
+    )
+    return Corrected(out, status, covariance)
+
+
+def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = "flu") -> dict:  # noqa: A001
+    """APE-2D of ``est`` against ``gt`` (paired by index, no alignment), as ``lanealign eval``.
+
+    Returns ``ape2d_mean_m``, ``rmse_m``, ``lateral_rmse_m``, ``heading_mean_deg``, ``max_m``
+    and ``poses``.
+    """
+    return _lanealign.eval(
+        np.ascontiguousarray(gt, dtype=np.float64),
+        np.ascontiguousarray(est, dtype=np.float64),
+        frame=frame,
+    )
+
+
+__all__ = ["STATUS_NAMES", "Corrected", "correct", "eval"]

@@ -1,0 +1,19 @@
+from typing import Dict, List, Optional, Tuple, Union
+
+import numpy as np
+
+STATUS_NAMES: List[str]
+
+def correct(
+    poses: np.ndarray,
+    *,
+    preset: str,
+    osm: Optional[str] = ...,
+    tile: Optional[str] = ...,
+    lanes: Optional[str] = ...,
+    anchor: Optional[Tuple[float, float, float, float, float]] = ...,
+    projection: Optional[str] = ...,
+    method: str = ...,
+    frame: str = ...,
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = ...) -> Dict[str, Union[float, int]]: ...

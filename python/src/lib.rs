@@ -1,0 +1,239 @@
+//! The `lanealign._lanealign` extension: `correct` and `eval` on numpy arrays, the same code and
+//! defaults as `lanealign correct` and `lanealign eval`, so that results are equal bit for bit.
+
+use std::path::PathBuf;
+
+use lanealign_cli::evaluation;
+use lanealign_cli::maps::MapSource;
+use lanealign_core::corrector::Status;
+use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::lane_geometry::{RoadClasses, Traffic};
+use lanealign_core::metrics::ape_2d;
+use lanealign_core::params::{CorrectorConfig, Method, Preset};
+use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::trajectory::Trajectory;
+use lanealign_map::osm_lanes::LaneOptions;
+use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
+use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// An error as Python sees it: the message and its causes, as the command line prints them.
+fn error(e: impl Into<anyhow::Error>) -> PyErr {
+    PyValueError::new_err(format!("{:#}", e.into()))
+}
+
+/// The status names, indexed by the codes `correct` returns.
+const STATUS_NAMES: [&str; 5] = Status::NAMES;
+
+/// Poses of shape (N, 3, 4), (N, 4, 4) or planar (N, 3) `[x, y, yaw]`.
+fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
+    let shape = array.shape().to_vec();
+    let row = |i: usize, r: usize, c: usize| array[IxDyn(&[i, r, c])];
+    match shape.as_slice() {
+        [_, 3 | 4, 4] => Ok((0..shape[0])
+            .map(|i| {
+                let mut v = [0.0; 12];
+                for (k, value) in v.iter_mut().enumerate() {
+                    *value = row(i, k / 4, k % 4);
+                }
+                Pose3::from_row_major(&v)
+            })
+            .collect()),
+        [_, 3] => Ok((0..shape[0])
+            .map(|i| {
+                let p = |c: usize| array[IxDyn(&[i, c])];
+                Pose3::planar(p(0), p(1), p(2), 0.0)
+            })
+            .collect()),
+        _ => Err(PyValueError::new_err(format!(
+            "poses must have shape (N, 3, 4), (N, 4, 4) or (N, 3), not {shape:?}"
+        ))),
+    }
+}
+
+/// `poses` in the shape of `like`.
+fn poses_into(poses: &[Pose3], like: &[usize]) -> ArrayD<f64> {
+    let mut out = ArrayD::zeros(IxDyn(like));
+    for (i, p) in poses.iter().enumerate() {
+        if like.len() == 2 {
+            let [x, y] = p.planar_position();
+            out[IxDyn(&[i, 0])] = x;
+            out[IxDyn(&[i, 1])] = y;
+            out[IxDyn(&[i, 2])] = p.planar_heading();
+            continue;
+        }
+        for (k, value) in p.to_row_major().into_iter().enumerate() {
+            out[IxDyn(&[i, k / 4, k % 4])] = value;
+        }
+        if like[1] == 4 {
+            out[IxDyn(&[i, 3, 3])] = 1.0;
+        }
+    }
+    out
+}
+
+fn parsed<T: std::str::FromStr>(what: &str, text: &str) -> PyResult<T>
+where
+    T::Err: std::fmt::Display,
+{
+    text.parse()
+        .map_err(|e| PyValueError::new_err(format!("{what} {text:?}: {e}")))
+}
+
+/// The corrected poses (the input's shape and frame), a status code per pose (an index into
+/// `STATUS_NAMES`) and the covariance of each corrected pose (N, 3, 3; map plane, x, y in metres
+/// and yaw in radians).
+type Corrected<'py> = (
+    Bound<'py, PyArrayDyn<f64>>,
+    Bound<'py, PyArray1<u8>>,
+    Bound<'py, PyArray3<f64>>,
+);
+
+/// Corrects a trajectory as `lanealign correct` does (see the package's docstring).
+#[allow(clippy::too_many_arguments)]
+#[pyfunction]
+#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu"))]
+fn correct<'py>(
+    py: Python<'py>,
+    poses: PyReadonlyArrayDyn<'py, f64>,
+    preset: &str,
+    osm: Option<PathBuf>,
+    tile: Option<PathBuf>,
+    lanes: Option<PathBuf>,
+    anchor: Option<(f64, f64, f64, f64, f64)>,
+    projection: Option<&str>,
+    method: &str,
+    frame: &str,
+) -> PyResult<Corrected<'py>> {
+    let array = poses.as_array().to_owned();
+    let shape = array.shape().to_vec();
+    let frame: AxisConvention = parsed("frame", frame)?;
+    if shape.len() == 2 && frame != AxisConvention::Flu {
+        return Err(PyValueError::new_err(
+            "planar (N, 3) poses are in the flu frame",
+        ));
+    }
+    let input = poses_from(&array)?;
+    let config = CorrectorConfig::new(parsed::<Preset>("preset", preset)?, {
+        parsed::<Method>("method", method)?
+    });
+    let params = config.params().map_err(error)?;
+    let projection = projection
+        .map(|p| parsed::<Projection>("projection", p))
+        .transpose()?;
+    let anchor = anchor
+        .map(|(lat, lon, yaw_deg, east_m, north_m)| Anchor::new(lat, lon, yaw_deg, east_m, north_m))
+        .transpose()
+        .map_err(error)?;
+    let need_anchor = || {
+        anchor.ok_or_else(|| {
+            PyValueError::new_err("osm= and tile= need anchor=(lat, lon, yaw_deg, east_m, north_m)")
+        })
+    };
+    let source = match (osm, tile, lanes) {
+        (Some(path), None, None) => MapSource::Osm {
+            path,
+            anchor: need_anchor()?,
+            projection: projection.unwrap_or_default(),
+            options: LaneOptions {
+                classes: RoadClasses::DEFAULT,
+                traffic: Traffic::Right,
+                spacing_m: 3.0,
+                unmarked_offset_scale: config.unmarked_offset_scale(),
+            },
+        },
+        (None, Some(path), None) => MapSource::Tile {
+            path,
+            anchor: need_anchor()?,
+            projection,
+        },
+        (None, None, Some(path)) => MapSource::LanesCsv(path),
+        _ => {
+            return Err(PyValueError::new_err(
+                "give exactly one of osm=, tile= and lanes=",
+            ))
+        }
+    };
+    let run = py
+        .detach(|| -> anyhow::Result<_> {
+            let loaded = source.load()?;
+            if let (Some(geometry), MapSource::Tile { .. }) = (&loaded.geometry, &source) {
+                config.check_geometry(geometry)?;
+            }
+            let placement = Placement {
+                convention: frame,
+                anchored_from_odom: loaded.anchored_from_odom,
+                smoothing: config.smoothing(),
+            };
+            Ok(correct_trajectory(
+                loaded.map,
+                params,
+                config.match_mode,
+                placement,
+                &input,
+            ))
+        })
+        .map_err(error)?;
+    let corrected: Vec<Pose3> = run.iter().map(|c| c.pose).collect();
+    let codes: Array1<u8> = run
+        .iter()
+        .map(|c| {
+            STATUS_NAMES
+                .iter()
+                .position(|n| *n == c.status.name())
+                .unwrap_or(0) as u8
+        })
+        .collect();
+    let mut covariance = Array3::zeros((run.len(), 3, 3));
+    for (i, c) in run.iter().enumerate() {
+        for r in 0..3 {
+            for k in 0..3 {
+                covariance[[i, r, k]] = c.covariance[r][k];
+            }
+        }
+    }
+    Ok((
+        poses_into(&corrected, &shape).into_pyarray(py),
+        codes.into_pyarray(py),
+        covariance.into_pyarray(py),
+    ))
+}
+
+/// APE-2D of `est` against `gt` (paired by index), as `lanealign eval --json` reports it.
+#[pyfunction]
+#[pyo3(signature = (gt, est, *, frame="flu"))]
+fn eval<'py>(
+    py: Python<'py>,
+    gt: PyReadonlyArrayDyn<'py, f64>,
+    est: PyReadonlyArrayDyn<'py, f64>,
+    frame: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let frame: AxisConvention = parsed("frame", frame)?;
+    let trajectory = |a: &PyReadonlyArrayDyn<'py, f64>| -> PyResult<Trajectory> {
+        Ok(Trajectory {
+            stamps: None,
+            poses: poses_from(&a.as_array().to_owned())?,
+        })
+    };
+    let paired = evaluation::pair(&trajectory(&gt)?, &trajectory(&est)?, frame).map_err(error)?;
+    let m = ape_2d(&paired.gt, &paired.est).map_err(error)?;
+    let d = PyDict::new(py);
+    d.set_item("ape2d_mean_m", m.mean_m)?;
+    d.set_item("rmse_m", m.rmse_m)?;
+    d.set_item("lateral_rmse_m", m.lateral_rmse_m)?;
+    d.set_item("heading_mean_deg", m.heading_mean_deg)?;
+    d.set_item("max_m", m.max_m)?;
+    d.set_item("poses", m.poses)?;
+    Ok(d)
+}
+
+#[pymodule]
+fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(correct, m)?)?;
+    m.add_function(wrap_pyfunction!(eval, m)?)?;
+    m.add("STATUS_NAMES", STATUS_NAMES.to_vec())?;
+    Ok(())
+}

@@ -1,0 +1,111 @@
+"""lanealign for Python equals the command line bit for bit.
+
+Needs the `lanealign` binary (LANEALIGN_BIN, else the workspace's target/release/lanealign);
+`cargo test --release --workspace` builds it and runs these tests (tests/tests/python.rs).
+"""
+
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lanealign
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = Path(os.environ.get("LANEALIGN_BIN", ROOT / "target" / "release" / "lanealign"))
+DATA = Path(os.environ.get("LANEALIGN_DATA", ROOT.parent / "shared" / "data"))
+
+
+def needs_data():
+    if not (DATA / "kitti" / "georef.csv").is_file():
+        if os.environ.get("LANEALIGN_REQUIRE_DATA") == "1":
+            pytest.fail(f"no KITTI data at {DATA} (LANEALIGN_REQUIRE_DATA=1)")
+        pytest.skip(f"SKIPPED: no KITTI data at {DATA}")
+
+
+def cli(*args):
+    out = subprocess.run([str(BIN), *map(str, args)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    return out.stdout
+
+
+def write_kitti(path, poses):
+    np.savetxt(path, poses.reshape(len(poses), 12), fmt="%.17g")
+
+
+def read_kitti(path):
+    return np.loadtxt(path).reshape(-1, 3, 4)
+
+
+def straight_lane_and_drift(tmp_path):
+    lanes = tmp_path / "lanes.csv"
+    lanes.write_text("lane_id,x,y\n" + "".join(f"1,{i * 3.0},0\n" for i in range(100)))
+    poses = np.zeros((200, 3, 4))
+    poses[:, :, :3] = np.eye(3)
+    poses[:, 0, 3] = np.arange(200) * 1.2
+    poses[:, 1, 3] = 0.8
+    return lanes, poses
+
+
+def test_correct_equals_the_command_line_without_data(tmp_path):
+    lanes, poses = straight_lane_and_drift(tmp_path)
+    write_kitti(tmp_path / "in.txt", poses)
+    cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--method", "paper",
+        tmp_path / "in.txt", "-o", tmp_path / "plain.txt")
+    got = lanealign.correct(poses, lanes=str(lanes), preset="kiss-icp", method="paper")
+    assert got.poses.shape == poses.shape
+    assert np.array_equal(got.poses, read_kitti(tmp_path / "plain.txt"))
+    assert got.status.shape == (200,) and got.covariance.shape == (200, 3, 3)
+    assert lanealign.STATUS_NAMES[got.status[0]] == "warming_up"
+    # (N, 4, 4) and planar (N, 3) inputs give the same correction in their own shape.
+    homogeneous = np.zeros((200, 4, 4))
+    homogeneous[:, :3, :] = poses
+    homogeneous[:, 3, 3] = 1
+    h = lanealign.correct(homogeneous, lanes=str(lanes), preset="kiss-icp", method="paper")
+    assert np.array_equal(h.poses[:, :3, :], got.poses)
+    assert np.array_equal(h.poses[:, 3], np.tile([0, 0, 0, 1.0], (200, 1)))
+
+
+def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
+    lanes, poses = straight_lane_and_drift(tmp_path)
+    with pytest.raises(ValueError, match="preset"):
+        lanealign.correct(poses, lanes=str(lanes), preset="nope")
+    with pytest.raises(ValueError, match="exactly one"):
+        lanealign.correct(poses, preset="kiss-icp")
+    with pytest.raises(ValueError, match="shape"):
+        lanealign.correct(np.zeros((3, 5)), lanes=str(lanes), preset="kiss-icp")
+    with pytest.raises(ValueError, match="No such file"):
+        lanealign.correct(poses, lanes=str(tmp_path / "missing.csv"), preset="kiss-icp")
+    with pytest.raises(ValueError, match="lat"):
+        lanealign.correct(poses, osm="x.osm", anchor=(91, 0, 0, 0, 0), preset="kiss-icp")
+
+
+def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
+    needs_data()
+    row = next(l for l in (DATA / "kitti" / "georef.csv").read_text().splitlines() if l.startswith("07,"))
+    f = row.split(",")
+    anchor = (float(f[1]), float(f[2]), float(f[4]), float(f[5]), float(f[6]))
+    odometry = DATA / "odometry" / "lidar" / "07.txt"
+    gt_path = DATA / "kitti" / "poses" / "07.txt"
+    osm = DATA / "osm" / "kitti_07.osm"
+    anchor_flag = ",".join(repr(v) for v in anchor)
+    start = time.perf_counter()
+    cli("correct", "--osm", osm, "--anchor", anchor_flag, "--projection", "kitti",
+        "--preset", "kiss-icp", "--frame", "kitti-camera", odometry, "-o", tmp_path / "out.txt")
+    cli_s = time.perf_counter() - start
+    poses = np.loadtxt(odometry).reshape(-1, 3, 4)
+    start = time.perf_counter()
+    got = lanealign.correct(poses, osm=str(osm), anchor=anchor, projection="kitti",
+                            preset="kiss-icp", frame="kitti-camera")
+    py_s = time.perf_counter() - start
+    assert np.array_equal(got.poses, read_kitti(tmp_path / "out.txt"))
+    figures = lanealign.eval(np.loadtxt(gt_path).reshape(-1, 3, 4), got.poses, frame="kitti-camera")
+    expected = json.loads(cli("eval", "--gt", gt_path, "--est", tmp_path / "out.txt",
+                              "--frame", "kitti-camera", "--json"))
+    assert figures == expected
+    print(f"KITTI 07: lanealign correct {cli_s * 1e3:.1f} ms (whole process), "
+          f"lanealign.correct {py_s * 1e3:.1f} ms (call, file read by numpy not included)")
