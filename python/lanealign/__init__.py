@@ -1,10 +1,12 @@
 """lanealign for Python: correct and evaluate trajectories, numpy arrays in and out.
 
 ``correct`` runs exactly what ``lanealign correct`` runs (same defaults, bit-identical
-results); ``eval`` reports what ``lanealign eval --json`` reports. Errors are ``ValueError``
+results); ``eval`` reports what ``lanealign eval --json`` reports; ``compile_map`` writes the
+tile ``lanealign-map compile`` writes. Errors are ``ValueError``
 with the command line's messages.
 """
 
+import os
 from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
@@ -76,4 +78,35 @@ def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = "flu") -> dict:  # noq
     )
 
 
-__all__ = ["STATUS_NAMES", "Corrected", "correct", "eval"]
+def compile_map(
+    inputs,
+    output: str,
+    *,
+    origin: Optional[Tuple[float, float]] = None,
+    projection: str = "tangent",
+    spacing: float = 3.0,
+    traffic: str = "right",
+    unmarked_offset_scale: float = 0.5,
+) -> dict:
+    """Compile road data into a lane tile, as ``lanealign-map compile`` does.
+
+    ``inputs``: raw OSM (``.osm``, ``.osm.pbf``) or Lanelet2 files; ``origin`` = (lat, lon) of the
+    map plane (the data's centre when ``None``); ``projection``: ``"tangent"`` or ``"kitti"``;
+    ``spacing``: minimum lane point spacing (metres); ``traffic``: ``"right"`` or ``"left"``;
+    ``unmarked_offset_scale``: 0.5 for the robust method, 1 for the paper's. Returns the tile's
+    ``lanes``, ``points``, ``lane_km`` and ``bytes``.
+    """
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    return _lanealign.compile_map(
+        [str(p) for p in inputs],
+        str(output),
+        origin=origin,
+        projection=projection,
+        spacing=spacing,
+        traffic=traffic,
+        unmarked_offset_scale=unmarked_offset_scale,
+    )
+
+
+__all__ = ["STATUS_NAMES", "Corrected", "compile_map", "correct", "eval"]

@@ -17,3 +17,13 @@ def correct(
     frame: str = ...,
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = ...) -> Dict[str, Union[float, int]]: ...
+def compile_map(
+    inputs: List[str],
+    output: str,
+    *,
+    origin: Optional[Tuple[float, float]] = ...,
+    projection: str = ...,
+    spacing: float = ...,
+    traffic: str = ...,
+    unmarked_offset_scale: float = ...,
+) -> Dict[str, Union[float, int]]: ...

@@ -9,10 +9,12 @@ use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::ape_2d;
-use lanealign_core::params::{CorrectorConfig, Method, Preset};
+use lanealign_core::params::{CorrectorConfig, Method, Preset, UNMARKED_OFFSET_SCALE};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::tile;
 use lanealign_core::trajectory::Trajectory;
+use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm_lanes::LaneOptions;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
@@ -230,10 +232,67 @@ fn eval<'py>(
     Ok(d)
 }
 
+/// Compiles road data into a lane tile, as `lanealign-map compile` does; returns what it holds.
+#[allow(clippy::too_many_arguments)]
+#[pyfunction]
+#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE))]
+fn compile_map<'py>(
+    py: Python<'py>,
+    inputs: Vec<PathBuf>,
+    output: PathBuf,
+    origin: Option<(f64, f64)>,
+    projection: &str,
+    spacing: f64,
+    traffic: &str,
+    unmarked_offset_scale: f64,
+) -> PyResult<Bound<'py, PyDict>> {
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(PyValueError::new_err(
+            "spacing must be a positive number of metres",
+        ));
+    }
+    if !(0.0..=2.0).contains(&unmarked_offset_scale) {
+        return Err(PyValueError::new_err(
+            "unmarked_offset_scale must be between 0 and 2",
+        ));
+    }
+    let options = CompileOptions {
+        origin,
+        projection: parsed("projection", projection)?,
+        lanes: LaneOptions {
+            classes: RoadClasses::DEFAULT,
+            traffic: parsed("traffic", traffic)?,
+            spacing_m: spacing,
+            unmarked_offset_scale,
+        },
+    };
+    let (lanes, points, lane_km, bytes) = py
+        .detach(|| -> anyhow::Result<_> {
+            let compiled = compile(&inputs, &options)?;
+            let bytes = compiled.tile_bytes(spacing);
+            tile::write_bytes(&output, &bytes)?;
+            let map = &compiled.map;
+            Ok((
+                map.lane_count(),
+                map.len(),
+                map.lane_length_m() / 1000.0,
+                bytes.len(),
+            ))
+        })
+        .map_err(error)?;
+    let d = PyDict::new(py);
+    d.set_item("lanes", lanes)?;
+    d.set_item("points", points)?;
+    d.set_item("lane_km", lane_km)?;
+    d.set_item("bytes", bytes)?;
+    Ok(d)
+}
+
 #[pymodule]
 fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(correct, m)?)?;
     m.add_function(wrap_pyfunction!(eval, m)?)?;
+    m.add_function(wrap_pyfunction!(compile_map, m)?)?;
     m.add("STATUS_NAMES", STATUS_NAMES.to_vec())?;
     Ok(())
 }

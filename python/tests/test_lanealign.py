@@ -17,6 +17,7 @@ import lanealign
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(os.environ.get("LANEALIGN_BIN", ROOT / "target" / "release" / "lanealign"))
+MAP_BIN = BIN.with_name("lanealign-map")
 DATA = Path(os.environ.get("LANEALIGN_DATA", ROOT.parent / "shared" / "data"))
 
 
@@ -109,3 +110,18 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
     assert figures == expected
     print(f"KITTI 07: lanealign correct {cli_s * 1e3:.1f} ms (whole process), "
           f"lanealign.correct {py_s * 1e3:.1f} ms (call, file read by numpy not included)")
+
+
+def test_compile_map_writes_the_tile_the_command_line_writes(tmp_path):
+    needs_data()
+    osm = DATA / "osm" / "kitti_00.osm"
+    origin = "48.9825452359,8.3903661"
+    out = subprocess.run([str(MAP_BIN), "compile", str(osm), "--origin", origin, "--projection",
+                          "kitti", "-o", str(tmp_path / "cli.tile")], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    info = lanealign.compile_map(osm, tmp_path / "py.tile", origin=(48.9825452359, 8.3903661),
+                                 projection="kitti")
+    assert (tmp_path / "py.tile").read_bytes() == (tmp_path / "cli.tile").read_bytes()
+    assert info["lanes"] == 228 and info["bytes"] == (tmp_path / "py.tile").stat().st_size
+    with pytest.raises(ValueError, match="No such file|missing|read"):
+        lanealign.compile_map(tmp_path / "missing.osm", tmp_path / "x.tile")
