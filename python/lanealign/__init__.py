@@ -2,7 +2,8 @@
 
 ``correct`` runs exactly what ``lanealign correct`` runs (same defaults, bit-identical
 results); ``eval`` reports what ``lanealign eval --json`` reports; ``compile_map`` writes the
-tile ``lanealign-map compile`` writes. Errors are ``ValueError``
+tile ``lanealign-map compile`` writes; ``Client`` publishes poses to a running ``lanealignd``
+and receives the corrected ones over shared memory. Errors are ``ValueError``
 with the command line's messages.
 """
 
@@ -12,6 +13,7 @@ from typing import NamedTuple, Optional, Tuple
 import numpy as np
 
 from . import _lanealign
+from ._lanealign import Client
 
 #: The status names; ``Corrected.status`` holds indices into this tuple.
 STATUS_NAMES: Tuple[str, ...] = tuple(_lanealign.STATUS_NAMES)
@@ -109,4 +111,4 @@ def compile_map(
     )
 
 
-__all__ = ["STATUS_NAMES", "Corrected", "compile_map", "correct", "eval"]
+__all__ = ["STATUS_NAMES", "Client", "Corrected", "compile_map", "correct", "eval"]

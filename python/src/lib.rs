@@ -2,9 +2,12 @@
 //! defaults as `lanealign correct` and `lanealign eval`, so that results are equal bit for bit.
 
 use std::path::PathBuf;
+use std::time::Duration;
 
 use lanealign_cli::evaluation;
 use lanealign_cli::maps::MapSource;
+use lanealign_client::connection::new_session_id;
+use lanealign_client::Connection;
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
@@ -16,6 +19,9 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::Trajectory;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm_lanes::LaneOptions;
+use lanealign_wire::payload::StatusCode;
+use lanealign_wire::service::{Namespace, SourceName};
+use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::exceptions::PyValueError;
@@ -288,11 +294,87 @@ fn compile_map<'py>(
     Ok(d)
 }
 
+/// A connection to one source of a running `lanealignd`: one session, its poses out over
+/// iceoryx2 shared memory and its corrected poses back (see `lanealign_client::Connection`).
+#[pyclass(unsendable)]
+struct Client {
+    connection: Connection,
+}
+
+#[pymethods]
+impl Client {
+    /// Connects to `source` in the daemon's `namespace` with a new session, waiting for answers
+    /// as `wait` says (`event`, `busy-spin[:CORE]`, `spin-then-block:SPIN_US`).
+    #[new]
+    #[pyo3(signature = (source, *, namespace="default", wait="event"))]
+    fn new(source: &str, namespace: &str, wait: &str) -> PyResult<Self> {
+        let namespace: Namespace = parsed("namespace", namespace)?;
+        let source: SourceName = parsed("source", source)?;
+        let mut connection =
+            Connection::connect_in(&namespace, &source, new_session_id()).map_err(error)?;
+        connection.set_wait_strategy(parsed::<WaitStrategy>("wait", wait)?);
+        Ok(Client { connection })
+    }
+
+    /// True when a daemon serves the source.
+    fn daemon_connected(&mut self) -> bool {
+        self.connection.daemon_connected()
+    }
+
+    /// Publishes one pose ((3, 4) or (4, 4), the source's axis convention) stamped `stamp_ns`;
+    /// returns its sequence number.
+    fn publish(&mut self, stamp_ns: i64, pose: PyReadonlyArrayDyn<'_, f64>) -> PyResult<u64> {
+        let array = pose.as_array();
+        if !matches!(array.shape(), [3 | 4, 4]) {
+            return Err(PyValueError::new_err(format!(
+                "a pose has shape (3, 4) or (4, 4), not {:?}",
+                array.shape()
+            )));
+        }
+        let mut v = [0.0; 12];
+        for (k, value) in v.iter_mut().enumerate() {
+            *value = array[IxDyn(&[k / 4, k % 4])];
+        }
+        self.connection.publish(stamp_ns, &v).map_err(error)
+    }
+
+    /// The next answer of this session, waiting up to `timeout_s` seconds: `None`, or a dict
+    /// with `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom` (x, y, yaw)
+    /// and `covariance` (3, 3).
+    fn recv<'py>(
+        &mut self,
+        py: Python<'py>,
+        timeout_s: f64,
+    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let timeout = Duration::try_from_secs_f64(timeout_s)
+            .map_err(|_| PyValueError::new_err("timeout_s must be a number of seconds"))?;
+        let Some(answer) = self.connection.recv(timeout).map_err(error)? else {
+            return Ok(None);
+        };
+        let [xx, xy, xt, yy, yt, tt] = answer.covariance;
+        let d = PyDict::new(py);
+        d.set_item("seq", answer.seq)?;
+        d.set_item("stamp_ns", answer.stamp_ns)?;
+        let pose =
+            numpy::ndarray::Array2::from_shape_vec((3, 4), answer.pose.to_vec()).map_err(error)?;
+        d.set_item("pose", pose.into_pyarray(py))?;
+        d.set_item(
+            "status",
+            StatusCode::from_code(answer.status).map_or("unknown", StatusCode::name),
+        )?;
+        d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
+        let covariance = numpy::ndarray::arr2(&[[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]);
+        d.set_item("covariance", covariance.into_pyarray(py))?;
+        Ok(Some(d))
+    }
+}
+
 #[pymodule]
 fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(correct, m)?)?;
     m.add_function(wrap_pyfunction!(eval, m)?)?;
     m.add_function(wrap_pyfunction!(compile_map, m)?)?;
+    m.add_class::<Client>()?;
     m.add("STATUS_NAMES", STATUS_NAMES.to_vec())?;
     Ok(())
 }

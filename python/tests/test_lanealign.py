@@ -125,3 +125,46 @@ def test_compile_map_writes_the_tile_the_command_line_writes(tmp_path):
     assert info["lanes"] == 228 and info["bytes"] == (tmp_path / "py.tile").stat().st_size
     with pytest.raises(ValueError, match="No such file|missing|read"):
         lanealign.compile_map(tmp_path / "missing.osm", tmp_path / "x.tile")
+
+
+def test_client_through_the_daemon_equals_correct(tmp_path):
+    needs_data()
+    osm = DATA / "osm" / "kitti_00.osm"
+    lanealign.compile_map(osm, tmp_path / "00.tile", origin=(48.9825452359, 8.3903661),
+                          projection="kitti")
+    namespace, source = f"py-{os.getpid()}", "lidar"
+    (tmp_path / "d.toml").write_text(f"""
+tile = "00.tile"
+namespace = "{namespace}"
+state_dir = "{tmp_path / 'state'}"
+[[source]]
+name = "{source}"
+frame = "kitti-camera"
+anchor = {{ lat = 48.9825452359, lon = 8.3903661, yaw_deg = 59.5584, east_m = 0.806, north_m = 0.365 }}
+[source.corrector]
+preset = "kiss-icp"
+""")
+    daemon = subprocess.Popen([str(BIN.with_name("lanealignd")), "--config", str(tmp_path / "d.toml")],
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        client = lanealign.Client(source, namespace=namespace)
+        deadline = time.monotonic() + 20
+        while not client.daemon_connected():
+            assert time.monotonic() < deadline and daemon.poll() is None, "the daemon did not come up"
+            time.sleep(0.05)
+        poses = np.loadtxt(DATA / "odometry" / "lidar" / "00.txt").reshape(-1, 3, 4)[:600]
+        answers = []
+        for i, pose in enumerate(poses):
+            assert client.publish(i, pose) == i + 1
+            answer = client.recv(10.0)
+            assert answer is not None and answer["seq"] == i + 1
+            answers.append(answer)
+    finally:
+        daemon.terminate()
+        daemon.wait(20)
+    offline = lanealign.correct(poses, osm=str(osm), anchor=(48.9825452359, 8.3903661, 59.5584,
+                                0.806, 0.365), projection="kitti", preset="kiss-icp",
+                                frame="kitti-camera")
+    assert np.array_equal(np.stack([a["pose"] for a in answers]), offline.poses)
+    assert [a["status"] for a in answers] == [lanealign.STATUS_NAMES[c] for c in offline.status]
+    assert answers[-1]["covariance"].shape == (3, 3)
