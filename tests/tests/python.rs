@@ -1,5 +1,5 @@
 //! The Python package (`python/`, PyO3 + maturin), built and tested from `cargo test`: pip
-//! installs it with its build backend and pytest, then its tests compare `lanealign.correct` and
+//! installs it with its build backend, pytest and Dask, then its tests compare `lanealign.correct` and
 //! `lanealign.eval` with the `lanealign` binary bit for bit (on the synthetic straight lane
 //! always, on KITTI 07 where `../shared/data` is present).
 
@@ -25,7 +25,7 @@ fn the_python_package_equals_the_command_line() {
         assert!(out.status.success(), "{python} {args:?} failed:\n{text}");
         text
     };
-    run(&["-m", "pip", "install", "--quiet", "pytest", "./python"]);
+    run(&["-m", "pip", "install", "--quiet", "pytest", "dask[distributed]", "./python"]);
     let report = run(&["-m", "pytest", "python/tests", "-q", "-rs", "-s"]);
     println!("{report}");
     assert!(report.contains("passed"), "{report}");

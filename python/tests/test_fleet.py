@@ -1,0 +1,63 @@
+"""Fleet batches on a local Dask cluster of two worker processes equal a serial run."""
+
+import numpy as np
+import pytest
+
+from lanealign import fleet
+from test_lanealign import DATA, needs_data
+
+
+def anchor_of(seq):
+    row = next(l for l in (DATA / "kitti" / "georef.csv").read_text().splitlines()
+               if l.startswith(f"{seq},"))
+    f = row.split(",")
+    return (float(f[1]), float(f[2]), float(f[4]), float(f[5]), float(f[6]))
+
+
+def test_two_workers_equal_a_serial_run(tmp_path):
+    needs_data()
+    distributed = pytest.importorskip("distributed")
+    drives = []
+    for seq, odometry, preset in [("04", "lidar", "kiss-icp"), ("07", "lidar", "kiss-icp"),
+                                  ("07", "stereo_vo", "orb-slam3"), ("10", "lidar", "liodom")]:
+        for where in ("serial", "cluster"):
+            (tmp_path / where).mkdir(exist_ok=True)
+            drives.append(fleet.Drive(
+                poses=str(DATA / "odometry" / odometry / f"{seq}.txt"),
+                output=str(tmp_path / where / f"{odometry}_{seq}.txt"),
+                preset=preset, osm=str(DATA / "osm" / f"kitti_{seq}.osm"),
+                anchor=anchor_of(seq), projection="kitti", frame="kitti-camera"))
+    serial = [d for d in drives if "/serial/" in d.output]
+    on_cluster = [d for d in drives if "/cluster/" in d.output]
+    regions = [fleet.Region(inputs=[str(DATA / "osm" / f"kitti_{seq}.osm")],
+                            output=str(tmp_path / where / f"{seq}.tile"),
+                            origin=anchor_of(seq)[:2], projection="kitti")
+               for seq in ("00", "05") for where in ("serial", "cluster")]
+    expected = [fleet.correct_drive(d) for d in serial]
+    expected_tiles = [fleet.compile_region(r) for r in regions if "/serial/" in r.output]
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        got = fleet.correct_drives(client, on_cluster)
+        got_tiles = fleet.compile_regions(client, [r for r in regions if "/cluster/" in r.output])
+    for s, c, d_s, d_c in zip(expected, got, serial, on_cluster):
+        assert {k: v for k, v in s.items() if k != "output"} == \
+            {k: v for k, v in c.items() if k != "output"}
+        assert np.array_equal(np.loadtxt(d_s.output), np.loadtxt(d_c.output))
+    for s, c in zip(expected_tiles, got_tiles):
+        assert open(s["output"], "rb").read() == open(c["output"], "rb").read()
+        assert s["lanes"] == c["lanes"] > 0
+
+
+def test_the_fleet_example_runs(tmp_path):
+    needs_data()
+    pytest.importorskip("distributed")
+    import subprocess
+    import sys
+    from test_lanealign import ROOT
+
+    out = subprocess.run([sys.executable, str(ROOT / "python" / "examples" / "fleet_kitti.py"),
+                          "--out", str(tmp_path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert len(list(tmp_path.glob("*.txt"))) == 20 and len(list(tmp_path.glob("*.tile"))) == 10
