@@ -1,14 +1,19 @@
 //! Where a corrector's lane map comes from, and how a source is placed on it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context};
+use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
+use lanealign_core::grid::{self, correct_trajectory_on_grid, Grid, GridRun, LoadPolicy};
 use lanealign_core::lane_csv;
 use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::Params;
+use lanealign_core::pose::Pose3;
 use lanealign_core::se2::Se2;
+use lanealign_core::source_corrector::{correct_trajectory, CorrectedPose, Placement};
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -25,6 +30,39 @@ pub struct LoadedMap {
     pub geometry: Option<LaneGeometry>,
     /// For road data compiled on the fly, what the reader did (skipped ways, missing nodes).
     pub report: Option<InputReport>,
+    /// For a grid of tiles, the grid: `map` then holds only the cells around the anchor, and
+    /// [`LoadedMap::correct`] loads the cells each pose needs.
+    pub grid: Option<Arc<Grid>>,
+}
+
+impl LoadedMap {
+    /// Corrects a recorded trajectory on this map (on a grid, loading the cells each pose needs
+    /// under the default [`LoadPolicy`]); for a grid, what it loaded too.
+    pub fn correct(
+        &self,
+        params: Params,
+        mode: MatchMode,
+        placement: Placement,
+        poses: &[Pose3],
+    ) -> anyhow::Result<(Vec<CorrectedPose>, Option<GridRun>)> {
+        Ok(match &self.grid {
+            Some(grid) => {
+                let (run, loads) = correct_trajectory_on_grid(
+                    grid.clone(),
+                    LoadPolicy::default(),
+                    params,
+                    mode,
+                    placement,
+                    poses,
+                )?;
+                (run, Some(loads))
+            }
+            None => (
+                correct_trajectory(self.map.clone(), params, mode, placement, poses),
+                None,
+            ),
+        })
+    }
 }
 
 /// A lane map source as given on the command line.
@@ -41,9 +79,9 @@ pub enum MapSource {
         /// Lane derivation options.
         options: LaneOptions,
     },
-    /// A compiled tile.
+    /// A compiled tile, or a grid of them (a folder).
     Tile {
-        /// The tile file.
+        /// The tile file, or the grid's folder.
         path: PathBuf,
         /// Where the odometry frame lies on Earth.
         anchor: Anchor,
@@ -76,6 +114,7 @@ impl MapSource {
                     geometry: Some(compiled.geometry),
                     report: compiled.reports.pop(),
                     map: Arc::new(compiled.map),
+                    grid: None,
                 })
             }
             MapSource::Tile {
@@ -83,21 +122,18 @@ impl MapSource {
                 anchor,
                 projection,
             } => {
-                let (map, info) = tile::load(path)?;
-                if let Some(p) = projection.filter(|&p| p != info.plane.projection) {
-                    bail!(
-                        "{}: the tile's plane uses the {} projection, the anchor was given for {}",
-                        path.display(),
-                        info.plane.projection.name(),
-                        p.name()
-                    );
+                if grid::is_grid(path) {
+                    return load_grid(path, anchor, *projection);
                 }
+                let (map, info) = tile::load(path)?;
+                check_projection(path, info.plane.projection, *projection)?;
                 Ok(LoadedMap {
                     map: Arc::new(map),
                     anchored_from_odom: anchor.anchored_from_odom(&info.plane),
                     plane: Some(info.plane),
                     geometry: Some(info.geometry),
                     report: None,
+                    grid: None,
                 })
             }
             MapSource::LanesCsv(path) => {
@@ -110,8 +146,59 @@ impl MapSource {
                     plane: None,
                     geometry: None,
                     report: None,
+                    grid: None,
                 })
             }
         }
     }
+}
+
+/// Refuses an anchor given for another projection than the map's.
+fn check_projection(
+    path: &Path,
+    map: Projection,
+    anchor: Option<Projection>,
+) -> anyhow::Result<()> {
+    if let Some(p) = anchor.filter(|&p| p != map) {
+        bail!(
+            "{}: the map's plane uses the {} projection, the anchor was given for {}",
+            path.display(),
+            map.name(),
+            p.name()
+        );
+    }
+    Ok(())
+}
+
+/// Opens a grid and assembles the cells around the anchor's origin.
+fn load_grid(
+    path: &Path,
+    anchor: &Anchor,
+    projection: Option<Projection>,
+) -> anyhow::Result<LoadedMap> {
+    let grid = Arc::new(Grid::open(path)?);
+    check_projection(path, grid.plane().projection, projection)?;
+    let anchored_from_odom = anchor.anchored_from_odom(&grid.plane());
+    let origin = anchored_from_odom.apply([0.0, 0.0]);
+    let wanted = grid.wanted(&[origin], &LoadPolicy::default());
+    if wanted.is_empty() {
+        bail!(
+            "{}: no cell of the grid holds lanes within {} m of the anchor",
+            path.display(),
+            LoadPolicy::default().radius_m
+        );
+    }
+    let cells = wanted
+        .iter()
+        .map(|&k| grid.load_cell(k).map(Arc::new))
+        .collect::<Result<Vec<_>, _>>()?;
+    let map = grid::assemble(&grid, &cells)?;
+    Ok(LoadedMap {
+        map: Arc::new(map),
+        anchored_from_odom,
+        plane: Some(grid.plane()),
+        geometry: Some(grid.geometry()),
+        report: None,
+        grid: Some(grid),
+    })
 }

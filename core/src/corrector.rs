@@ -451,6 +451,21 @@ impl Corrector {
         c
     }
 
+    /// The lane map in use.
+    pub fn map(&self) -> &Arc<LaneMap> {
+        &self.map
+    }
+
+    /// Continues on another lane map (a grid's cells around a moving source): every later step
+    /// runs on `map`. The answers stay those of the whole map as long as `map` covers the
+    /// window's queries (see [`crate::grid`]).
+    pub fn replace_map(&mut self, map: Arc<LaneMap>) {
+        self.map = map;
+        if let Matcher::Fast(cache) = &mut self.matcher {
+            cache.forget_map();
+        }
+    }
+
     /// The covariance of the current corrected pose (see [`Step::covariance`]).
     pub fn covariance(&self) -> Covariance {
         self.uncertainty.covariance()

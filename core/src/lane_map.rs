@@ -11,9 +11,11 @@
 //! built here from the validated points, never read from outside.
 
 use std::num::NonZeroUsize;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
+use crate::grid::Coverage;
 use crate::lane_geometry::LaneInfo;
 
 /// A lane centerline in its direction of travel (metres, map plane).
@@ -88,6 +90,10 @@ pub struct LaneMap {
     /// The lane of each point (an index into the lane arrays).
     point_lane: Vec<u32>,
     tree: LaneTree,
+    /// For a map assembled from some cells of a grid, where it answers as the whole map would.
+    coverage: Option<Coverage>,
+    /// Queries that reached beyond the coverage.
+    uncovered: AtomicU64,
 }
 
 impl PartialEq for LaneMap {
@@ -261,7 +267,38 @@ impl LaneMap {
             lane_info,
             point_lane,
             tree,
+            coverage: None,
+            uncovered: AtomicU64::new(0),
         })
+    }
+
+    /// The map, marked as assembled from some cells of a grid: queries beyond `coverage` are
+    /// counted (see [`Self::uncovered_queries`]).
+    pub fn with_coverage(mut self, coverage: Coverage) -> Self {
+        self.coverage = Some(coverage);
+        self
+    }
+
+    /// For a map assembled from cells of a grid, where it answers as the whole map would.
+    pub fn coverage(&self) -> Option<&Coverage> {
+        self.coverage.as_ref()
+    }
+
+    /// How many neighbour queries reached beyond the map's coverage since it was made: zero
+    /// means every answer equals the whole map's (always zero for a whole map).
+    pub fn uncovered_queries(&self) -> u64 {
+        self.uncovered.load(Ordering::Relaxed)
+    }
+
+    /// Records a query that needs every lane point within `radius_m` of `x` (metres, map
+    /// plane); counted when the map's coverage does not vouch for that disk.
+    #[inline]
+    pub fn note_query(&self, x: [f64; 2], radius_m: f64) {
+        if let Some(c) = &self.coverage {
+            if !c.covers(x, radius_m) {
+                self.uncovered.fetch_add(1, Ordering::Relaxed);
+            }
+        }
     }
 
     /// Number of lane points.
@@ -372,9 +409,11 @@ impl LaneMap {
         );
         out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         if n.get() == self.len() {
+            self.note_query(p, f64::INFINITY);
             return;
         }
         let last = out[out.len() - 1].0;
+        self.note_query(p, last.sqrt());
         let tie_start = out.partition_point(|c| c.0 < last);
         let kiddo_radius = found.iter().map(|r| r.distance).fold(0.0, f64::max);
         let mut ties: Vec<Candidate> = tree

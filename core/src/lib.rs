@@ -6,7 +6,7 @@
 //! ([`matching`], [`match_cache`]), trimmed ICP ([`icp`]), the online corrector ([`corrector`])
 //! with its configuration ([`params`]) and its covariance ([`confidence`]), smooth output ([`smoothing`]), a source's corrector with
 //! its placement ([`source_corrector`]), accuracy metrics ([`metrics`]) and the file formats
-//! every tool shares: lane tiles ([`tile`]), trajectories ([`trajectory`]) and lane CSV
+//! every tool shares: lane tiles ([`tile`]) and grids of them ([`grid`]), trajectories ([`trajectory`]) and lane CSV
 //! ([`lane_csv`]), with bounded readers and atomic outputs ([`input`]); [`plausibility`] warns
 //! about runs that are probably set up wrongly. The algorithm as implemented is described in `docs/algorithm.md`.
 //!
@@ -31,6 +31,7 @@
 pub mod confidence;
 pub mod corrector;
 pub mod geo;
+pub mod grid;
 pub mod icp;
 pub mod input;
 pub mod lane_csv;

@@ -141,6 +141,16 @@ impl std::fmt::Debug for MatchCache {
 }
 
 impl MatchCache {
+    /// Forgets every pose's cached answers and candidates: the map changed.
+    pub fn forget_map(&mut self) {
+        for c in &mut self.poses {
+            c.wide.points.clear();
+            c.wide.radius = f64::NEG_INFINITY;
+            c.proof = None;
+            c.last = None;
+        }
+    }
+
     /// A new pose was appended to the window.
     pub fn push(&mut self) {
         let mut c = self.spare.pop().unwrap_or_default();
@@ -235,6 +245,15 @@ fn match_one(
     let mut radius = FIRST_RADIUS;
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
+            // The answer rests on every point within the deciding distance (and the proof
+            // below on two contender margins more); with fewer than N points in the whole
+            // map and none passing, on all of them.
+            let needed = if answer.is_none() && keys.len() < params.neighbours {
+                f64::INFINITY
+            } else {
+                reach.sqrt() + 2.0 * CONTENDER_MARGIN
+            };
+            map.note_query(x, needed);
             // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
             // within the deciding distance plus twice the contender margin (a partner may lie
             // up to one margin beyond the answer, and its contenders one more).

@@ -89,6 +89,33 @@ impl SourceCorrector {
         self.corrector.window().len()
     }
 
+    /// The corrector's window: corrected positions, oldest first (metres, map plane).
+    pub fn window(&self) -> &[[f64; 2]] {
+        self.corrector.window()
+    }
+
+    /// Where `pose` would lie in the map plane under the correction in force (metres): the
+    /// position the next step queries around.
+    pub fn predicted_position_in_map(&self, pose: &Pose3) -> [f64; 2] {
+        let anchored = apply_planar_correction(
+            &self.placement.anchored_from_odom,
+            &self.placement.convention.to_planar(pose),
+        );
+        self.corrector
+            .map_from_anchored()
+            .apply(anchored.planar_position())
+    }
+
+    /// The lane map in use.
+    pub fn map(&self) -> &Arc<LaneMap> {
+        self.corrector.map()
+    }
+
+    /// Continues on another lane map (see [`Corrector::replace_map`]).
+    pub fn replace_map(&mut self, map: Arc<LaneMap>) {
+        self.corrector.replace_map(map);
+    }
+
     /// The state to continue from later.
     pub fn state(&self) -> SourceState {
         SourceState {

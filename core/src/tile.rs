@@ -21,10 +21,10 @@
 //! | 72..104 | bounding box min x, min y, max x, max y (`f64`, metres, map plane) |
 //! | 104..112 | payload length in bytes (`u64`) |
 //! | 112..116 | road classes lanes were derived from (`u32`, bit per [`RoadClass`] code) |
-//! | 116..120 | flags (`u32`): bit 0 lanes from raw OSM ways (the offset scale applies), bit 1 signed |
+//! | 116..120 | flags (`u32`): bit 0 lanes from raw OSM ways (the offset scale applies), bit 1 signed, bit 2 grid cell |
 //! | 120..152 | signer's ed25519 public key (zero unless signed) |
 //! | 152..216 | ed25519 signature (zero unless signed) |
-//! | 216..248 | reserved, zero |
+//! | 216..248 | a grid cell's own square: min x, min y, max x, max y (`f64`, metres); zero unless a cell |
 //! | 248..256 | XXH3-64 of bytes 0..248 and of the payload |
 //! | 256.. | payload |
 //!
@@ -32,8 +32,10 @@
 //! of every byte but the signature itself and the checksum; loading verifies it.
 //!
 //! Payload: lane offsets (`u32` x lanes + 1), lane ids (`u64` x lanes), lane info (class `u8`,
-//! flags `u8`, per lane), points (`f64` x, y per point); each array starts at a multiple of 8.
-//! Segment directions and the KD-tree are derived from the points at load.
+//! flags `u8`, per lane), points (`f64` x, y per point), and in a grid cell the pieces (per lane:
+//! `u32` index of the whole lane in the grid's map, `u32` index of the piece's first point in
+//! that lane; see [`crate::grid`]); each array starts at a multiple of 8. Segment directions and
+//! the KD-tree are derived from the points at load.
 
 use std::path::{Path, PathBuf};
 
@@ -60,10 +62,12 @@ pub const MAX_TILE_BYTES: u64 = 1 << 32;
 
 const FLAG_OSM_LANES: u32 = 1;
 const FLAG_SIGNED: u32 = 1 << 1;
-const KNOWN_FLAGS: u32 = FLAG_OSM_LANES | FLAG_SIGNED;
+const FLAG_GRID_CELL: u32 = 1 << 2;
+const KNOWN_FLAGS: u32 = FLAG_OSM_LANES | FLAG_SIGNED | FLAG_GRID_CELL;
 const SIGNER_AT: usize = 120;
 const SIGNATURE_AT: usize = 152;
 const SIGNATURE_END: usize = 216;
+const CELL_SQUARE_AT: usize = 216;
 const CHECKSUM_AT: usize = 248;
 
 /// What a tile says about itself.
@@ -87,7 +91,14 @@ pub struct TileInfo {
     pub checksum: u64,
     /// The ed25519 public key whose signature the tile carries, verified (`None`: unsigned).
     pub signer: Option<[u8; 32]>,
+    /// For one cell of a tile grid, the cell's own square `[min x, min y, max x, max y]`
+    /// (metres, map plane); its lanes reach beyond it by the grid's margin. `None`: a whole map.
+    pub cell: Option<[f64; 4]>,
 }
+
+/// Where a piece of a grid cell comes from: the index of its whole lane in the grid's map, and
+/// the index of the piece's first point in that lane.
+pub type PieceOrigin = [u32; 2];
 
 /// A tile that could not be written or loaded.
 #[derive(Debug, thiserror::Error)]
@@ -152,6 +163,14 @@ pub enum TileError {
         /// Computed checksum.
         computed: u64,
     },
+    /// A cell of a tile grid where a whole map was expected, or the other way round.
+    #[error("{path}: {what}")]
+    GridCell {
+        /// The file.
+        path: PathBuf,
+        /// What was expected instead.
+        what: &'static str,
+    },
     /// The payload does not hold a valid lane map.
     #[error("{path}: {source}")]
     Map {
@@ -168,10 +187,11 @@ struct PayloadLayout {
     ids: std::ops::Range<usize>,
     info: std::ops::Range<usize>,
     points: std::ops::Range<usize>,
+    pieces: Option<std::ops::Range<usize>>,
 }
 
 impl PayloadLayout {
-    fn new(points: usize, lanes: usize) -> Option<PayloadLayout> {
+    fn new(points: usize, lanes: usize, cell: bool) -> Option<PayloadLayout> {
         let mut at = 0usize;
         let mut section = |len: usize| -> Option<std::ops::Range<usize>> {
             let range = at..at.checked_add(len)?;
@@ -183,11 +203,16 @@ impl PayloadLayout {
             ids: section(lanes.checked_mul(8)?)?,
             info: section(lanes.checked_mul(2)?)?,
             points: section(points.checked_mul(16)?)?,
+            pieces: if cell {
+                Some(section(lanes.checked_mul(8)?)?)
+            } else {
+                None
+            },
         })
     }
 
     fn len(&self) -> usize {
-        self.points.end
+        self.pieces.as_ref().unwrap_or(&self.points).end
     }
 }
 
@@ -306,9 +331,9 @@ fn put(bytes: &mut [u8], at: usize, v: &[u8]) {
     bytes[at..at + v.len()].copy_from_slice(v);
 }
 
-/// The payload bytes of `map`.
-fn payload(map: &LaneMap) -> Vec<u8> {
-    let layout = PayloadLayout::new(map.len(), map.lane_count())
+/// The payload bytes of `map` (and of its pieces' origins, for a grid cell).
+fn payload(map: &LaneMap, pieces: Option<&[PieceOrigin]>) -> Vec<u8> {
+    let layout = PayloadLayout::new(map.len(), map.lane_count(), pieces.is_some())
         .expect("a built map's counts fit in memory");
     let mut out = vec![0u8; layout.len()];
     for (k, o) in map.lane_offsets().iter().enumerate() {
@@ -332,12 +357,41 @@ fn payload(map: &LaneMap) -> Vec<u8> {
             &p[1].to_le_bytes(),
         );
     }
+    if let (Some(range), Some(pieces)) = (&layout.pieces, pieces) {
+        for (k, [lane, first]) in pieces.iter().enumerate() {
+            put(&mut out, range.start + 8 * k, &lane.to_le_bytes());
+            put(&mut out, range.start + 8 * k + 4, &first.to_le_bytes());
+        }
+    }
     out
 }
 
 /// The bytes of a tile of `map` in `plane`, resampled at `spacing_m`, derived as `geometry`.
 pub fn encode(map: &LaneMap, plane: &MapPlane, spacing_m: f64, geometry: &LaneGeometry) -> Vec<u8> {
-    let payload = payload(map);
+    encode_parts(map, plane, spacing_m, geometry, None)
+}
+
+/// The bytes of one cell of a tile grid: `map`'s lanes are pieces of the grid's lanes, lane `k`
+/// coming from `pieces[k]`; `square` is the cell's own square (metres, map plane).
+pub fn encode_cell(
+    map: &LaneMap,
+    pieces: &[PieceOrigin],
+    square: [f64; 4],
+    plane: &MapPlane,
+    spacing_m: f64,
+    geometry: &LaneGeometry,
+) -> Vec<u8> {
+    encode_parts(map, plane, spacing_m, geometry, Some((pieces, square)))
+}
+
+fn encode_parts(
+    map: &LaneMap,
+    plane: &MapPlane,
+    spacing_m: f64,
+    geometry: &LaneGeometry,
+    cell: Option<(&[PieceOrigin], [f64; 4])>,
+) -> Vec<u8> {
+    let payload = payload(map, cell.map(|c| c.0));
     let mut h = [0u8; HEADER_LEN];
     put(&mut h, 0, &MAGIC);
     put(&mut h, 8, &VERSION.to_le_bytes());
@@ -365,11 +419,17 @@ pub fn encode(map: &LaneMap, plane: &MapPlane, spacing_m: f64, geometry: &LaneGe
         put(&mut h, at, &(v as u64).to_le_bytes());
     }
     put(&mut h, 112, &geometry.classes.bits().to_le_bytes());
-    let flags = if geometry.unmarked_offset_scale.is_some() {
+    let mut flags = if geometry.unmarked_offset_scale.is_some() {
         FLAG_OSM_LANES
     } else {
         0
     };
+    if let Some((_, square)) = cell {
+        flags |= FLAG_GRID_CELL;
+        for (k, v) in square.iter().enumerate() {
+            put(&mut h, CELL_SQUARE_AT + 8 * k, &v.to_le_bytes());
+        }
+    }
     put(&mut h, 116, &flags.to_le_bytes());
     let mut bytes = Vec::with_capacity(HEADER_LEN + payload.len());
     bytes.extend_from_slice(&h);
@@ -493,9 +553,19 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     } else {
         None
     };
-    if bytes[216..CHECKSUM_AT].iter().any(|&b| b != 0) {
+    let cell = if flags & FLAG_GRID_CELL != 0 {
+        let square: [f64; 4] = std::array::from_fn(|k| f64_at(bytes, CELL_SQUARE_AT + 8 * k));
+        let valid =
+            square.iter().all(|v| v.is_finite()) && square[0] < square[2] && square[1] < square[3];
+        if !valid {
+            return Err(bad("cell square", format!("{square:?}")));
+        }
+        Some(square)
+    } else if bytes[CELL_SQUARE_AT..CHECKSUM_AT].iter().any(|&b| b != 0) {
         return Err(bad("reserved bytes 216..248", "not zero".into()));
-    }
+    } else {
+        None
+    };
     let scale = f64_at(bytes, 64);
     let unmarked_offset_scale = if flags & FLAG_OSM_LANES != 0 {
         if !(0.0..=2.0).contains(&scale) {
@@ -533,11 +603,40 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
         payload_len,
         checksum: stored,
         signer,
+        cell,
     })
 }
 
-/// Decodes and validates tile bytes; `path` names the source in errors.
+/// Decodes and validates the bytes of a whole-map tile; `path` names the source in errors.
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<(LaneMap, TileInfo), TileError> {
+    match decode_parts(path, bytes)? {
+        (map, info, None) => Ok((map, info)),
+        (_, _, Some(_)) => Err(TileError::GridCell {
+            path: path.to_path_buf(),
+            what: "one cell of a tile grid, not a whole map: give the grid's folder (with manifest.toml)",
+        }),
+    }
+}
+
+/// Decodes and validates the bytes of one cell of a tile grid: its pieces as a map, what the
+/// tile says about itself, and where each piece comes from (one per lane, in map order).
+pub fn decode_cell(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(LaneMap, TileInfo, Vec<PieceOrigin>), TileError> {
+    match decode_parts(path, bytes)? {
+        (map, info, Some(pieces)) => Ok((map, info, pieces)),
+        (_, _, None) => Err(TileError::GridCell {
+            path: path.to_path_buf(),
+            what: "a whole-map tile where a grid cell was expected",
+        }),
+    }
+}
+
+fn decode_parts(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(LaneMap, TileInfo, Option<Vec<PieceOrigin>>), TileError> {
     let info = read_info(path, bytes)?;
     let bad = |field: &'static str, value: String| TileError::BadHeader {
         path: path.to_path_buf(),
@@ -552,7 +651,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<(LaneMap, TileInfo), TileErro
         .ok()
         .filter(|&l| l <= points)
         .ok_or_else(|| bad("lane count", format!("{} for {points} points", info.lanes)))?;
-    let layout = PayloadLayout::new(points, lanes)
+    let layout = PayloadLayout::new(points, lanes, info.cell.is_some())
         .filter(|l| l.len() as u64 == info.payload_len)
         .ok_or_else(|| {
             bad(
@@ -566,7 +665,10 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<(LaneMap, TileInfo), TileErro
     let payload = &bytes[HEADER_LEN..];
     // The padding between arrays is covered by the checksum and must be zero too.
     let mut covered = vec![false; payload.len()];
-    for r in [&layout.offsets, &layout.ids, &layout.info, &layout.points] {
+    for r in [&layout.offsets, &layout.ids, &layout.info, &layout.points]
+        .into_iter()
+        .chain(&layout.pieces)
+    {
         covered[r.clone()].iter_mut().for_each(|c| *c = true);
     }
     if payload.iter().zip(&covered).any(|(&b, &c)| !c && b != 0) {
@@ -604,7 +706,34 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<(LaneMap, TileInfo), TileErro
             format!("{:?} do not match the points", info.bounds),
         ));
     }
-    Ok((map, info))
+    let pieces = layout.pieces.map(|range| {
+        (0..lanes)
+            .map(|k| {
+                let at = range.start + 8 * k;
+                [u32_at(payload, at), u32_at(payload, at + 4)]
+            })
+            .collect::<Vec<_>>()
+    });
+    if let Some(pieces) = &pieces {
+        check_pieces(pieces, map.lane_offsets()).map_err(|value| bad("pieces", value))?;
+    }
+    Ok((map, info, pieces))
+}
+
+/// A cell's pieces come in (lane, first point) order, one run each, and fit in a `u32` index.
+fn check_pieces(pieces: &[PieceOrigin], lane_offsets: &[u32]) -> Result<(), String> {
+    for (k, w) in lane_offsets.windows(2).enumerate() {
+        let [lane, first] = pieces[k];
+        if first.checked_add(w[1] - w[0]).is_none() {
+            return Err(format!(
+                "piece {k} of lane {lane} runs past the largest point index"
+            ));
+        }
+    }
+    match pieces.windows(2).position(|w| w[0] >= w[1]) {
+        Some(k) => Err(format!("pieces {k} and {} are out of order", k + 1)),
+        None => Ok(()),
+    }
 }
 
 /// Loads a tile: reads it into memory (bounded), validates everything and builds the map. The
@@ -727,7 +856,7 @@ mod tests {
     #[test]
     fn tampering_with_a_valid_checksum_is_refused() {
         let bytes = sample_bytes();
-        let layout = PayloadLayout::new(600, 20).unwrap();
+        let layout = PayloadLayout::new(600, 20, false).unwrap();
         let check = |b: Vec<u8>, what: &str| {
             let e = decode(Path::new("t.tile"), &resealed(b))
                 .unwrap_err()

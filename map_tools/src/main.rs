@@ -8,6 +8,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use lanealign_core::geo::{check_lat_lon, Projection};
+use lanealign_core::grid::{self, GridSpec};
 use lanealign_core::lane_geometry::{LaneInfo, RoadClass, RoadClasses, Traffic};
 use lanealign_core::params::UNMARKED_OFFSET_SCALE;
 use lanealign_core::tile;
@@ -27,7 +28,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Compile .osm, .osm.pbf and Lanelet2 .osm inputs into one tile.
+    /// Compile .osm, .osm.pbf and Lanelet2 .osm inputs into one tile, or with --grid into a
+    /// folder of tiles (a grid: square cells loaded on demand, and a manifest).
     Compile {
         /// Inputs, merged in order.
         #[arg(required = true)]
@@ -56,7 +58,15 @@ enum Command {
         /// Sign the tile with the secret key in this file (from `lanealign-map keygen`).
         #[arg(long, value_name = "KEY_FILE")]
         sign: Option<PathBuf>,
-        /// The tile to write.
+        /// Write a grid of square cells this many metres wide into the folder OUTPUT instead of
+        /// one tile (`manifest.toml` and `cells/X_Y.tile`).
+        #[arg(long, value_name = "SIZE_M")]
+        grid: Option<f64>,
+        /// With --grid: every cell also holds the lanes within this many metres of its square,
+        /// so that a query near a border needs no neighbouring cell.
+        #[arg(long, value_name = "METRES", default_value_t = 50.0, requires = "grid")]
+        margin: f64,
+        /// The tile (or with --grid the folder) to write.
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -67,9 +77,10 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Print a tile's header, counts, lane geometry and validity; optionally export GeoJSON.
+    /// Print a tile's (or a grid's) header, counts, lane geometry and validity; optionally
+    /// export a tile's lanes as GeoJSON.
     Inspect {
-        /// The tile.
+        /// The tile, or a grid's folder.
         tile: PathBuf,
         /// Write the lane centerlines (WGS84, in driving direction) as GeoJSON.
         #[arg(long)]
@@ -131,6 +142,49 @@ fn lane_properties(id: u64, info: LaneInfo, points: usize) -> serde_json::Value 
     p
 }
 
+/// Prints a grid's manifest and checks every cell against it.
+fn inspect_grid(path: &std::path::Path) -> anyhow::Result<()> {
+    let grid = grid::Grid::open(path)?;
+    let m = grid.manifest();
+    let (mut points, mut bytes, mut signers) = (0u64, 0u64, std::collections::BTreeSet::new());
+    for key in grid.cells() {
+        let cell = grid.load_cell(key)?;
+        points += cell.points() as u64;
+        signers.insert(cell.signer().map(|k| tile::key_hex(&k)));
+    }
+    for c in &m.cells {
+        bytes += c.bytes;
+    }
+    println!("grid        {}", path.display());
+    println!(
+        "cells       {} of {} m, margin {} m ({} lane points in cells, {} bytes)",
+        m.cells.len(),
+        m.cell_size_m,
+        m.margin_m,
+        points,
+        bytes
+    );
+    println!(
+        "origin      {:.9}, {:.9} ({} projection)",
+        m.origin_lat, m.origin_lon, m.projection
+    );
+    println!("spacing     {} m", m.spacing_m);
+    println!("geometry    {}", grid.geometry());
+    println!("lanes       {}", m.lanes);
+    println!("points      {}", m.points);
+    println!(
+        "bounds      x {:.1}..{:.1} m, y {:.1}..{:.1} m",
+        m.bounds[0], m.bounds[2], m.bounds[1], m.bounds[3]
+    );
+    println!("checksums   every cell valid and as the manifest says");
+    let signed: Vec<String> = signers
+        .into_iter()
+        .map(|s| s.unwrap_or_else(|| "no".into()))
+        .collect();
+    println!("signed      {}", signed.join(", "));
+    Ok(())
+}
+
 fn main() -> std::process::ExitCode {
     lanealign_core::report::exit_code(run(Cli::parse()))
 }
@@ -146,6 +200,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             unmarked_offset_scale,
             classes,
             sign,
+            grid,
+            margin,
             output,
         } => {
             let key = sign.as_deref().map(read_secret_key).transpose()?;
@@ -171,11 +227,33 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             let start = Instant::now();
             let compiled = compile(&inputs, &options)?;
-            let mut bytes = compiled.tile_bytes(spacing);
-            if let Some(key) = &key {
-                tile::sign(&mut bytes, key);
-            }
-            tile::write_bytes(&output, &bytes)?;
+            let written = match grid {
+                Some(cell_size_m) => {
+                    let spec = GridSpec {
+                        plane: &compiled.plane,
+                        spacing_m: spacing,
+                        geometry: &compiled.geometry,
+                        cell_size_m,
+                        margin_m: margin,
+                        sign: key.as_ref(),
+                    };
+                    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+                    let manifest = grid::write(&output, &compiled.map, &spec, threads)?;
+                    let bytes: u64 = manifest.cells.iter().map(|c| c.bytes).sum();
+                    format!(
+                        "{} cells of {cell_size_m} m (margin {margin} m), {bytes} bytes",
+                        manifest.cells.len()
+                    )
+                }
+                None => {
+                    let mut bytes = compiled.tile_bytes(spacing);
+                    if let Some(key) = &key {
+                        tile::sign(&mut bytes, key);
+                    }
+                    tile::write_bytes(&output, &bytes)?;
+                    format!("{} bytes", bytes.len())
+                }
+            };
             for (path, report) in inputs.iter().zip(&compiled.reports) {
                 match report {
                     InputReport::Osm(r) => eprintln!(
@@ -190,8 +268,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             }
             let (map, plane) = (&compiled.map, &compiled.plane);
             eprintln!(
-                "{}: {} lanes, {} points, {:.1} lane-km, {} bytes, origin {:.7},{:.7} ({}); {}; {:.2} s",
-                output.display(), map.lane_count(), map.len(), map.lane_length_m() / 1000.0, bytes.len(),
+                "{}: {} lanes, {} points, {:.1} lane-km, {written}, origin {:.7},{:.7} ({}); {}; {:.2} s",
+                output.display(), map.lane_count(), map.len(), map.lane_length_m() / 1000.0,
                 plane.origin_lat, plane.origin_lon, plane.projection.name(), compiled.geometry,
                 start.elapsed().as_secs_f64()
             );
@@ -216,6 +294,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 format!("{public}\n").as_bytes(),
             )?;
             println!("{public}");
+        }
+        Command::Inspect {
+            tile: path,
+            geojson,
+        } if grid::is_grid(&path) => {
+            if geojson.is_some() {
+                bail!("--geojson takes a tile; inspect one cell of the grid: {}/cells/X_Y.tile is a cell, not a map", path.display());
+            }
+            inspect_grid(&path)?;
         }
         Command::Inspect {
             tile: path,

@@ -14,7 +14,7 @@ use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::ape_2d;
 use lanealign_core::params::{CorrectorConfig, Method, Preset, UNMARKED_OFFSET_SCALE};
 use lanealign_core::pose::{AxisConvention, Pose3};
-use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile;
 use lanealign_core::trajectory::Trajectory;
 use lanealign_map::compile::{compile, CompileOptions};
@@ -176,13 +176,9 @@ fn correct<'py>(
                 anchored_from_odom: loaded.anchored_from_odom,
                 smoothing: config.smoothing(),
             };
-            Ok(correct_trajectory(
-                loaded.map,
-                params,
-                config.match_mode,
-                placement,
-                &input,
-            ))
+            Ok(loaded
+                .correct(params, config.match_mode, placement, &input)?
+                .0)
         })
         .map_err(error)?;
     let corrected: Vec<Pose3> = run.iter().map(|c| c.pose).collect();

@@ -25,7 +25,15 @@ fn the_python_package_equals_the_command_line() {
         assert!(out.status.success(), "{python} {args:?} failed:\n{text}");
         text
     };
-    run(&["-m", "pip", "install", "--quiet", "pytest", "dask[distributed]", "./python"]);
+    run(&[
+        "-m",
+        "pip",
+        "install",
+        "--quiet",
+        "pytest",
+        "dask[distributed]",
+        "./python",
+    ]);
     let report = run(&["-m", "pytest", "python/tests", "-q", "-rs", "-s"]);
     println!("{report}");
     assert!(report.contains("passed"), "{report}");

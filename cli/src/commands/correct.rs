@@ -16,7 +16,7 @@ use lanealign_core::params::{CorrectorConfig, Method, Overrides, Params, Preset}
 use lanealign_core::plausibility;
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::se2::Se2;
-use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
+use lanealign_core::source_corrector::{counts, CorrectedPose, Placement};
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::compile::InputReport;
 use lanealign_map::osm_lanes::LaneOptions;
@@ -282,14 +282,17 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     };
     let (loaded_map, anchored_from_odom) = (loaded.map.clone(), loaded.anchored_from_odom);
     let spinner = report::spinner(format!("correcting {} poses", input.poses.len()));
-    let run = correct_trajectory(
-        loaded.map,
-        params,
-        config.match_mode,
-        placement,
-        &input.poses,
-    );
+    let (run, grid_run) = loaded.correct(params, config.match_mode, placement, &input.poses)?;
     spinner.finish_and_clear();
+    if let Some(g) = grid_run {
+        eprintln!(
+            "grid: {} maps assembled, {} cells read, at most {} loaded at once; {} queries beyond the loaded cells",
+            g.maps, g.cells_read, g.most_cells, g.uncovered_queries
+        );
+        if g.uncovered_queries > 0 {
+            eprintln!("WARN {} neighbour queries reached beyond the loaded cells: those corrections may differ from the whole map's (compile the grid with a larger --margin)", g.uncovered_queries);
+        }
+    }
     let output = Trajectory {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),

@@ -1,0 +1,1100 @@
+//! Tile grids: a map larger than a city as square cells of one map plane, each cell a tile,
+//! loaded around a corrector on demand.
+//!
+//! A grid is a folder: `manifest.toml` ([`Manifest`]: plane, lane geometry, cell size, margin,
+//! bounds, and each cell's checksum) and `cells/<x>_<y>.tile`. Cell `(x, y)` owns the square
+//! `[x s, (x + 1) s) x [y s, (y + 1) s)` of the map plane (`s` the cell size, metres) and holds
+//! every lane point within `margin` of that square, as pieces of the whole map's lanes, each
+//! extended by the neighbour its segments need (a piece's last point is followed by the lane's
+//! next one).
+//!
+//! Exactness. [`assemble`] joins the pieces of any set of cells back into the lanes they came
+//! from, in the whole map's order (so ties between equally distant points break as they do in
+//! the whole map). Every lane point within `margin` of a loaded cell's square is then present
+//! with its own segment, and a query whose nearest-neighbour disk stays within that reach gets
+//! exactly the whole map's answer. The assembled map knows its reach ([`Coverage`]) and counts
+//! every query that goes beyond it ([`LaneMap::uncovered_queries`]): zero means the corrections
+//! equal those on the whole map, bit for bit.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use crate::corrector::MatchMode;
+use crate::geo::{check_lat_lon, MapPlane, Projection};
+use crate::input::InputError;
+use crate::lane_geometry::{LaneGeometry, RoadClasses, Traffic};
+use crate::lane_map::{Lane, LaneMap, LaneMapError};
+use crate::params::Params;
+use crate::pose::Pose3;
+use crate::source_corrector::{CorrectedPose, Placement, SourceCorrector};
+use crate::tile::{self, PieceOrigin, SigningKey, TileError, TileInfo};
+
+/// The manifest's file name in a grid folder.
+pub const MANIFEST: &str = "manifest.toml";
+/// The format version of the manifest this build reads and writes.
+pub const MANIFEST_FORMAT: u32 = 1;
+/// The largest manifest this build reads (bytes): about 300,000 cells.
+pub const MAX_MANIFEST_BYTES: u64 = 32 << 20;
+
+/// A cell's index `[x, y]`: it owns `[x s, (x + 1) s) x [y s, (y + 1) s)` (metres, map plane).
+pub type CellKey = [i32; 2];
+
+/// A grid that could not be written, opened or used.
+#[derive(Debug, thiserror::Error)]
+pub enum GridError {
+    /// The manifest could not be read or written.
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// The manifest is not a valid grid manifest.
+    #[error("{path}: {message}")]
+    Manifest {
+        /// The manifest.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A cell tile is damaged, or does not belong to this grid.
+    #[error(transparent)]
+    Tile(#[from] TileError),
+    /// A cell disagrees with the manifest (another compile's cell, or a changed file).
+    #[error("{path}: {message}")]
+    Cell {
+        /// The cell's file.
+        path: PathBuf,
+        /// What disagrees.
+        message: String,
+    },
+    /// The grid's cell size or margin cannot be used.
+    #[error("grid cell size {cell_size_m} m and margin {margin_m} m: the size must be finite and at least 1 m, the margin finite and not negative")]
+    BadSpec {
+        /// Cell size (metres).
+        cell_size_m: f64,
+        /// Margin (metres).
+        margin_m: f64,
+    },
+    /// The lanes of the loaded cells do not make a valid map.
+    #[error("assembling cells: {0}")]
+    Map(#[from] LaneMapError),
+}
+
+/// One cell as the manifest lists it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellEntry {
+    /// Cell index along x.
+    pub x: i32,
+    /// Cell index along y.
+    pub y: i32,
+    /// The tile's checksum (its header's XXH3-64, 16 hex digits).
+    pub checksum: String,
+    /// The tile's length (bytes).
+    pub bytes: u64,
+    /// Lane points in the cell, margin included.
+    pub points: u64,
+}
+
+/// What `manifest.toml` holds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// Manifest format version ([`MANIFEST_FORMAT`]).
+    pub format: u32,
+    /// Side of a cell's square (metres).
+    pub cell_size_m: f64,
+    /// How far beyond its square a cell holds lane points (metres).
+    pub margin_m: f64,
+    /// The plane's projection (`kitti` or `tangent`).
+    pub projection: String,
+    /// The plane's origin: latitude (degrees, WGS84).
+    pub origin_lat: f64,
+    /// The plane's origin: longitude (degrees, WGS84).
+    pub origin_lon: f64,
+    /// The spacing the lanes were resampled at (metres).
+    pub spacing_m: f64,
+    /// The traffic side lanes were placed for (`right` or `left`).
+    pub traffic: String,
+    /// The road classes lanes were derived from (bit per class code, as in a tile).
+    pub road_classes: u32,
+    /// The unmarked-street offset scale, when lanes came from raw OSM ways.
+    pub unmarked_offset_scale: Option<f64>,
+    /// Lanes in the whole map.
+    pub lanes: u64,
+    /// Lane points in the whole map.
+    pub points: u64,
+    /// Bounding box of every lane point `[min x, min y, max x, max y]` (metres, map plane).
+    pub bounds: [f64; 4],
+    /// The cells that hold any lane point, in `(x, y)` order.
+    pub cells: Vec<CellEntry>,
+}
+
+/// One loaded cell: its pieces and where each comes from.
+pub struct GridCell {
+    /// The cell's index.
+    pub key: CellKey,
+    pieces: LaneMap,
+    origins: Vec<PieceOrigin>,
+    signer: Option<[u8; 32]>,
+}
+
+impl GridCell {
+    /// The ed25519 public key whose valid signature the cell carries (`None`: unsigned).
+    pub fn signer(&self) -> Option<[u8; 32]> {
+        self.signer
+    }
+
+    /// Lane points in the cell (margin included).
+    pub fn points(&self) -> usize {
+        self.pieces.len()
+    }
+}
+
+/// What part of the plane an assembled map answers exactly: every query whose disk lies within
+/// `margin` of the squares of loaded cells (or of cells that hold nothing).
+#[derive(Clone, Debug)]
+pub struct Coverage {
+    cell_size_m: f64,
+    margin_m: f64,
+    loaded: HashSet<CellKey>,
+    existing: Arc<HashSet<CellKey>>,
+}
+
+impl Coverage {
+    /// The cells whose lanes the map holds.
+    pub fn loaded(&self) -> &HashSet<CellKey> {
+        &self.loaded
+    }
+
+    /// Whether the map holds every lane point within `radius_m` of `x` (metres, map plane), each
+    /// with its own segment. Conservative: it may say no to a disk that is in fact covered.
+    pub fn covers(&self, x: [f64; 2], radius_m: f64) -> bool {
+        if self.loaded.len() == self.existing.len() {
+            return true;
+        }
+        if !radius_m.is_finite() {
+            return false;
+        }
+        // Every point of the disk lies within the margin of a point of the disk shrunk by the
+        // margin; those lie in the cells the shrunk disk's square touches. The slack covers the
+        // rounding of the cell arithmetic.
+        let half = (radius_m - self.margin_m).max(0.0) + 1e-6;
+        let [x0, x1] = index_range(x[0], half, self.cell_size_m);
+        let [y0, y1] = index_range(x[1], half, self.cell_size_m);
+        (x0..=x1).all(|cx| {
+            (y0..=y1)
+                .all(|cy| !self.existing.contains(&[cx, cy]) || self.loaded.contains(&[cx, cy]))
+        })
+    }
+}
+
+/// The cell indices whose squares a span `[v - half, v + half]` touches (one axis).
+fn index_range(v: f64, half: f64, cell_size_m: f64) -> [i32; 2] {
+    let index = |v: f64| {
+        (v / cell_size_m)
+            .floor()
+            .clamp(i32::MIN as f64, i32::MAX as f64) as i32
+    };
+    [index(v - half), index(v + half)]
+}
+
+/// The cell that owns position `x` (metres, map plane).
+pub fn cell_of(x: [f64; 2], cell_size_m: f64) -> CellKey {
+    let [cx, _] = index_range(x[0], 0.0, cell_size_m);
+    let [cy, _] = index_range(x[1], 0.0, cell_size_m);
+    [cx, cy]
+}
+
+fn check_spec(cell_size_m: f64, margin_m: f64) -> Result<(), GridError> {
+    if cell_size_m.is_finite() && cell_size_m >= 1.0 && margin_m.is_finite() && margin_m >= 0.0 {
+        Ok(())
+    } else {
+        Err(GridError::BadSpec {
+            cell_size_m,
+            margin_m,
+        })
+    }
+}
+
+/// One cell's content, made by [`partition`].
+pub struct CellContent {
+    /// The cell's index.
+    pub key: CellKey,
+    /// Its pieces as a map (lane `k` is piece `k`).
+    pub pieces: LaneMap,
+    /// Where each piece comes from.
+    pub origins: Vec<PieceOrigin>,
+}
+
+/// Splits `map` into cells of `cell_size_m` holding every point within `margin_m` of their
+/// square, each run of points extended by the neighbour its segments need.
+pub fn partition(
+    map: &LaneMap,
+    cell_size_m: f64,
+    margin_m: f64,
+) -> Result<Vec<CellContent>, GridError> {
+    check_spec(cell_size_m, margin_m)?;
+    let mut cells: BTreeMap<CellKey, (Vec<Lane>, Vec<PieceOrigin>)> = BTreeMap::new();
+    let mut members: BTreeMap<CellKey, Vec<usize>> = BTreeMap::new();
+    for (ordinal, (id, info, points)) in map.lanes().enumerate() {
+        members.clear();
+        for (j, p) in points.iter().enumerate() {
+            let [x0, x1] = index_range(p[0], margin_m, cell_size_m);
+            let [y0, y1] = index_range(p[1], margin_m, cell_size_m);
+            // One more cell below on each axis: a point exactly on a square's far edge plus the
+            // margin belongs to it too.
+            for cx in x0.saturating_sub(1)..=x1 {
+                for cy in y0.saturating_sub(1)..=y1 {
+                    if within_reach(p, [cx, cy], cell_size_m, margin_m) {
+                        members.entry([cx, cy]).or_default().push(j);
+                    }
+                }
+            }
+        }
+        for (key, indices) in &members {
+            let (lanes, origins) = cells.entry(*key).or_default();
+            for [first, last] in pieces_of(indices, points.len()) {
+                lanes.push(Lane {
+                    id,
+                    info,
+                    points: points[first..=last].to_vec(),
+                });
+                origins.push([ordinal as u32, first as u32]);
+            }
+        }
+    }
+    cells
+        .into_iter()
+        .map(|(key, (lanes, origins))| {
+            Ok(CellContent {
+                key,
+                pieces: LaneMap::new(&lanes)?,
+                origins,
+            })
+        })
+        .collect()
+}
+
+/// Whether `p` lies within `margin_m` of cell `key`'s square (closed), per axis.
+fn within_reach(p: &[f64; 2], key: CellKey, cell_size_m: f64, margin_m: f64) -> bool {
+    (0..2).all(|a| {
+        let lo = f64::from(key[a]) * cell_size_m - margin_m;
+        let hi = (f64::from(key[a]) + 1.0) * cell_size_m + margin_m;
+        lo <= p[a] && p[a] <= hi
+    })
+}
+
+/// The point ranges `[first, last]` of a lane of `n` points that a cell keeps: runs of its
+/// member points (ascending), each extended by the next point (whose segment the run's last
+/// point owns) or, for a run of the lane's last point alone, by the one before; overlapping or
+/// touching ranges are joined.
+fn pieces_of(members: &[usize], n: usize) -> Vec<[usize; 2]> {
+    let mut out: Vec<[usize; 2]> = Vec::new();
+    let mut k = 0;
+    while k < members.len() {
+        let first = members[k];
+        let mut last = first;
+        while k + 1 < members.len() && members[k + 1] == last + 1 {
+            k += 1;
+            last += 1;
+        }
+        k += 1;
+        let start = if first == n - 1 && first > 0 {
+            first - 1
+        } else {
+            first
+        };
+        let end = (last + 1).min(n - 1);
+        match out.last_mut() {
+            Some(prev) if start <= prev[1] + 1 => prev[1] = prev[1].max(end),
+            _ => out.push([start, end]),
+        }
+    }
+    out
+}
+
+/// Joins the pieces of `cells` into the lanes they came from, in the whole map's order; the
+/// map's coverage is `cells` (see [`Coverage`]).
+pub fn assemble(grid: &Grid, cells: &[Arc<GridCell>]) -> Result<LaneMap, GridError> {
+    let mut pieces: Vec<(PieceOrigin, &GridCell, usize)> = cells
+        .iter()
+        .flat_map(|c| {
+            c.origins
+                .iter()
+                .enumerate()
+                .map(move |(k, &o)| (o, &**c, k))
+        })
+        .collect();
+    pieces.sort_unstable_by_key(|p| p.0);
+    let mut lanes: Vec<Lane> = Vec::new();
+    let mut current: Option<(u32, usize)> = None;
+    for ([ordinal, first], cell, k) in pieces {
+        let (id, info, points) = piece(cell, k);
+        let first = first as usize;
+        if let (Some((o, start)), Some(lane)) = (current, lanes.last_mut()) {
+            let end = start + lane.points.len();
+            if o == ordinal && first <= end {
+                let overlap = end.min(first + points.len()) - first;
+                let at = first - start;
+                if lane.points[at..at + overlap] != points[..overlap]
+                    || lane.id != id
+                    || lane.info != info
+                {
+                    return Err(GridError::Cell {
+                        path: grid.cell_path(cell.key),
+                        message: format!("lane {id} differs from the same lane in another cell"),
+                    });
+                }
+                lane.points.extend_from_slice(&points[overlap..]);
+                continue;
+            }
+        }
+        current = Some((ordinal, first));
+        lanes.push(Lane {
+            id,
+            info,
+            points: points.to_vec(),
+        });
+    }
+    let coverage = Coverage {
+        cell_size_m: grid.manifest.cell_size_m,
+        margin_m: grid.manifest.margin_m,
+        loaded: cells.iter().map(|c| c.key).collect(),
+        existing: grid.existing.clone(),
+    };
+    Ok(LaneMap::new(&lanes)?.with_coverage(coverage))
+}
+
+fn piece(cell: &GridCell, k: usize) -> (u64, crate::lane_geometry::LaneInfo, &[[f64; 2]]) {
+    let o = cell.pieces.lane_offsets();
+    let range = o[k] as usize..o[k + 1] as usize;
+    (
+        cell.pieces.lane_ids()[k],
+        cell.pieces.lane_info()[k],
+        &cell.pieces.points()[range],
+    )
+}
+
+/// How much of a grid a corrector keeps loaded: every cell within `radius_m` of its window,
+/// and of the road `ahead_m` further along its direction of travel.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadPolicy {
+    /// Cells within this distance of any window pose are loaded (metres).
+    pub radius_m: f64,
+    /// How far ahead of the newest pose, along its direction of travel, cells are prefetched
+    /// (metres).
+    pub ahead_m: f64,
+}
+
+impl Default for LoadPolicy {
+    /// 250 m around the window, 300 m ahead: on the KITTI drives' OpenStreetMap lanes (a point
+    /// every 26 m on average) the 100 nearest points of a pose lie within about 250 m.
+    fn default() -> Self {
+        LoadPolicy {
+            radius_m: 250.0,
+            ahead_m: 300.0,
+        }
+    }
+}
+
+impl LoadPolicy {
+    /// Refuses a radius or distance that is negative or not finite.
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, v) in [("radius_m", self.radius_m), ("ahead_m", self.ahead_m)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{key} = {v}: must be finite and not negative"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An opened grid: its validated manifest; cells are read on request.
+pub struct Grid {
+    dir: PathBuf,
+    manifest: Manifest,
+    plane: MapPlane,
+    geometry: LaneGeometry,
+    cells: HashMap<CellKey, CellEntry>,
+    existing: Arc<HashSet<CellKey>>,
+}
+
+impl std::fmt::Debug for Grid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Grid")
+            .field("dir", &self.dir)
+            .field("cells", &self.cells.len())
+            .finish()
+    }
+}
+
+/// Whether `path` is a grid folder (a folder holding a manifest) rather than a tile file.
+pub fn is_grid(path: &Path) -> bool {
+    path.is_dir()
+}
+
+impl Grid {
+    /// Opens the grid in folder `dir`: reads and checks its manifest (bounded, regular file).
+    pub fn open(dir: &Path) -> Result<Grid, GridError> {
+        let path = dir.join(MANIFEST);
+        let bytes = crate::input::read_regular_file(&path, MAX_MANIFEST_BYTES)?;
+        let bad = |message: String| GridError::Manifest {
+            path: path.clone(),
+            message,
+        };
+        let text = std::str::from_utf8(&bytes).map_err(|_| bad("not UTF-8 text".into()))?;
+        let manifest: Manifest = toml::from_str(text).map_err(|e| bad(e.message().to_string()))?;
+        if manifest.format != MANIFEST_FORMAT {
+            return Err(bad(format!(
+                "manifest format {}, this build reads {MANIFEST_FORMAT}",
+                manifest.format
+            )));
+        }
+        check_spec(manifest.cell_size_m, manifest.margin_m).map_err(|e| bad(e.to_string()))?;
+        let projection: Projection = manifest
+            .projection
+            .parse()
+            .map_err(|e| bad(format!("projection: {e}")))?;
+        check_lat_lon(manifest.origin_lat, manifest.origin_lon)
+            .map_err(|e| bad(format!("origin: {e}")))?;
+        let traffic = match manifest.traffic.as_str() {
+            "right" => Traffic::Right,
+            "left" => Traffic::Left,
+            other => return Err(bad(format!("traffic {other:?}: right or left"))),
+        };
+        let classes = RoadClasses::from_bits(manifest.road_classes)
+            .ok_or_else(|| bad(format!("road classes {:#x}", manifest.road_classes)))?;
+        let geometry = LaneGeometry {
+            traffic,
+            classes,
+            unmarked_offset_scale: manifest.unmarked_offset_scale,
+        };
+        let mut cells = HashMap::with_capacity(manifest.cells.len());
+        for entry in &manifest.cells {
+            if u64::from_str_radix(&entry.checksum, 16).is_err() || entry.checksum.len() != 16 {
+                return Err(bad(format!(
+                    "cell {} {}: checksum {:?} is not 16 hex digits",
+                    entry.x, entry.y, entry.checksum
+                )));
+            }
+            if cells.insert([entry.x, entry.y], entry.clone()).is_some() {
+                return Err(bad(format!("cell {} {} is listed twice", entry.x, entry.y)));
+            }
+        }
+        if cells.is_empty() {
+            return Err(bad("the grid has no cell".into()));
+        }
+        let existing = Arc::new(cells.keys().copied().collect());
+        Ok(Grid {
+            dir: dir.to_path_buf(),
+            plane: MapPlane::new(projection, manifest.origin_lat, manifest.origin_lon),
+            geometry,
+            manifest,
+            cells,
+            existing,
+        })
+    }
+
+    /// The manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// The map plane every cell is in.
+    pub fn plane(&self) -> MapPlane {
+        self.plane
+    }
+
+    /// How the lanes were derived.
+    pub fn geometry(&self) -> LaneGeometry {
+        self.geometry
+    }
+
+    /// Every cell that holds lanes.
+    pub fn cells(&self) -> impl Iterator<Item = CellKey> + '_ {
+        self.manifest.cells.iter().map(|e| [e.x, e.y])
+    }
+
+    /// The file of cell `key`.
+    pub fn cell_path(&self, key: CellKey) -> PathBuf {
+        self.dir.join("cells").join(cell_file_name(key))
+    }
+
+    /// Reads and validates cell `key`: the tile must be valid, match the manifest's checksum
+    /// and length, and share the grid's plane, spacing, geometry and cell square. The cell owns
+    /// its data: the file can change afterwards without effect.
+    pub fn load_cell(&self, key: CellKey) -> Result<GridCell, GridError> {
+        let path = self.cell_path(key);
+        let bad = |message: String| GridError::Cell {
+            path: path.clone(),
+            message,
+        };
+        let entry = self
+            .cells
+            .get(&key)
+            .ok_or_else(|| bad("not in the manifest".into()))?;
+        let bytes = crate::input::read_regular_file(&path, tile::MAX_TILE_BYTES)?;
+        let (pieces, info, origins) = tile::decode_cell(&path, &bytes)?;
+        let square = self.square(key);
+        if format!("{:016x}", info.checksum) != entry.checksum || bytes.len() as u64 != entry.bytes
+        {
+            return Err(bad(format!(
+                "checksum {:016x} and {} bytes, the manifest says {} and {} bytes: the cell is not this grid's",
+                info.checksum,
+                bytes.len(),
+                entry.checksum,
+                entry.bytes
+            )));
+        }
+        self.check_info(&info, square).map_err(bad)?;
+        if let Some(&[lane, _]) = origins
+            .iter()
+            .find(|o| u64::from(o[0]) >= self.manifest.lanes)
+        {
+            return Err(bad(format!(
+                "a piece of lane {lane}, the grid has {} lanes",
+                self.manifest.lanes
+            )));
+        }
+        Ok(GridCell {
+            key,
+            pieces,
+            origins,
+            signer: info.signer,
+        })
+    }
+
+    fn check_info(&self, info: &TileInfo, square: [f64; 4]) -> Result<(), String> {
+        if info.plane != self.plane
+            || info.spacing_m.to_bits() != self.manifest.spacing_m.to_bits()
+            || info.geometry != self.geometry
+        {
+            return Err("its plane, spacing or lane geometry is not the grid's".into());
+        }
+        if info.cell != Some(square) {
+            return Err(format!(
+                "its square {:?} is not the grid's {square:?} for this cell",
+                info.cell
+            ));
+        }
+        Ok(())
+    }
+
+    /// Cell `key`'s own square `[min x, min y, max x, max y]` (metres, map plane).
+    pub fn square(&self, key: CellKey) -> [f64; 4] {
+        let s = self.manifest.cell_size_m;
+        [
+            f64::from(key[0]) * s,
+            f64::from(key[1]) * s,
+            (f64::from(key[0]) + 1.0) * s,
+            (f64::from(key[1]) + 1.0) * s,
+        ]
+    }
+
+    /// The cells (that hold lanes) a corrector with this window needs under `policy`: within
+    /// `radius_m` of any window pose (oldest first; metres, map plane) and of the road `ahead_m`
+    /// beyond the newest along its direction of travel.
+    pub fn wanted(&self, window: &[[f64; 2]], policy: &LoadPolicy) -> BTreeSet<CellKey> {
+        let step = self.manifest.cell_size_m / 4.0;
+        let radius = policy.radius_m + step;
+        let mut out = BTreeSet::new();
+        let mut add = |p: [f64; 2]| {
+            let [x0, x1] = index_range(p[0], radius, self.manifest.cell_size_m);
+            let [y0, y1] = index_range(p[1], radius, self.manifest.cell_size_m);
+            for cx in x0..=x1 {
+                for cy in y0..=y1 {
+                    if self.existing.contains(&[cx, cy]) {
+                        out.insert([cx, cy]);
+                    }
+                }
+            }
+        };
+        let mut last: Option<[f64; 2]> = None;
+        for (i, &p) in window.iter().enumerate() {
+            let far = last.is_none_or(|q| distance(p, q) > step);
+            if far || i + 1 == window.len() {
+                add(p);
+                last = Some(p);
+            }
+        }
+        if let [.., before, newest] = window {
+            let d = distance(*before, *newest);
+            if d > 0.0 {
+                let dir = [(newest[0] - before[0]) / d, (newest[1] - before[1]) / d];
+                let samples = (policy.ahead_m / step).ceil() as usize;
+                for k in 1..=samples {
+                    let t = (k as f64 * step).min(policy.ahead_m);
+                    add([newest[0] + t * dir[0], newest[1] + t * dir[1]]);
+                }
+            }
+        }
+        out
+    }
+}
+
+fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+}
+
+/// The file name of cell `key` inside the grid's `cells` folder.
+pub fn cell_file_name(key: CellKey) -> String {
+    format!("{}_{}.tile", key[0], key[1])
+}
+
+/// What [`write`] needs besides the map: its plane, how it was made, and the grid.
+pub struct GridSpec<'a> {
+    /// The plane of the map.
+    pub plane: &'a MapPlane,
+    /// The spacing the lanes were resampled at (metres).
+    pub spacing_m: f64,
+    /// How the lanes were derived.
+    pub geometry: &'a LaneGeometry,
+    /// Side of a cell's square (metres).
+    pub cell_size_m: f64,
+    /// How far beyond its square a cell holds lane points (metres).
+    pub margin_m: f64,
+    /// Sign every cell with this key.
+    pub sign: Option<&'a SigningKey>,
+}
+
+/// Writes `map` as a grid into folder `dir`: every cell, then the manifest (each atomically;
+/// the manifest last, so that a reader never sees a manifest naming a cell not yet written).
+/// Cells are encoded in parallel by the caller's choice of `encode_threads` (at least 1).
+pub fn write(
+    dir: &Path,
+    map: &LaneMap,
+    spec: &GridSpec,
+    encode_threads: usize,
+) -> Result<Manifest, GridError> {
+    let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
+    let cells_dir = dir.join("cells");
+    std::fs::create_dir_all(&cells_dir).map_err(|source| InputError::Io {
+        path: cells_dir.clone(),
+        source,
+    })?;
+    let chunk = cells.len().div_ceil(encode_threads.max(1)).max(1);
+    let entries: Vec<Result<Vec<CellEntry>, GridError>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = cells
+            .chunks(chunk)
+            .map(|part| {
+                scope.spawn(|| {
+                    part.iter()
+                        .map(|c| write_cell(&cells_dir, c, spec))
+                        .collect()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    });
+    let mut cell_entries = Vec::with_capacity(cells.len());
+    for part in entries {
+        cell_entries.extend(part?);
+    }
+    let points = map.points();
+    let bounds = points.iter().fold(
+        [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ],
+        |b, p| {
+            [
+                b[0].min(p[0]),
+                b[1].min(p[1]),
+                b[2].max(p[0]),
+                b[3].max(p[1]),
+            ]
+        },
+    );
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT,
+        cell_size_m: spec.cell_size_m,
+        margin_m: spec.margin_m,
+        projection: spec.plane.projection.name().into(),
+        origin_lat: spec.plane.origin_lat,
+        origin_lon: spec.plane.origin_lon,
+        spacing_m: spec.spacing_m,
+        traffic: match spec.geometry.traffic {
+            Traffic::Right => "right".into(),
+            Traffic::Left => "left".into(),
+        },
+        road_classes: spec.geometry.classes.bits(),
+        unmarked_offset_scale: spec.geometry.unmarked_offset_scale,
+        lanes: map.lane_count() as u64,
+        points: map.len() as u64,
+        bounds,
+        cells: cell_entries,
+    };
+    let text = toml::to_string(&manifest).map_err(|e| GridError::Manifest {
+        path: dir.join(MANIFEST),
+        message: e.to_string(),
+    })?;
+    crate::input::write_atomic(&dir.join(MANIFEST), text.as_bytes())?;
+    Ok(manifest)
+}
+
+fn write_cell(
+    cells_dir: &Path,
+    cell: &CellContent,
+    spec: &GridSpec,
+) -> Result<CellEntry, GridError> {
+    let s = spec.cell_size_m;
+    let key = cell.key;
+    let square = [
+        f64::from(key[0]) * s,
+        f64::from(key[1]) * s,
+        (f64::from(key[0]) + 1.0) * s,
+        (f64::from(key[1]) + 1.0) * s,
+    ];
+    let mut bytes = tile::encode_cell(
+        &cell.pieces,
+        &cell.origins,
+        square,
+        spec.plane,
+        spec.spacing_m,
+        spec.geometry,
+    );
+    if let Some(key) = spec.sign {
+        tile::sign(&mut bytes, key);
+    }
+    let info = tile::read_info(Path::new(""), &bytes)?;
+    tile::write_bytes(&cells_dir.join(cell_file_name(key)), &bytes)?;
+    Ok(CellEntry {
+        x: key[0],
+        y: key[1],
+        checksum: format!("{:016x}", info.checksum),
+        bytes: bytes.len() as u64,
+        points: cell.pieces.len() as u64,
+    })
+}
+
+/// Keeps one corrector's map assembled from the cells its window needs, loading them on the
+/// caller's thread (for offline correction; the daemon loads on a thread of its own).
+pub struct GridMaps {
+    grid: Arc<Grid>,
+    policy: LoadPolicy,
+    cells: HashMap<CellKey, Arc<GridCell>>,
+    current: BTreeSet<CellKey>,
+    last_update: Option<[f64; 2]>,
+    cells_read: u64,
+}
+
+impl GridMaps {
+    /// Maps from `grid` under `policy`; nothing is loaded yet.
+    pub fn new(grid: Arc<Grid>, policy: LoadPolicy) -> GridMaps {
+        GridMaps {
+            grid,
+            policy,
+            cells: HashMap::new(),
+            current: BTreeSet::new(),
+            last_update: None,
+            cells_read: 0,
+        }
+    }
+
+    /// The map a corrector whose window is `window` needs (plus the position about to be pushed,
+    /// `next`), when it differs from the last one returned: cells are loaded, those no longer
+    /// needed dropped. `None` when the last map still serves (it holds every cell needed, or
+    /// no cell is near). Checks only after the newest pose moved a quarter cell since the last
+    /// check.
+    pub fn update(
+        &mut self,
+        window: &[[f64; 2]],
+        next: [f64; 2],
+    ) -> Result<Option<LaneMap>, GridError> {
+        let step = self.grid.manifest.cell_size_m / 4.0;
+        if self.last_update.is_some_and(|q| distance(q, next) < step) {
+            return Ok(None);
+        }
+        self.last_update = Some(next);
+        let mut path = Vec::with_capacity(window.len() + 1);
+        path.extend_from_slice(window);
+        path.push(next);
+        let wanted = self.grid.wanted(&path, &self.policy);
+        // No cell near (a stretch without lanes): the last map keeps serving, and its coverage
+        // counts any query that reaches past it.
+        if wanted.is_empty() || wanted.is_subset(&self.current) {
+            return Ok(None);
+        }
+        self.cells.retain(|k, _| wanted.contains(k));
+        for &key in &wanted {
+            if !self.cells.contains_key(&key) {
+                self.cells.insert(key, Arc::new(self.grid.load_cell(key)?));
+                self.cells_read += 1;
+            }
+        }
+        let cells: Vec<Arc<GridCell>> = wanted.iter().map(|k| self.cells[k].clone()).collect();
+        self.current = wanted;
+        Ok(Some(assemble(&self.grid, &cells)?))
+    }
+}
+
+/// What a run on a grid loaded and whether every answer was the whole map's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct GridRun {
+    /// Maps assembled (the first and every change of the set of cells).
+    pub maps: u64,
+    /// Cells read from disk.
+    pub cells_read: u64,
+    /// The most cells loaded at once.
+    pub most_cells: usize,
+    /// Neighbour queries beyond the loaded cells: zero means every correction equals the whole
+    /// map's, bit for bit.
+    pub uncovered_queries: u64,
+}
+
+impl GridMaps {
+    /// The map for a corrector about to push `next` with window `window`, counted in `run`.
+    fn next_map(
+        &mut self,
+        window: &[[f64; 2]],
+        next: [f64; 2],
+        run: &mut GridRun,
+    ) -> Result<Option<LaneMap>, GridError> {
+        let map = self.update(window, next)?;
+        if map.is_some() {
+            run.maps += 1;
+            run.most_cells = run.most_cells.max(self.current.len());
+        }
+        run.cells_read = self.cells_read;
+        Ok(map)
+    }
+}
+
+/// Corrects a whole recorded trajectory on a grid, as [`correct_trajectory`] does on one map:
+/// before each pose, the cells its corrector needs under `policy` are loaded (on this thread).
+pub fn correct_trajectory_on_grid(
+    grid: Arc<Grid>,
+    policy: LoadPolicy,
+    params: Params,
+    mode: MatchMode,
+    placement: Placement,
+    poses: &[Pose3],
+) -> Result<(Vec<CorrectedPose>, GridRun), GridError> {
+    let mut maps = GridMaps::new(grid, policy);
+    let mut run = GridRun::default();
+    let Some(first) = poses.first() else {
+        return Ok((Vec::new(), run));
+    };
+    let start = placement_position(&placement, first);
+    let map = maps
+        .next_map(&[], start, &mut run)?
+        .ok_or_else(|| GridError::Cell {
+            path: maps.grid.dir.clone(),
+            message: format!(
+                "no cell holds lanes within {} m of the first pose {start:?}",
+                policy.radius_m
+            ),
+        })?;
+    let mut corrector = SourceCorrector::new(Arc::new(map), params, mode, placement);
+    let mut out = Vec::with_capacity(poses.len());
+    for pose in poses {
+        if pose.problem().is_none() {
+            let next = corrector.predicted_position_in_map(pose);
+            if let Some(map) = maps.next_map(corrector.window(), next, &mut run)? {
+                run.uncovered_queries += corrector.map().uncovered_queries();
+                corrector.replace_map(Arc::new(map));
+            }
+        }
+        out.push(corrector.correct(pose).0);
+    }
+    run.uncovered_queries += corrector.map().uncovered_queries();
+    Ok((out, run))
+}
+
+/// Where the placement puts `pose` in the map plane before any correction (metres).
+fn placement_position(placement: &Placement, pose: &Pose3) -> [f64; 2] {
+    placement
+        .anchored_from_odom
+        .apply(placement.convention.to_planar(pose).planar_position())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lane_geometry::LaneInfo;
+
+    #[test]
+    fn pieces_keep_the_segment_neighbours() {
+        assert_eq!(pieces_of(&[2, 3, 4], 10), vec![[2, 5]]);
+        assert_eq!(pieces_of(&[0, 1, 5, 6], 10), vec![[0, 2], [5, 7]]);
+        assert_eq!(pieces_of(&[0, 1, 3, 4], 10), vec![[0, 5]]);
+        assert_eq!(pieces_of(&[9], 10), vec![[8, 9]]);
+        assert_eq!(pieces_of(&[0], 1), vec![[0, 0]]);
+        assert_eq!(pieces_of(&[7, 8, 9], 10), vec![[7, 9]]);
+    }
+
+    /// A town of lanes crossing many cells, with shared end points (ties) and lanes of one and
+    /// two points.
+    fn town() -> LaneMap {
+        let mut lanes = Vec::new();
+        for r in 0..12 {
+            let y = r as f64 * 37.5;
+            let east: Vec<[f64; 2]> = (0..90).map(|i| [i as f64 * 4.9 - 20.0, y]).collect();
+            let mut west = east.clone();
+            west.reverse();
+            west.iter_mut().for_each(|p| p[1] += 3.5);
+            lanes.push(Lane::new(2 * r, east));
+            lanes.push(Lane::new(2 * r + 1, west));
+            let north: Vec<[f64; 2]> = (0..100)
+                .map(|i| [r as f64 * 41.0, i as f64 * 4.7 - 30.0])
+                .collect();
+            lanes.push(Lane {
+                id: 100 + r,
+                info: LaneInfo::new(crate::lane_geometry::RoadClass::Primary, 0),
+                points: north,
+            });
+        }
+        lanes.push(Lane::new(500, vec![[100.0, 100.0]]));
+        lanes.push(Lane::new(501, vec![[150.0, 150.0], [152.0, 150.0]]));
+        LaneMap::new(&lanes).unwrap()
+    }
+
+    fn grid_of(map: &LaneMap, dir: &Path, cell: f64, margin: f64) -> Grid {
+        let plane = MapPlane::new(Projection::Tangent, 48.98, 8.39);
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &LaneGeometry::default(),
+            cell_size_m: cell,
+            margin_m: margin,
+            sign: None,
+        };
+        write(dir, map, &spec, 2).unwrap();
+        Grid::open(dir).unwrap()
+    }
+
+    #[test]
+    fn all_cells_assemble_into_the_whole_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let map = town();
+        let grid = grid_of(&map, dir.path(), 50.0, 10.0);
+        let cells: Vec<Arc<GridCell>> = grid
+            .cells()
+            .map(|k| Arc::new(grid.load_cell(k).unwrap()))
+            .collect();
+        let whole = assemble(&grid, &cells).unwrap();
+        assert_eq!(whole, map);
+    }
+
+    /// Every nearest-neighbour query the coverage vouches for equals the whole map's, on
+    /// partial sets of cells.
+    #[test]
+    fn covered_queries_equal_the_whole_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let map = town();
+        let grid = grid_of(&map, dir.path(), 60.0, 15.0);
+        let mut rng = 12345u64;
+        let mut next = move || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut checked, mut vouched) = (0, 0);
+        for _ in 0..40 {
+            let centre = [next() * 450.0 - 20.0, next() * 450.0 - 30.0];
+            let wanted = grid.wanted(
+                &[centre],
+                &LoadPolicy {
+                    radius_m: next() * 80.0,
+                    ahead_m: 0.0,
+                },
+            );
+            let cells: Vec<Arc<GridCell>> = wanted
+                .iter()
+                .map(|&k| Arc::new(grid.load_cell(k).unwrap()))
+                .collect();
+            if cells.is_empty() {
+                continue;
+            }
+            let part = assemble(&grid, &cells).unwrap();
+            for _ in 0..50 {
+                let x = [
+                    centre[0] + next() * 120.0 - 60.0,
+                    centre[1] + next() * 120.0 - 60.0,
+                ];
+                let n = 1 + (next() * 12.0) as usize;
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                let before = part.uncovered_queries();
+                part.nearest(x, n, &mut a);
+                checked += 1;
+                if part.uncovered_queries() == before {
+                    vouched += 1;
+                    map.nearest(x, n, &mut b);
+                    let global = |c: &Vec<(f64, u32)>, m: &LaneMap| -> Vec<(u64, [u64; 2])> {
+                        c.iter()
+                            .map(|&(_, j)| {
+                                let p = m.points()[j as usize];
+                                (m.lane_ids()[m.lane_of(j)], [p[0].to_bits(), p[1].to_bits()])
+                            })
+                            .collect()
+                    };
+                    assert_eq!(global(&a, &part), global(&b, &map), "query {x:?} n {n}");
+                    let seg = |c: &Vec<(f64, u32)>, m: &LaneMap| -> Vec<_> {
+                        c.iter().map(|&(_, j)| m.segment_of(j)).collect()
+                    };
+                    assert_eq!(seg(&a, &part), seg(&b, &map));
+                }
+            }
+        }
+        assert!(vouched > checked / 2, "{vouched} of {checked} vouched for");
+        assert!(vouched < checked, "no query went past the loaded cells");
+    }
+
+    #[test]
+    fn a_cell_from_another_grid_is_refused() {
+        let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+        let map = town();
+        let grid_a = grid_of(&map, a.path(), 50.0, 10.0);
+        grid_of(&map, b.path(), 50.0, 20.0);
+        let key = [2, 2];
+        std::fs::copy(
+            b.path().join("cells").join(cell_file_name(key)),
+            grid_a.cell_path(key),
+        )
+        .unwrap();
+        let e = grid_a.load_cell(key).err().unwrap().to_string();
+        assert!(e.contains("not this grid's"), "{e}");
+        let whole = tile::encode(&map, &grid_a.plane(), 3.0, &LaneGeometry::default());
+        let e = tile::decode_cell(Path::new("w.tile"), &whole)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("grid cell was expected"), "{e}");
+        let cell = std::fs::read(grid_a.cell_path(grid_a.cells().nth(1).unwrap())).unwrap();
+        let e = tile::decode(Path::new("c.tile"), &cell)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("give the grid's folder"), "{e}");
+    }
+
+    #[test]
+    fn bad_manifests_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        grid_of(&town(), dir.path(), 50.0, 10.0);
+        let path = dir.path().join(MANIFEST);
+        let good = std::fs::read_to_string(&path).unwrap();
+        for (from, to, what) in [
+            ("cell_size_m = 50.0", "cell_size_m = 0.0", "cell size"),
+            ("format = 1", "format = 7", "format 7"),
+            ("traffic = \"right\"", "traffic = \"up\"", "traffic"),
+            (
+                "margin_m = 10.0",
+                "margin_m = 10.0\nextra = 1",
+                "unknown field",
+            ),
+        ] {
+            std::fs::write(&path, good.replacen(from, to, 1)).unwrap();
+            let e = Grid::open(dir.path()).err().unwrap().to_string();
+            assert!(e.contains(what), "{what}: {e}");
+        }
+    }
+}
