@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use lanealign_core::geo::Anchor;
+use lanealign_core::grid::LoadPolicy;
 use lanealign_core::params::CorrectorConfig;
 use lanealign_core::pose::AxisConvention;
 use lanealign_service::config::{Config, LogFormat, SourceConfig};
@@ -27,7 +28,7 @@ pub struct Source {
     pub wait: WaitStrategy,
 }
 
-/// A configuration for `tile` in `namespace` with `sources`, metrics every
+/// A configuration for `tile` (a tile or a grid's folder) in `namespace` with `sources`, metrics every
 /// `metrics_interval_s`, sessions journaled below `state_dir`.
 pub fn config(
     tile: &Path,
@@ -38,6 +39,7 @@ pub fn config(
 ) -> Config {
     Config {
         tile: PathBuf::from(tile),
+        grid: LoadPolicy::default(),
         namespace: namespace.to_string(),
         metrics_interval_s,
         state_dir: Some(state_dir.to_path_buf()),

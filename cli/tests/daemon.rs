@@ -135,6 +135,58 @@ fn two_kitti_sources_at_once_match_offline_bit_for_bit() {
     assert!(got_b == offline(&setup, &b, &poses_b), "{b}: bit for bit");
 }
 
+/// KITTI 07 and 08 through a daemon serving a grid of 200 m cells: each session loads the
+/// cells around it on the daemon's loader thread as it drives, and its answers equal offline
+/// correction on the whole tile bit for bit; no query reached past its loaded cells.
+#[test]
+fn kitti_on_a_grid_matches_the_whole_tile_bit_for_bit() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(data) = shared_data() else { return };
+    let (a, b) = (unique("lidar07"), unique("lidar08"));
+    let setup = kitti_setup_on(&data, &[(&a, "07"), (&b, "08")], Some(200.0));
+    let daemon = start(&setup);
+    let read_run = |seq: &str| {
+        read(
+            &data.join(format!("odometry/lidar/{seq}.txt")),
+            Format::Kitti,
+        )
+        .unwrap()
+        .poses
+    };
+    let (poses_a, poses_b) = (read_run("07"), read_run("08"));
+    let (got_a, got_b) = std::thread::scope(|s| {
+        let ha = s.spawn(|| run_replay(&setup, &a, &poses_a, Rate::Hz(1000.0)));
+        let hb = s.spawn(|| run_replay(&setup, &b, &poses_b, Rate::Hz(1000.0)));
+        (ha.join().unwrap(), hb.join().unwrap())
+    });
+    // One more metrics interval, so that the last poses are reported.
+    std::thread::sleep(Duration::from_millis(1200));
+    let log = daemon.log();
+    assert!(daemon.stop().unwrap(), "clean exit");
+    assert!(got_a == offline(&setup, &a, &poses_a), "{a}: bit for bit");
+    assert!(got_b == offline(&setup, &b, &poses_b), "{b}: bit for bit");
+    let field = |line: &str, key: &str| -> Option<u64> {
+        let at = line.find(&format!(" {key}="))? + key.len() + 2;
+        line[at..]
+            .split(|c: char| !c.is_ascii_digit())
+            .next()?
+            .parse()
+            .ok()
+    };
+    let latency: Vec<&str> = log.lines().filter(|l| l.contains(" latency")).collect();
+    let swaps: u64 = latency.iter().filter_map(|l| field(l, "map_swaps")).sum();
+    let uncovered: u64 = latency
+        .iter()
+        .filter_map(|l| field(l, "uncovered_queries"))
+        .sum();
+    assert!(
+        swaps > 10,
+        "sessions moved to new maps as they drove: {swaps}\n{log}"
+    );
+    assert_eq!(uncovered, 0, "{log}");
+    assert!(log.contains("resident_cells="), "the loader reports: {log}");
+}
+
 /// Always runs: through a raw wire client, the protocol of sequence numbers: non-finite poses
 /// use up their number and change nothing, a used number with another pose is flagged, a used
 /// number with the same pose gets the same answer again, a number beyond the next is a gap;

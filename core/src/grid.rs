@@ -419,6 +419,7 @@ pub struct Grid {
     geometry: LaneGeometry,
     cells: HashMap<CellKey, CellEntry>,
     existing: Arc<HashSet<CellKey>>,
+    checksum: u64,
 }
 
 impl std::fmt::Debug for Grid {
@@ -488,6 +489,7 @@ impl Grid {
         }
         let existing = Arc::new(cells.keys().copied().collect());
         Ok(Grid {
+            checksum: xxhash_rust::xxh3::xxh3_64(&bytes),
             dir: dir.to_path_buf(),
             plane: MapPlane::new(projection, manifest.origin_lat, manifest.origin_lon),
             geometry,
@@ -495,6 +497,30 @@ impl Grid {
             cells,
             existing,
         })
+    }
+
+    /// XXH3-64 of the manifest's bytes: identifies the grid (each cell's checksum is in it).
+    pub fn checksum(&self) -> u64 {
+        self.checksum
+    }
+
+    /// What a tile of the whole grid would say about itself (counts, bounds and total bytes
+    /// from the manifest, [`Self::checksum`] as its checksum, no signer: cells are signed one by
+    /// one).
+    pub fn info(&self) -> TileInfo {
+        let m = &self.manifest;
+        TileInfo {
+            plane: self.plane,
+            spacing_m: m.spacing_m,
+            geometry: self.geometry,
+            points: m.points,
+            lanes: m.lanes,
+            bounds: m.bounds,
+            payload_len: m.cells.iter().map(|c| c.bytes).sum(),
+            checksum: self.checksum,
+            signer: None,
+            cell: None,
+        }
     }
 
     /// The manifest.

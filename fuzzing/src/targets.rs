@@ -287,6 +287,7 @@ fn odom_pose(chunk: &[u8]) -> OdomPose {
 fn serve(bytes: &[u8]) {
     let setup = SessionSetup {
         map: seed_map(),
+        grid: None,
         params: Preset::KissIcp.params(),
         mode: MatchMode::Fast,
         placement: placement(),

@@ -42,6 +42,7 @@ fn setup(
     let config = CorrectorConfig::new(preset, method);
     SessionSetup {
         map: map.clone(),
+        grid: None,
         params: config.params().expect("preset parameters are valid"),
         mode: config.match_mode,
         placement: Placement {

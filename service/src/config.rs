@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use lanealign_core::geo::Anchor;
+use lanealign_core::grid::LoadPolicy;
 use lanealign_core::input::{read_regular_file, InputError};
 use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::AxisConvention;
@@ -18,8 +19,12 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
-    /// The lane tile (relative paths are relative to the config file).
+    /// The lane tile, or a grid's folder (relative paths are relative to the config file).
     pub tile: PathBuf,
+    /// For a grid: which cells each session keeps loaded (default 250 m around its window,
+    /// 300 m ahead).
+    #[serde(default, skip_serializing_if = "is_default_policy")]
+    pub grid: LoadPolicy,
     /// The deployment's namespace: daemons and clients of different namespaces never see each
     /// other. Default `default`.
     #[serde(default = "default_namespace")]
@@ -135,6 +140,10 @@ pub struct SourceConfig {
     /// How the source's worker waits for poses (default: sleep until notified).
     #[serde(default, skip_serializing_if = "is_event")]
     pub wait: WaitStrategy,
+}
+
+fn is_default_policy(policy: &LoadPolicy) -> bool {
+    *policy == LoadPolicy::default()
 }
 
 fn is_event(wait: &WaitStrategy) -> bool {
@@ -285,6 +294,7 @@ impl Config {
                 ),
             ));
         }
+        self.grid.validate().map_err(|e| value("grid".into(), e))?;
         if !(1..=64).contains(&self.max_sessions) {
             return Err(value(
                 "max_sessions".into(),
@@ -358,6 +368,23 @@ impl Config {
         sources: &[ResolvedSource],
         tile: &TileInfo,
     ) -> Result<(), ConfigError> {
+        self.check_signer(path, tile)?;
+        self.check_geometry(path, sources, tile)
+    }
+
+    /// The trusted signers' public keys, when the configuration names any (`None`: any valid
+    /// tile or cell is accepted).
+    pub fn trusted_keys(&self) -> Option<Vec<[u8; 32]>> {
+        (!self.trusted_tile_keys.is_empty()).then(|| {
+            self.trusted_tile_keys
+                .iter()
+                .filter_map(|k| parse_key_hex(k))
+                .collect()
+        })
+    }
+
+    /// Refuses a tile not signed by a trusted key, when keys are configured.
+    fn check_signer(&self, path: &Path, tile: &TileInfo) -> Result<(), ConfigError> {
         if !self.trusted_tile_keys.is_empty() {
             let trusted = tile.signer.is_some_and(|signer| {
                 self.trusted_tile_keys
@@ -379,6 +406,16 @@ impl Config {
                 });
             }
         }
+        Ok(())
+    }
+
+    /// Refuses a tile (or grid) whose lane geometry a source's method was not designed for.
+    pub fn check_geometry(
+        &self,
+        path: &Path,
+        sources: &[ResolvedSource],
+        tile: &TileInfo,
+    ) -> Result<(), ConfigError> {
         for s in sources.iter().filter(|s| !s.pass_through) {
             s.corrector
                 .check_geometry(&tile.geometry)

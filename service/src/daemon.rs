@@ -14,6 +14,7 @@ use std::time::Duration;
 use crate::tile_watch::TileWatch;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
+use lanealign_core::grid::{self, Grid};
 use lanealign_core::input::InputError;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::source_corrector::Placement;
@@ -22,6 +23,7 @@ use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::service::{Namespace, NodeCreateError, NodeListError, SourceName, DAEMON_NODE};
 
 use crate::config::{Config, ConfigError, ResolvedSource};
+use crate::grid_loader::GridLoader;
 use crate::journal::fingerprint;
 use crate::session::SessionSetup;
 use crate::worker::{self, Reload, WorkerError, WorkerSetup, WorkerSummary};
@@ -35,6 +37,17 @@ pub enum DaemonError {
     /// The configuration is not usable.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// The grid could not be opened, or holds no usable lanes near a source's anchor.
+    #[error("grid {path}: {message}")]
+    Grid {
+        /// The grid's folder.
+        path: PathBuf,
+        /// What failed.
+        message: String,
+    },
+    /// The grid loader thread could not be started.
+    #[error("starting the grid loader thread: {0}")]
+    GridLoader(std::io::Error),
     /// The tile could not be loaded.
     #[error("{source}{hint}")]
     Tile {
@@ -93,10 +106,72 @@ pub struct Prepared {
     pub state_dir: Option<PathBuf>,
     /// The sources.
     pub sources: Vec<ResolvedSource>,
-    /// The lane map.
-    pub map: Arc<LaneMap>,
-    /// What the tile says about itself.
+    /// The lanes.
+    pub lanes: Lanes,
+    /// What the tile says about itself (for a grid, see [`Grid::info`]).
     pub tile: TileInfo,
+}
+
+/// Where the daemon's lanes come from.
+pub enum Lanes {
+    /// One tile, loaded whole.
+    Tile(Arc<LaneMap>),
+    /// A grid: each session loads the cells around it.
+    Grid {
+        /// The grid.
+        grid: Arc<Grid>,
+        /// The map each source's sessions start with (the cells around its anchor), in the
+        /// order of the sources.
+        starts: Vec<Arc<LaneMap>>,
+    },
+}
+
+/// Opens a grid and assembles, for each source, the cells around its anchor (checked against
+/// the trusted keys): what its sessions start with.
+fn prepare_grid(
+    config: &Config,
+    sources: &[ResolvedSource],
+) -> Result<(Lanes, TileInfo), DaemonError> {
+    let bad = |message: String| DaemonError::Grid {
+        path: config.tile.clone(),
+        message,
+    };
+    let grid = Arc::new(
+        Grid::open(&config.tile).map_err(|e| bad(lanealign_core::report::error_chain(&e)))?,
+    );
+    let trusted = config.trusted_keys();
+    let mut starts = Vec::with_capacity(sources.len());
+    for source in sources {
+        let origin = source
+            .anchor
+            .anchored_from_odom(&grid.plane())
+            .apply([0.0, 0.0]);
+        let wanted = grid.wanted(&[origin], &config.grid);
+        let cells = wanted
+            .iter()
+            .map(|&key| {
+                let cell = grid.load_cell(key).map_err(|e| lanealign_core::report::error_chain(&e))?;
+                match &trusted {
+                    Some(keys) if !cell.signer().is_some_and(|s| keys.contains(&s)) => Err(format!(
+                        "{}: not signed by a key in trusted_tile_keys: compile the grid with `lanealign-map compile --grid SIZE_M --sign KEY`",
+                        grid.cell_path(key).display()
+                    )),
+                    _ => Ok(Arc::new(cell)),
+                }
+            })
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(&bad)?;
+        if cells.is_empty() {
+            return Err(bad(format!(
+                "no cell holds lanes within {} m of source {}'s anchor",
+                config.grid.radius_m, source.name
+            )));
+        }
+        let map = grid::assemble(&grid, &cells).map_err(|e| bad(e.to_string()))?;
+        starts.push(Arc::new(map));
+    }
+    let info = grid.info();
+    Ok((Lanes::Grid { grid, starts }, info))
 }
 
 /// Reads and checks the configuration, loads and checks the tile against every source: all the
@@ -105,6 +180,19 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     let config = Config::load(path)?;
     let resolved = config.resolve(path)?;
     let (namespace, sources) = (resolved.namespace, resolved.sources);
+    if grid::is_grid(&config.tile) {
+        let (lanes, info) = prepare_grid(&config, &sources)?;
+        config.check_geometry(path, &sources, &info)?;
+        return Ok(Prepared {
+            path: path.to_path_buf(),
+            namespace,
+            state_dir: resolved.state_dir,
+            sources,
+            lanes,
+            tile: info,
+            config,
+        });
+    }
     let (map, info) = tile::load(&config.tile).map_err(|source| {
         let hint = match &source {
             tile::TileError::Input(InputError::Io { source: io, .. })
@@ -125,7 +213,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
         namespace,
         state_dir: resolved.state_dir,
         sources,
-        map: Arc::new(map),
+        lanes: Lanes::Tile(Arc::new(map)),
         tile: info,
         config,
     })
@@ -236,6 +324,10 @@ fn reload(
         mpsc::Sender<Reload>,
     )],
 ) -> bool {
+    if grid::is_grid(&config.tile) {
+        tracing::warn!(grid = %config.tile.display(), "SIGHUP: a grid is not reloaded while running (its cells are read as sessions need them, each checked against the manifest loaded at start); restart the daemon to use a new grid");
+        return false;
+    }
     let loaded = tile::load(&config.tile).map_err(|e| lanealign_core::report::error_chain(&e));
     let checked = loaded.and_then(|(map, info)| {
         config
@@ -270,7 +362,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         namespace,
         state_dir,
         sources,
-        map,
+        lanes,
         tile: info,
     } = prepared;
     let _lock = lock(&namespace, state_dir.as_deref())?;
@@ -282,7 +374,18 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         state_dir = %state_dir.as_ref().map_or("(no journal)".into(), |d| d.display().to_string()),
         "tile loaded"
     );
-    let mut tile_watch = TileWatch::new(&config.tile);
+    let watched = watched_file(&config.tile);
+    let mut tile_watch = TileWatch::new(&watched);
+    let interval = Duration::from_secs_f64(config.metrics_interval_s);
+    let (loader, loader_thread) = match &lanes {
+        Lanes::Tile(_) => (None, None),
+        Lanes::Grid { grid, .. } => {
+            let (loader, handle) =
+                GridLoader::spawn(grid.clone(), config.grid, config.trusted_keys(), interval)
+                    .map_err(DaemonError::GridLoader)?;
+            (Some(loader), Some(handle))
+        }
+    };
     let cleaned = remove_dead_nodes(&namespace);
     if cleaned > 0 {
         tracing::info!(cleaned, "removed stale resources left by earlier processes");
@@ -300,19 +403,23 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     };
     let epoch = crate::new_nonce();
     let shutdown = Arc::new(AtomicBool::new(false));
-    let interval = Duration::from_secs_f64(config.metrics_interval_s);
     let known: Vec<SourceName> = sources.iter().map(|s| s.name.clone()).collect();
     let (ready_tx, ready_rx) = mpsc::channel();
     let mut workers = Vec::new();
     let mut heartbeats = Vec::new();
     let mut failure = None;
-    for source in &sources {
+    for (i, source) in sources.iter().enumerate() {
         let name = source.name.to_string();
+        let map = match &lanes {
+            Lanes::Tile(map) => map.clone(),
+            Lanes::Grid { starts, .. } => starts[i].clone(),
+        };
         let heartbeat = Arc::new(AtomicU64::new(monotonic_ns()));
         let (reload_tx, reloads) = mpsc::channel();
         let setup = WorkerSetup {
             sessions: SessionSetup {
-                map: map.clone(),
+                map,
+                grid: loader.clone(),
                 params: source.params,
                 mode: source.corrector.match_mode,
                 placement: Placement {
@@ -385,13 +492,13 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         let waited = node.wait(SUPERVISION_PERIOD);
         if hangup.swap(false, Ordering::Relaxed) {
             if reload(&config, &path, &sources, &workers) {
-                tile_watch = TileWatch::new(&config.tile);
+                tile_watch = TileWatch::new(&watched);
             }
         } else if waited.is_err() {
             break;
         }
         if let Some(change) = tile_watch.check() {
-            tracing::warn!(tile = %config.tile.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions)");
+            tracing::warn!(tile = %watched.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions; a grid's cells changed since are refused)");
         }
         remove_dead_nodes(&namespace);
         for source in unknown_sources(&namespace, &known) {
@@ -429,5 +536,18 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     if let Some(handle) = persistence_thread {
         let _ = handle.join();
     }
+    drop(loader);
+    if let Some(handle) = loader_thread {
+        let _ = handle.join();
+    }
     Ok(summaries)
+}
+
+/// The file whose changes the daemon reports: the tile, or a grid's manifest.
+fn watched_file(tile: &Path) -> PathBuf {
+    if grid::is_grid(tile) {
+        tile.join(grid::MANIFEST)
+    } else {
+        tile.to_path_buf()
+    }
 }

@@ -5,6 +5,7 @@
 
 pub mod config;
 pub mod daemon;
+pub mod grid_loader;
 pub mod journal;
 pub mod metrics;
 pub mod persistence;

@@ -54,10 +54,14 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Some(Command::Check) => {
             println!(
-                "{}: ok: {} sources, namespace {}, tile {} ({} lanes, {} points; {})",
+                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {})",
                 path.display(),
                 prepared.sources.len(),
                 prepared.namespace,
+                match prepared.lanes {
+                    daemon::Lanes::Tile(_) => "tile",
+                    daemon::Lanes::Grid { .. } => "grid",
+                },
                 prepared.config.tile.display(),
                 prepared.tile.lanes,
                 prepared.tile.points,

@@ -34,6 +34,11 @@ pub struct SourceMetrics {
     pub sessions: u64,
     /// Journal writes that failed in this interval.
     pub journal_failures: u64,
+    /// On a grid: neighbour queries that reached past a session's loaded cells in this
+    /// interval (zero: every answer equals the whole map's).
+    pub uncovered_queries: u64,
+    /// On a grid: sessions that moved to a newly assembled map in this interval.
+    pub map_swaps: u64,
     /// Client send to daemon publish (nanoseconds).
     end_to_end: Histogram<u64>,
     /// Daemon receive to daemon publish (nanoseconds).
@@ -74,6 +79,8 @@ impl Default for SourceMetrics {
             new_sessions: 0,
             sessions: 0,
             journal_failures: 0,
+            uncovered_queries: 0,
+            map_swaps: 0,
             end_to_end: histogram(),
             in_daemon: histogram(),
             matching: histogram(),
@@ -150,6 +157,8 @@ impl SourceMetrics {
             sessions = self.sessions,
             new_sessions = self.new_sessions,
             journal_failures = self.journal_failures,
+            uncovered_queries = self.uncovered_queries,
+            map_swaps = self.map_swaps,
             e2e_p50_us = e50,
             e2e_p99_us = e99,
             e2e_p999_us = e999,
@@ -181,6 +190,8 @@ impl SourceMetrics {
         self.undelivered = 0;
         self.new_sessions = 0;
         self.journal_failures = 0;
+        self.uncovered_queries = 0;
+        self.map_swaps = 0;
         for h in [
             &mut self.end_to_end,
             &mut self.in_daemon,

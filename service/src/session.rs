@@ -12,6 +12,7 @@ use std::sync::mpsc::Sender;
 use std::sync::Arc;
 
 use lanealign_core::corrector::{MatchMode, Status, StepTiming};
+use lanealign_core::grid::GridMaps;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
 use lanealign_core::pose::Pose3;
@@ -20,6 +21,7 @@ use lanealign_wire::payload::{
     CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START, MAX_IN_FLIGHT,
 };
 
+use crate::grid_loader::{GridLoader, GridView};
 use crate::journal::{
     read_segment, segments, Header, JournalError, Record, SegmentWriter, Snapshot, SEGMENT_RECORDS,
 };
@@ -54,8 +56,10 @@ pub enum PersistJob {
 /// What a source's sessions share: how to build a corrector, and where journals go.
 #[derive(Clone)]
 pub struct SessionSetup {
-    /// The lane map new sessions use.
+    /// The lane map new sessions use (on a grid, the one they start with).
     pub map: Arc<LaneMap>,
+    /// On a grid, the loader each session asks for the cells around it.
+    pub grid: Option<GridLoader>,
     /// Corrector parameters.
     pub params: Params,
     /// Matching mode.
@@ -86,6 +90,11 @@ pub struct Handled {
     pub outcome: Outcome,
     /// The corrector's time.
     pub timing: StepTiming,
+    /// On a grid: neighbour queries of this pose that reached past the session's loaded cells
+    /// (its answer may differ from the whole map's).
+    pub uncovered_queries: u64,
+    /// On a grid: the session moved to a newly assembled map before this pose.
+    pub map_swapped: bool,
 }
 
 /// One session of a source.
@@ -100,6 +109,7 @@ pub struct Session {
     /// The last answers (at most [`MAX_IN_FLIGHT`]), oldest first, to send again on request.
     recent: VecDeque<Record>,
     journal: Option<Journal>,
+    grid: Option<GridView>,
 }
 
 /// A journal that failed: the session goes on without persistence, and the daemon says so.
@@ -162,6 +172,7 @@ impl Session {
             expected_seq: first_seq,
             recent: VecDeque::new(),
             journal: None,
+            grid: setup.grid.as_ref().map(|g| g.view(id)),
         };
         let mut failure = None;
         if let Some(root) = &setup.journal_dir {
@@ -210,6 +221,8 @@ impl Session {
                     Outcome::Flagged
                 },
                 timing: StepTiming::default(),
+                uncovered_queries: 0,
+                map_swapped: false,
             }
         };
         if input.seq > self.expected_seq {
@@ -235,6 +248,8 @@ impl Session {
                         answer: again,
                         outcome: Outcome::Resent,
                         timing: StepTiming::default(),
+                        uncovered_queries: 0,
+                        map_swapped: false,
                     };
                     (h, None)
                 }
@@ -248,7 +263,21 @@ impl Session {
                 }
             };
         }
-        let (record, timing) = self.corrector.correct(&Pose3::from_row_major(&input.pose));
+        let pose = Pose3::from_row_major(&input.pose);
+        let mut map_swapped = false;
+        if let Some(view) = &mut self.grid {
+            if let Some(map) = view.arrived() {
+                self.corrector.replace_map(map);
+                map_swapped = true;
+            }
+            if pose.problem().is_none() {
+                let next = self.corrector.predicted_position_in_map(&pose);
+                view.request_if_needed(self.corrector.window(), next);
+            }
+        }
+        let uncovered_before = self.corrector.map().uncovered_queries();
+        let (record, timing) = self.corrector.correct(&pose);
+        let uncovered_queries = self.corrector.map().uncovered_queries() - uncovered_before;
         let [x, y] = record.map_from_odom.translation();
         if record.status != Status::InvalidInput {
             answer.map_from_odom = [x, y, record.map_from_odom.yaw()];
@@ -284,6 +313,8 @@ impl Session {
                 answer,
                 outcome,
                 timing,
+                uncovered_queries,
+                map_swapped,
             },
             failure,
         )
@@ -400,6 +431,25 @@ pub enum RestoreError {
     Inconsistent(String),
 }
 
+/// Moves a corrector being restored on a grid to the cells its window and `next` (metres, map
+/// plane) need, loading them on this thread.
+fn follow_grid(
+    cells: &mut Option<GridMaps>,
+    corrector: &mut SourceCorrector,
+    next: [f64; 2],
+) -> Result<(), RestoreError> {
+    let Some(cells) = cells else {
+        return Ok(());
+    };
+    let map = cells
+        .update(corrector.window(), next)
+        .map_err(|e| RestoreError::Inconsistent(format!("loading grid cells: {e}")))?;
+    if let Some(map) = map {
+        corrector.replace_map(Arc::new(map));
+    }
+    Ok(())
+}
+
 /// Restores the session journaled in `dir`: its snapshot, then every later record replayed
 /// through the corrector, each answer computed again and checked against the one logged.
 pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError> {
@@ -437,6 +487,15 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         ),
         None => SourceCorrector::new(setup.map.clone(), setup.params, setup.mode, setup.placement),
     };
+    // On a grid, the replay loads the cells each pose needs right here (nothing is served yet),
+    // so that it runs on the maps the session had.
+    let mut cells = setup
+        .grid
+        .as_ref()
+        .map(|g| GridMaps::new(g.grid().clone(), g.policy()));
+    if let Some(&newest) = corrector.window().last() {
+        follow_grid(&mut cells, &mut corrector, newest)?;
+    }
     let (mut last_seq, first_segment) = snapshot
         .as_ref()
         .map_or((None, 0), |s| (Some(s.last_seq), s.next_segment));
@@ -455,7 +514,12 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
                         )));
                     }
                 }
-                let (again, _) = corrector.correct(&Pose3::from_row_major(&r.input.pose));
+                let pose = Pose3::from_row_major(&r.input.pose);
+                if pose.problem().is_none() {
+                    let next = corrector.predicted_position_in_map(&pose);
+                    follow_grid(&mut cells, &mut corrector, next)?;
+                }
+                let (again, _) = corrector.correct(&pose);
                 let (status, _) = wire_status(&again.status);
                 if again.pose.to_row_major() != r.answer.pose || status as u32 != r.answer.status {
                     return Err(RestoreError::Inconsistent(format!(
@@ -484,6 +548,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         corrector,
         expected_seq: last_seq.map_or(1, |s| s + 1),
         recent,
+        grid: setup.grid.as_ref().map(|g| g.view(header.session)),
         journal: Some(Journal {
             dir: dir.to_path_buf(),
             segment,

@@ -312,6 +312,8 @@ impl Worker {
             ),
             Some(session) => {
                 let (handled, failure) = session.handle(&input, received, setup);
+                self.metrics.uncovered_queries += handled.uncovered_queries;
+                self.metrics.map_swaps += u64::from(handled.map_swapped);
                 (handled.answer, handled.outcome, handled.timing, failure)
             }
         };

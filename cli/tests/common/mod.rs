@@ -15,6 +15,7 @@ use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::grid::{self, GridSpec};
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
@@ -87,9 +88,12 @@ fn corrector(name: &str) -> CorrectorConfig {
     }
 }
 
+/// A setup whose daemon serves `daemon_map` (the tile, or a grid of it); offline correction
+/// uses the tile.
 fn write_setup(
     dir: tempfile::TempDir,
     tile_path: PathBuf,
+    daemon_map: &Path,
     convention: AxisConvention,
     sources: Vec<(String, Anchor)>,
 ) -> Setup {
@@ -109,7 +113,7 @@ fn write_setup(
     let config = dir.path().join("lanealignd.toml");
     daemon_config::write(
         &config,
-        &daemon_config::config(&tile_path, &namespace, 1.0, &state, &entries),
+        &daemon_config::config(daemon_map, &namespace, 1.0, &state, &entries),
     )
     .unwrap();
     Setup {
@@ -126,6 +130,12 @@ fn write_setup(
 /// A tile of KITTI 07/08's map (one OSM extract) at 07's origin, and sources (name, sequence
 /// whose anchor to use).
 pub fn kitti_setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
+    kitti_setup_on(data, sources, None)
+}
+
+/// As [`kitti_setup`], with the daemon serving a grid of the tile's map in cells of
+/// `cell_size_m` (margin 50 m) when given.
+pub fn kitti_setup_on(data: &Path, sources: &[(&str, &str)], cell_size_m: Option<f64>) -> Setup {
     let all = anchors(data).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let origin = all["07"];
@@ -137,11 +147,33 @@ pub fn kitti_setup(data: &Path, sources: &[(&str, &str)]) -> Setup {
     let compiled = compile(&[data.join("osm/kitti_07.osm")], &options).unwrap();
     let tile_path = dir.path().join("07.tile");
     tile::write_bytes(&tile_path, &compiled.tile_bytes(3.0)).unwrap();
+    let daemon_map = match cell_size_m {
+        Some(cell_size_m) => {
+            let folder = dir.path().join("grid");
+            let spec = GridSpec {
+                plane: &compiled.plane,
+                spacing_m: 3.0,
+                geometry: &compiled.geometry,
+                cell_size_m,
+                margin_m: 50.0,
+                sign: None,
+            };
+            grid::write(&folder, &compiled.map, &spec, 2).unwrap();
+            folder
+        }
+        None => tile_path.clone(),
+    };
     let sources = sources
         .iter()
         .map(|(name, seq)| (name.to_string(), all[*seq]))
         .collect();
-    write_setup(dir, tile_path, AxisConvention::KittiCamera, sources)
+    write_setup(
+        dir,
+        tile_path,
+        &daemon_map,
+        AxisConvention::KittiCamera,
+        sources,
+    )
 }
 
 /// A tile of the synthetic town and sources on it.
@@ -153,7 +185,8 @@ pub fn town_setup(sources: &[&str]) -> Setup {
         .iter()
         .map(|name| (name.to_string(), synthetic::town_anchor()))
         .collect();
-    write_setup(dir, tile_path, AxisConvention::Flu, sources)
+    let daemon_map = tile_path.clone();
+    write_setup(dir, tile_path, &daemon_map, AxisConvention::Flu, sources)
 }
 
 /// What offline correction gives for `source`, configured as the daemon configures it.
