@@ -56,6 +56,12 @@ fn line(from: [f64; 2], to: [f64; 2]) -> Vec<[f64; 2]> {
 /// The town's lanes (metres, map plane): each street has one lane per direction, each lane a
 /// block long, offset to the right of its direction of travel.
 pub fn town_lanes() -> Vec<Lane> {
+    city_lanes(STREETS)
+}
+
+/// The lanes of a city of `streets` x `streets` streets laid out as the town's (about
+/// 160 `streets`^2 lane points: 80 streets make a region of 9.5 km x 9.5 km and a million points).
+pub fn city_lanes(streets: usize) -> Vec<Lane> {
     let mut lanes = Vec::new();
     let mut id = 0;
     let mut push = |from: [f64; 2], to: [f64; 2]| {
@@ -66,9 +72,9 @@ pub fn town_lanes() -> Vec<Lane> {
         id += 1;
         lanes.push(Lane::new(id, line(shifted(from), shifted(to))));
     };
-    for k in 0..STREETS {
+    for k in 0..streets {
         let c = k as f64 * BLOCK_M;
-        for b in 0..STREETS - 1 {
+        for b in 0..streets.saturating_sub(1) {
             let (s, e) = (b as f64 * BLOCK_M, (b + 1) as f64 * BLOCK_M);
             push([s, c], [e, c]);
             push([e, c], [s, c]);
@@ -123,24 +129,51 @@ const ROUTE: [(usize, usize); 8] = [
 /// lane; and an odometry run of them with a heading drift, a scale error and noise from `seed`,
 /// starting at the true start pose.
 pub fn drive(laps: usize, seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
+    let route: Vec<(usize, usize)> = (0..laps)
+        .flat_map(|_| ROUTE)
+        .chain(std::iter::once(ROUTE[0]))
+        .collect();
+    drive_route(&route, seed)
+}
+
+/// A drive across a city of `streets` streets (see [`city_lanes`]): from its south-west
+/// corner to its north-east one in steps of three blocks east and three north, as
+/// [`drive`] drives the town.
+pub fn drive_across(streets: usize, seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
+    let last = streets.saturating_sub(1);
+    let mut route = vec![(0, 0)];
+    let (mut i, mut j) = (0, 0);
+    while i < last || j < last {
+        i = (i + 3).min(last);
+        route.push((i, j));
+        j = (j + 3).min(last);
+        route.push((i, j));
+    }
+    drive_route(&route, seed)
+}
+
+/// True poses every metre along `route` (street intersections, driven in order in the right
+/// lane) and an odometry run of them (see [`drive`]).
+fn drive_route(route: &[(usize, usize)], seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
     let corner = |(i, j): (usize, usize)| [i as f64 * BLOCK_M, j as f64 * BLOCK_M];
     let mut truth = Vec::new();
-    for _ in 0..laps {
-        for k in 0..ROUTE.len() {
-            let (a, b) = (corner(ROUTE[k]), corner(ROUTE[(k + 1) % ROUTE.len()]));
-            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-            let len = dx.hypot(dy);
-            let yaw = dy.atan2(dx);
-            let right = [dy / len * LANE_OFFSET_M, -dx / len * LANE_OFFSET_M];
-            for i in 0..len as usize {
-                let t = i as f64 / len;
-                truth.push(Pose3::planar(
-                    a[0] + t * dx + right[0],
-                    a[1] + t * dy + right[1],
-                    yaw,
-                    0.0,
-                ));
-            }
+    for w in route.windows(2) {
+        let (a, b) = (corner(w[0]), corner(w[1]));
+        if a == b {
+            continue;
+        }
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let len = dx.hypot(dy);
+        let yaw = dy.atan2(dx);
+        let right = [dy / len * LANE_OFFSET_M, -dx / len * LANE_OFFSET_M];
+        for i in 0..len as usize {
+            let t = i as f64 / len;
+            truth.push(Pose3::planar(
+                a[0] + t * dx + right[0],
+                a[1] + t * dy + right[1],
+                yaw,
+                0.0,
+            ));
         }
     }
     let mut rng = Lcg(seed);

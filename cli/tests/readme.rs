@@ -135,6 +135,8 @@ fn every_readme_command_runs_as_written() {
         "00.tile",
         "00.geojson",
         "corrected_from_tile.txt",
+        "grid00/manifest.toml",
+        "corrected_from_grid.txt",
         "corrected_07.txt",
         "configs/kitti_00.tile",
         "replayed.txt",

@@ -440,6 +440,14 @@ impl Grid {
     /// Opens the grid in folder `dir`: reads and checks its manifest (bounded, regular file).
     pub fn open(dir: &Path) -> Result<Grid, GridError> {
         let path = dir.join(MANIFEST);
+        if !path.exists() {
+            return Err(GridError::Manifest {
+                path: dir.to_path_buf(),
+                message: format!(
+                    "a folder without {MANIFEST}: not a regular file (a tile), nor a grid"
+                ),
+            });
+        }
         let bytes = crate::input::read_regular_file(&path, MAX_MANIFEST_BYTES)?;
         let bad = |message: String| GridError::Manifest {
             path: path.clone(),

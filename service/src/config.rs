@@ -474,6 +474,20 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
     }
 
     #[test]
+    fn the_grid_policy_is_read_and_checked() {
+        let p = Path::new("/x/d.toml");
+        let with = |grid: &str| GOOD.replacen("[[source]]", &format!("{grid}\n[[source]]"), 1);
+        let c = Config::parse(&with("[grid]\nradius_m = 400.0\nahead_m = 0.0"), p).unwrap();
+        assert_eq!((c.grid.radius_m, c.grid.ahead_m), (400.0, 0.0));
+        assert!(c.resolve(p).is_ok());
+        let c = Config::parse(&with("[grid]\nradius_m = -1.0\nahead_m = 0.0"), p).unwrap();
+        let e = c.resolve(p).unwrap_err().to_string();
+        assert!(e.contains("radius_m"), "{e}");
+        assert!(Config::parse(&with("[grid]\nradius = 4.0"), p).is_err());
+        assert_eq!(Config::parse(GOOD, p).unwrap().grid, LoadPolicy::default());
+    }
+
+    #[test]
     fn a_config_written_by_serde_reads_back() {
         let p = Path::new("/x/d.toml");
         let c = Config::parse(GOOD, p).unwrap();

@@ -107,6 +107,11 @@ pub struct GridView {
 }
 
 impl GridView {
+    /// Whether a map asked for has not arrived yet (cells are being read).
+    pub fn loading(&self) -> bool {
+        self.pending.is_some()
+    }
+
     /// The map the loader assembled since the last call, if one arrived; never waits.
     pub fn arrived(&mut self) -> Option<Arc<LaneMap>> {
         let (_, rx) = self.pending.as_ref()?;
