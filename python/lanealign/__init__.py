@@ -89,14 +89,19 @@ def compile_map(
     spacing: float = 3.0,
     traffic: str = "right",
     unmarked_offset_scale: float = 0.5,
+    grid: Optional[float] = None,
+    margin: float = 50.0,
 ) -> dict:
     """Compile road data into a lane tile, as ``lanealign-map compile`` does.
 
     ``inputs``: raw OSM (``.osm``, ``.osm.pbf``) or Lanelet2 files; ``origin`` = (lat, lon) of the
     map plane (the data's centre when ``None``); ``projection``: ``"tangent"`` or ``"kitti"``;
     ``spacing``: minimum lane point spacing (metres); ``traffic``: ``"right"`` or ``"left"``;
-    ``unmarked_offset_scale``: 0.5 for the robust method, 1 for the paper's. Returns the tile's
-    ``lanes``, ``points``, ``lane_km`` and ``bytes``.
+    ``unmarked_offset_scale``: 0.5 for the robust method, 1 for the paper's. With ``grid`` (a
+    cell size in metres) ``output`` is a folder: a grid of cells holding the lanes within
+    ``margin`` metres of their squares, as ``lanealign-map compile --grid`` writes (``correct``
+    takes it as ``tile``). Returns the map's ``lanes``, ``points``, ``lane_km`` and ``bytes``
+    (and ``cells`` for a grid).
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
@@ -108,7 +113,26 @@ def compile_map(
         spacing=spacing,
         traffic=traffic,
         unmarked_offset_scale=unmarked_offset_scale,
+        grid=grid,
+        margin=margin,
     )
 
 
-__all__ = ["STATUS_NAMES", "Client", "Corrected", "compile_map", "correct", "eval"]
+def synthetic_town(tile: str, *, laps: int = 3, seed: int = 42) -> Tuple[np.ndarray, np.ndarray]:
+    """The synthetic town ``lanealign demo`` runs without data: writes its tile to ``tile`` and
+    returns ``(truth, odometry)``, (N, 3, 4) poses each (``frame="flu"``, metres). The odometry
+    drifts (heading bias, 1 % scale error, noise from ``seed``); its frame is the map plane, so
+    ``anchor=(49.0, 8.4, 0.0, 0.0, 0.0)`` places it.
+    """
+    return _lanealign.synthetic_town(str(tile), laps=laps, seed=seed)
+
+
+__all__ = [
+    "STATUS_NAMES",
+    "Client",
+    "Corrected",
+    "compile_map",
+    "correct",
+    "eval",
+    "synthetic_town",
+]

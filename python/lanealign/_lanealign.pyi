@@ -26,7 +26,10 @@ def compile_map(
     spacing: float = ...,
     traffic: str = ...,
     unmarked_offset_scale: float = ...,
+    grid: Optional[float] = ...,
+    margin: float = ...,
 ) -> Dict[str, Union[float, int]]: ...
+def synthetic_town(tile: str, *, laps: int = ..., seed: int = ...) -> Tuple[np.ndarray, np.ndarray]: ...
 
 class Client:
     """A connection to one source of a running lanealignd: one session."""

@@ -6,10 +6,12 @@ use std::time::Duration;
 
 use lanealign_cli::evaluation;
 use lanealign_cli::maps::MapSource;
+use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::grid::{self, GridSpec};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::ape_2d;
 use lanealign_core::params::{CorrectorConfig, Method, Preset, UNMARKED_OFFSET_SCALE};
@@ -237,7 +239,7 @@ fn eval<'py>(
 /// Compiles road data into a lane tile, as `lanealign-map compile` does; returns what it holds.
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE))]
+#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE, grid=None, margin=50.0))]
 fn compile_map<'py>(
     py: Python<'py>,
     inputs: Vec<PathBuf>,
@@ -247,6 +249,8 @@ fn compile_map<'py>(
     spacing: f64,
     traffic: &str,
     unmarked_offset_scale: f64,
+    grid: Option<f64>,
+    margin: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
     if !(spacing.is_finite() && spacing > 0.0) {
         return Err(PyValueError::new_err(
@@ -268,17 +272,37 @@ fn compile_map<'py>(
             unmarked_offset_scale,
         },
     };
-    let (lanes, points, lane_km, bytes) = py
+    let (lanes, points, lane_km, bytes, cells) = py
         .detach(|| -> anyhow::Result<_> {
             let compiled = compile(&inputs, &options)?;
-            let bytes = compiled.tile_bytes(spacing);
-            tile::write_bytes(&output, &bytes)?;
+            let (bytes, cells) = match grid {
+                Some(cell_size_m) => {
+                    let spec = GridSpec {
+                        plane: &compiled.plane,
+                        spacing_m: spacing,
+                        geometry: &compiled.geometry,
+                        cell_size_m,
+                        margin_m: margin,
+                        sign: None,
+                    };
+                    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+                    let manifest = grid::write(&output, &compiled.map, &spec, threads)?;
+                    let bytes: u64 = manifest.cells.iter().map(|c| c.bytes).sum();
+                    (bytes as usize, Some(manifest.cells.len()))
+                }
+                None => {
+                    let bytes = compiled.tile_bytes(spacing);
+                    tile::write_bytes(&output, &bytes)?;
+                    (bytes.len(), None)
+                }
+            };
             let map = &compiled.map;
             Ok((
                 map.lane_count(),
                 map.len(),
                 map.lane_length_m() / 1000.0,
-                bytes.len(),
+                bytes,
+                cells,
             ))
         })
         .map_err(error)?;
@@ -287,7 +311,33 @@ fn compile_map<'py>(
     d.set_item("points", points)?;
     d.set_item("lane_km", lane_km)?;
     d.set_item("bytes", bytes)?;
+    if let Some(cells) = cells {
+        d.set_item("cells", cells)?;
+    }
     Ok(d)
+}
+
+/// True poses and an odometry run of them, (N, 3, 4) each.
+type TruthAndOdometry<'py> = (Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>);
+
+/// The synthetic town (`lanealign demo` without data): writes its tile to `tile` and returns
+/// the true poses and a drifting odometry run of them, (N, 3, 4) each (flu, metres; the
+/// odometry frame is the map plane, anchor (49, 8.4, 0, 0, 0)).
+#[pyfunction]
+#[pyo3(signature = (tile, *, laps=3, seed=42))]
+fn synthetic_town<'py>(
+    py: Python<'py>,
+    tile: PathBuf,
+    laps: usize,
+    seed: u64,
+) -> PyResult<TruthAndOdometry<'py>> {
+    synthetic::write_town_tile(&tile).map_err(error)?;
+    let (truth, odometry) = synthetic::drive(laps, seed);
+    let shape = |n: usize| [n, 3, 4];
+    Ok((
+        poses_into(&truth, &shape(truth.len())).into_pyarray(py),
+        poses_into(&odometry, &shape(odometry.len())).into_pyarray(py),
+    ))
 }
 
 /// A connection to one source of a running `lanealignd`: one session, its poses out over
@@ -370,6 +420,7 @@ fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(correct, m)?)?;
     m.add_function(wrap_pyfunction!(eval, m)?)?;
     m.add_function(wrap_pyfunction!(compile_map, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic_town, m)?)?;
     m.add_class::<Client>()?;
     m.add("STATUS_NAMES", STATUS_NAMES.to_vec())?;
     Ok(())

@@ -85,11 +85,76 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
         lanealign.correct(poses, osm="x.osm", anchor=(91, 0, 0, 0, 0), preset="kiss-icp")
 
 
+def test_synthetic_town_equals_the_command_line_bit_for_bit(tmp_path):
+    town = tmp_path / "town.tile"
+    truth, odometry = lanealign.synthetic_town(town)
+    assert truth.shape == odometry.shape and odometry.shape[1:] == (3, 4)
+    write_kitti(tmp_path / "odometry.txt", odometry)
+    anchor = (49.0, 8.4, 0.0, 0.0, 0.0)
+    raw = lanealign.eval(truth, odometry)["ape2d_mean_m"]
+    for method in ("robust", "paper"):
+        out = tmp_path / f"{method}.txt"
+        cli("correct", "--map", town, "--anchor", "49,8.4,0,0,0", "--preset", "kiss-icp",
+            "--method", method, tmp_path / "odometry.txt", "-o", out)
+        got = lanealign.correct(odometry, tile=str(town), anchor=anchor, preset="kiss-icp",
+                                method=method)
+        assert np.array_equal(got.poses, read_kitti(out)), method
+        assert lanealign.eval(truth, got.poses)["ape2d_mean_m"] < raw / 3, method
+
+
+def anchor_of(seq):
+    row = next(l for l in (DATA / "kitti" / "georef.csv").read_text().splitlines()
+               if l.startswith(f"{seq},"))
+    f = row.split(",")
+    return (float(f[1]), float(f[2]), float(f[4]), float(f[5]), float(f[6]))
+
+
+@pytest.mark.parametrize("seq", ["00", "01", "05", "09"])
+def test_shared_kitti_runs_equal_the_command_line_bit_for_bit(tmp_path, seq):
+    needs_data()
+    anchor = anchor_of(seq)
+    osm = DATA / "osm" / f"kitti_{seq}.osm"
+    anchor_flag = ",".join(repr(v) for v in anchor)
+    for run, preset in (("lidar", "kiss-icp"), ("stereo_vo", "orb-slam3")):
+        odometry = DATA / "odometry" / run / f"{seq}.txt"
+        poses = np.loadtxt(odometry).reshape(-1, 3, 4)
+        for method in ("robust", "paper"):
+            out = tmp_path / f"{run}_{method}.txt"
+            cli("correct", "--osm", osm, "--anchor", anchor_flag, "--projection", "kitti",
+                "--preset", preset, "--method", method, "--frame", "kitti-camera", odometry,
+                "-o", out)
+            got = lanealign.correct(poses, osm=str(osm), anchor=anchor, projection="kitti",
+                                    preset=preset, method=method, frame="kitti-camera")
+            assert np.array_equal(got.poses, read_kitti(out)), (run, method)
+
+
+def test_a_grid_corrects_as_its_tile(tmp_path):
+    needs_data()
+    anchor = anchor_of("00")
+    osm = DATA / "osm" / "kitti_00.osm"
+    info = lanealign.compile_map(osm, tmp_path / "grid", origin=anchor[:2], projection="kitti",
+                                 grid=200)
+    lanealign.compile_map(osm, tmp_path / "00.tile", origin=anchor[:2], projection="kitti")
+    out = subprocess.run([str(MAP_BIN), "compile", str(osm), "--origin", f"{anchor[0]!r},{anchor[1]!r}",
+                          "--projection", "kitti", "--grid", "200", "-o", str(tmp_path / "cli")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert info["cells"] == len(list((tmp_path / "cli" / "cells").iterdir()))
+    for name in ["manifest.toml", *sorted(p.name for p in (tmp_path / "cli" / "cells").iterdir())]:
+        rel = name if name == "manifest.toml" else f"cells/{name}"
+        assert (tmp_path / "grid" / rel).read_bytes() == (tmp_path / "cli" / rel).read_bytes(), rel
+    poses = np.loadtxt(DATA / "odometry" / "lidar" / "00.txt").reshape(-1, 3, 4)
+    on_grid = lanealign.correct(poses, tile=str(tmp_path / "grid"), anchor=anchor,
+                                preset="kiss-icp", frame="kitti-camera")
+    on_tile = lanealign.correct(poses, tile=str(tmp_path / "00.tile"), anchor=anchor,
+                                preset="kiss-icp", frame="kitti-camera")
+    assert np.array_equal(on_grid.poses, on_tile.poses)
+    assert np.array_equal(on_grid.covariance, on_tile.covariance)
+
+
 def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
     needs_data()
-    row = next(l for l in (DATA / "kitti" / "georef.csv").read_text().splitlines() if l.startswith("07,"))
-    f = row.split(",")
-    anchor = (float(f[1]), float(f[2]), float(f[4]), float(f[5]), float(f[6]))
+    anchor = anchor_of("07")
     odometry = DATA / "odometry" / "lidar" / "07.txt"
     gt_path = DATA / "kitti" / "poses" / "07.txt"
     osm = DATA / "osm" / "kitti_07.osm"
