@@ -2,6 +2,7 @@
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
@@ -9,12 +10,13 @@ use lanealign_cli::maps::{LoadedMap, MapSource};
 use lanealign_cli::{evaluation, plots, report, results, status_file};
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::grid::{self, Grid, LoadPolicy};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::ape_2d;
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Params, Preset};
 use lanealign_core::plausibility;
-use lanealign_core::pose::AxisConvention;
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{counts, CorrectedPose, Placement};
 use lanealign_core::trajectory::{self, Format, Trajectory};
@@ -326,13 +328,18 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
         if let Some(gt_path) = &args.gt {
             let gt = trajectory::read(gt_path, args.format)?;
+            // On a grid, the lanes along the whole corrected drive.
+            let lanes = match &loaded.grid {
+                Some(grid) => Arc::new(lanes_along(grid, &run, &input.poses, args.frame)?),
+                None => loaded_map.clone(),
+            };
             write_comparison(
                 &dir,
                 &gt,
                 &input,
                 &output,
                 &run,
-                &loaded_map,
+                &lanes,
                 &anchored_from_odom,
                 args.frame,
             )?;
@@ -361,6 +368,31 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         eprintln!("WARN {warning}");
     }
     Ok(())
+}
+
+/// The lanes of every cell of `grid` the corrected drive passes through.
+fn lanes_along(
+    grid: &Grid,
+    run: &[CorrectedPose],
+    poses: &[Pose3],
+    frame: AxisConvention,
+) -> anyhow::Result<LaneMap> {
+    let positions: Vec<[f64; 2]> = run
+        .iter()
+        .zip(poses)
+        .map(|(c, p)| c.map_from_odom.apply(frame.to_planar(p).planar_position()))
+        .filter(|p| p[0].is_finite() && p[1].is_finite())
+        .collect();
+    let along = LoadPolicy {
+        radius_m: 0.0,
+        ahead_m: 0.0,
+    };
+    let cells = grid
+        .wanted(&positions, &along)
+        .into_iter()
+        .map(|k| grid.load_cell(k).map(Arc::new))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(grid::assemble(grid, &cells)?)
 }
 
 /// `metrics.json` and the plots of a results folder: raw and corrected against ground truth.
