@@ -460,10 +460,14 @@ impl Corrector {
     /// runs on `map`. The answers stay those of the whole map as long as `map` covers the
     /// window's queries (see [`crate::grid`]).
     pub fn replace_map(&mut self, map: Arc<LaneMap>) {
-        self.map = map;
         if let Matcher::Fast(cache) = &mut self.matcher {
-            cache.forget_map();
+            if self.map.coverage().is_some() && map.coverage().is_some() {
+                cache.carry_over(&self.map, &map);
+            } else {
+                cache.forget_map();
+            }
         }
+        self.map = map;
     }
 
     /// The covariance of the current corrected pose (see [`Step::covariance`]).

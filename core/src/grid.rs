@@ -159,6 +159,8 @@ pub struct Coverage {
     margin_m: f64,
     loaded: HashSet<CellKey>,
     existing: Arc<HashSet<CellKey>>,
+    /// Where each lane of the map starts in the whole map: `[lane, point]`, in map order.
+    origins: Vec<PieceOrigin>,
 }
 
 impl Coverage {
@@ -187,6 +189,21 @@ impl Coverage {
                 .all(|cy| !self.existing.contains(&[cx, cy]) || self.loaded.contains(&[cx, cy]))
         })
     }
+}
+
+/// Point `j` of `from` as a point of `to`, both assembled from cells of one grid: the same
+/// point of the same lane of the whole map. `None` when `to` lacks it (or a map is not a grid's).
+pub fn renumber(from: &LaneMap, to: &LaneMap, j: u32) -> Option<u32> {
+    let (a, b) = (from.coverage()?, to.coverage()?);
+    let k = from.lane_of(j);
+    let [lane, first] = *a.origins.get(k)?;
+    let point = first + (j - from.lane_offsets()[k]);
+    let at = b.origins.partition_point(|o| *o <= [lane, point]);
+    let k = at.checked_sub(1)?;
+    let [to_lane, to_first] = b.origins[k];
+    let offsets = to.lane_offsets();
+    let len = offsets[k + 1] - offsets[k];
+    (to_lane == lane && point < to_first + len).then(|| offsets[k] + point - to_first)
 }
 
 /// The cell indices whose squares a span `[v - half, v + half]` touches (one axis).
@@ -328,6 +345,7 @@ pub fn assemble(grid: &Grid, cells: &[Arc<GridCell>]) -> Result<LaneMap, GridErr
         .collect();
     pieces.sort_unstable_by_key(|p| p.0);
     let mut lanes: Vec<Lane> = Vec::new();
+    let mut origins: Vec<PieceOrigin> = Vec::new();
     let mut current: Option<(u32, usize)> = None;
     for ([ordinal, first], cell, k) in pieces {
         let (id, info, points) = piece(cell, k);
@@ -351,6 +369,7 @@ pub fn assemble(grid: &Grid, cells: &[Arc<GridCell>]) -> Result<LaneMap, GridErr
             }
         }
         current = Some((ordinal, first));
+        origins.push([ordinal, first as u32]);
         lanes.push(Lane {
             id,
             info,
@@ -362,6 +381,7 @@ pub fn assemble(grid: &Grid, cells: &[Arc<GridCell>]) -> Result<LaneMap, GridErr
         margin_m: grid.manifest.margin_m,
         loaded: cells.iter().map(|c| c.key).collect(),
         existing: grid.existing.clone(),
+        origins,
     };
     Ok(LaneMap::new(&lanes)?.with_coverage(coverage))
 }
@@ -1080,6 +1100,51 @@ mod tests {
         }
         assert!(vouched > checked / 2, "{vouched} of {checked} vouched for");
         assert!(vouched < checked, "no query went past the loaded cells");
+    }
+
+    /// A point renumbered from one partial map into another is the same point of the same lane,
+    /// and points the other map lacks have no number there.
+    #[test]
+    fn renumbering_finds_the_same_point() {
+        let dir = tempfile::tempdir().unwrap();
+        let grid = grid_of(&town(), dir.path(), 60.0, 10.0);
+        let part = |x: f64| {
+            let wanted = grid.wanted(
+                &[[x, 200.0]],
+                &LoadPolicy {
+                    radius_m: 100.0,
+                    ahead_m: 0.0,
+                },
+            );
+            let cells: Vec<_> = wanted
+                .iter()
+                .map(|&k| Arc::new(grid.load_cell(k).unwrap()))
+                .collect();
+            assemble(&grid, &cells).unwrap()
+        };
+        let (a, b) = (part(100.0), part(200.0));
+        let (mut found, mut missing) = (0, 0);
+        for j in 0..a.len() as u32 {
+            match renumber(&a, &b, j) {
+                Some(k) => {
+                    found += 1;
+                    assert_eq!(a.points()[j as usize], b.points()[k as usize]);
+                    assert_eq!(a.lane_ids()[a.lane_of(j)], b.lane_ids()[b.lane_of(k)]);
+                    assert_eq!(a.segment_of(j).is_some(), b.segment_of(k).is_some());
+                }
+                None => missing += 1,
+            }
+        }
+        assert!(
+            found > 100 && missing > 100,
+            "{found} found, {missing} missing"
+        );
+        let whole = town();
+        assert_eq!(
+            renumber(&whole, &a, 0),
+            None,
+            "a whole map has no grid numbering"
+        );
     }
 
     #[test]

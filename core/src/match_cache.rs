@@ -67,6 +67,8 @@ struct Proof {
     answer: Option<u32>,
     /// A second candidate tested with the answer (see [`prove`]).
     partner: Option<u32>,
+    /// The proof rests on every lane point within this distance of `anchor` (metres).
+    rests_on_m: f64,
 }
 
 /// A proof with less room than this (a direction change) is no proof: rounding could undo it.
@@ -148,6 +150,36 @@ impl MatchCache {
             c.wide.radius = f64::NEG_INFINITY;
             c.proof = None;
             c.last = None;
+        }
+    }
+
+    /// The map changed from `old` to `new`, two maps assembled from cells of one grid: every
+    /// proof whose points are the same in both (its disk is covered by both, so both hold the
+    /// whole map's points there) is kept, its points renumbered into `new`; everything else is
+    /// forgotten (see [`Self::forget_map`]). What is kept answers as it would have on `new`.
+    pub fn carry_over(&mut self, old: &LaneMap, new: &LaneMap) {
+        let covered = |x: [f64; 2], r: f64| {
+            let both = old.coverage().zip(new.coverage());
+            both.is_some_and(|(a, b)| a.covers(x, r) && b.covers(x, r))
+        };
+        for c in &mut self.poses {
+            c.wide.points.clear();
+            c.wide.radius = f64::NEG_INFINITY;
+            c.last = None;
+            c.proof = c.proof.and_then(|p| {
+                if !covered(p.anchor, p.rests_on_m) {
+                    return None;
+                }
+                let renumber = |j: Option<u32>| match j {
+                    None => Some(None),
+                    Some(j) => crate::grid::renumber(old, new, j).map(Some),
+                };
+                Some(Proof {
+                    answer: renumber(p.answer)?,
+                    partner: renumber(p.partner)?,
+                    ..p
+                })
+            });
         }
     }
 
@@ -262,7 +294,8 @@ fn match_one(
             if wanted <= reliable_radius(map, &cache.wide, x) {
                 let w2 = wanted * wanted;
                 keys.retain(|k| k.0 < w2);
-                cache.proof = prove(map, keys, x, dir, params, answer.map(|a| a.0), reach);
+                let best = answer.map(|a| a.0);
+                cache.proof = prove(map, keys, x, dir, params, best, reach, wanted + PROOF_MOVE);
             }
             return answer.map(|(key, q)| (q, key.1));
         }
@@ -272,13 +305,15 @@ fn match_one(
 }
 
 /// Builds a [`Proof`] for the answer `best` at `x`, decided within squared distance `reach`,
-/// from `keys`: every lane point within the deciding distance plus twice [`CONTENDER_MARGIN`].
+/// from `keys`: every lane point within the deciding distance plus twice [`CONTENDER_MARGIN`]
+/// (the proof then rests on every point within `rests_on_m` metres of `x`).
 /// Every point that could rank ahead of the answer must fail a test by more than the proof's
 /// bounds can undo, except at most one, the partner (typically the neighbouring segment of the
 /// same lane, where the pose is near their joint, or the lane's last point, which shares its
 /// segment): the check tests the answer and the partner exactly and takes the first that
 /// passes in the reference order. `None` when more than one candidate is too close to a test's
 /// boundary, or too many could rank ahead.
+#[allow(clippy::too_many_arguments)]
 fn prove(
     map: &LaneMap,
     keys: &[Key],
@@ -287,6 +322,7 @@ fn prove(
     params: &MatchParams,
     best: Option<Key>,
     reach: f64,
+    rests_on_m: f64,
 ) -> Option<Proof> {
     // Per candidate: how far the direction test passes, how far (metres along `dir`) the normal
     // shot lands inside the segment, and the larger of |x - a|, |x - b|. Negative means fails.
@@ -351,6 +387,7 @@ fn prove(
         direction_margin: margin * (1.0 - 1e-6),
         answer: best.map(|k| k.1),
         partner,
+        rests_on_m,
     })
 }
 
