@@ -34,6 +34,12 @@ pub enum WaitStrategy {
 /// Longest spin budget accepted (microseconds): beyond a second, block instead.
 pub const MAX_SPIN_US: u64 = 1_000_000;
 
+/// The shortest time [`WaitStrategy::wait`] blocks for; with less left it only polls. iceoryx2's
+/// socket-based listener passes the time as a socket timeout in whole microseconds, and a
+/// timeout that rounds to zero means "wait forever": a spin that ends a few hundred nanoseconds
+/// before its deadline hung a client for good (found by the daemon tests, 1 run in many).
+pub const MIN_BLOCK: Duration = Duration::from_micros(10);
+
 /// A strategy that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum WaitError {
@@ -134,7 +140,8 @@ impl WaitStrategy {
 
     /// Waits until `ready()` says a message is there or `timeout` has passed: polls `ready`
     /// for as long as the strategy spins, and otherwise (or after) calls `block` with the time
-    /// left, which sleeps until a notification or that time. Returns `ready()` at the end.
+    /// left, which sleeps until a notification or that time; never with less than
+    /// [`MIN_BLOCK`]. Returns `ready()` at the end.
     pub fn wait(
         &self,
         timeout: Duration,
@@ -167,7 +174,7 @@ impl WaitStrategy {
             }
         }
         let left = timeout.saturating_sub(start.elapsed());
-        if !left.is_zero() {
+        if left >= MIN_BLOCK {
             block(left);
         }
         ready()
@@ -240,6 +247,21 @@ mod tests {
         assert!(start.elapsed() >= Duration::from_micros(200));
         let left = blocked_for.unwrap();
         assert!(left < Duration::from_millis(50) && left > Duration::from_millis(40));
+    }
+
+    /// A spin that ends just before its deadline leaves less than a socket timeout can say:
+    /// it must not block at all (a zero timeout would block forever).
+    #[test]
+    fn spin_then_block_never_blocks_for_less_than_the_minimum() {
+        let s = WaitStrategy::SpinThenBlock { spin_us: 50 };
+        let mut blocked_for = None;
+        let got = s.wait(
+            Duration::from_micros(50) + Duration::from_nanos(500),
+            || false,
+            |d| blocked_for = Some(d),
+        );
+        assert!(!got);
+        assert_eq!(blocked_for, None);
     }
 
     #[test]
