@@ -45,6 +45,26 @@ fn run_replay(setup: &Setup, source: &str, poses: &[Pose3], rate: Rate) -> Vec<P
     poses_of(&r.answers)
 }
 
+/// The shared LiDAR odometry run of sequence `seq`.
+fn lidar_run(data: &std::path::Path, seq: &str) -> Vec<Pose3> {
+    let path = data.join(format!("odometry/lidar/{seq}.txt"));
+    read(&path, Format::Kitti).unwrap().poses
+}
+
+/// Two sources replayed at once, each in a session of its own; their answers.
+fn replay_two(
+    setup: &Setup,
+    (a, poses_a): (&str, &[Pose3]),
+    (b, poses_b): (&str, &[Pose3]),
+    rate: Rate,
+) -> (Vec<Pose3>, Vec<Pose3>) {
+    std::thread::scope(|s| {
+        let ha = s.spawn(|| run_replay(setup, a, poses_a, rate));
+        let hb = s.spawn(|| run_replay(setup, b, poses_b, rate));
+        (ha.join().unwrap(), hb.join().unwrap())
+    })
+}
+
 /// Always runs: two sessions on one source of the synthetic town, at once; each gets every
 /// answer once, only its own, equal to offline correction bit for bit; and a third session
 /// later starts from a fresh corrector.
@@ -116,20 +136,8 @@ fn two_kitti_sources_at_once_match_offline_bit_for_bit() {
     let (a, b) = (unique("lidar07"), unique("smooth08"));
     let setup = kitti_setup(&data, &[(&a, "07"), (&b, "08")]);
     let daemon = start(&setup);
-    let read_run = |seq: &str| {
-        read(
-            &data.join(format!("odometry/lidar/{seq}.txt")),
-            Format::Kitti,
-        )
-        .unwrap()
-        .poses
-    };
-    let (poses_a, poses_b) = (read_run("07"), read_run("08"));
-    let (got_a, got_b) = std::thread::scope(|s| {
-        let ha = s.spawn(|| run_replay(&setup, &a, &poses_a, Rate::Max(32)));
-        let hb = s.spawn(|| run_replay(&setup, &b, &poses_b, Rate::Max(32)));
-        (ha.join().unwrap(), hb.join().unwrap())
-    });
+    let (poses_a, poses_b) = (lidar_run(&data, "07"), lidar_run(&data, "08"));
+    let (got_a, got_b) = replay_two(&setup, (&a, &poses_a), (&b, &poses_b), Rate::Max(32));
     assert!(daemon.stop().unwrap(), "clean exit");
     assert!(got_a == offline(&setup, &a, &poses_a), "{a}: bit for bit");
     assert!(got_b == offline(&setup, &b, &poses_b), "{b}: bit for bit");
@@ -145,20 +153,8 @@ fn kitti_on_a_grid_matches_the_whole_tile_bit_for_bit() {
     let (a, b) = (unique("lidar07"), unique("lidar08"));
     let setup = kitti_setup_on(&data, &[(&a, "07"), (&b, "08")], Some(200.0));
     let daemon = start(&setup);
-    let read_run = |seq: &str| {
-        read(
-            &data.join(format!("odometry/lidar/{seq}.txt")),
-            Format::Kitti,
-        )
-        .unwrap()
-        .poses
-    };
-    let (poses_a, poses_b) = (read_run("07"), read_run("08"));
-    let (got_a, got_b) = std::thread::scope(|s| {
-        let ha = s.spawn(|| run_replay(&setup, &a, &poses_a, Rate::Hz(1000.0)));
-        let hb = s.spawn(|| run_replay(&setup, &b, &poses_b, Rate::Hz(1000.0)));
-        (ha.join().unwrap(), hb.join().unwrap())
-    });
+    let (poses_a, poses_b) = (lidar_run(&data, "07"), lidar_run(&data, "08"));
+    let (got_a, got_b) = replay_two(&setup, (&a, &poses_a), (&b, &poses_b), Rate::Hz(1000.0));
     // One more metrics interval, so that the last poses are reported.
     std::thread::sleep(Duration::from_millis(1200));
     let log = daemon.log();

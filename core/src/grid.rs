@@ -749,23 +749,7 @@ pub fn write(
     for part in entries {
         cell_entries.extend(part?);
     }
-    let points = map.points();
-    let bounds = points.iter().fold(
-        [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ],
-        |b, p| {
-            [
-                b[0].min(p[0]),
-                b[1].min(p[1]),
-                b[2].max(p[0]),
-                b[3].max(p[1]),
-            ]
-        },
-    );
+    let bounds = tile::bounds(map.points());
     let manifest = Manifest {
         format: MANIFEST_FORMAT,
         cell_size_m: spec.cell_size_m,

@@ -230,7 +230,8 @@ fn traffic_code(t: Traffic) -> u32 {
     }
 }
 
-fn bounds(points: &[[f64; 2]]) -> [f64; 4] {
+/// The bounding box `[min x, min y, max x, max y]` of `points` (metres; infinities when empty).
+pub fn bounds(points: &[[f64; 2]]) -> [f64; 4] {
     points.iter().fold(
         [
             f64::INFINITY,

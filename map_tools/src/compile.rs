@@ -6,8 +6,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::grid::{self, GridError, GridSpec, Manifest};
 use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses};
 use lanealign_core::lane_map::{Lane, LaneMap, LaneMapError};
+use lanealign_core::tile::SigningKey;
 
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
 use crate::osm::{read_xml_file, OsmData, OsmError};
@@ -108,6 +110,29 @@ impl Compiled {
     /// The tile bytes of this map (points resampled at `spacing_m`).
     pub fn tile_bytes(&self, spacing_m: f64) -> Vec<u8> {
         lanealign_core::tile::encode(&self.map, &self.plane, spacing_m, &self.geometry)
+    }
+
+    /// Writes this map as a grid into folder `output` (cells of `cell_size_m` holding the lanes
+    /// within `margin_m` of their squares, each signed with `sign` when given), encoding cells
+    /// on every core; returns its manifest.
+    pub fn write_grid(
+        &self,
+        output: &Path,
+        spacing_m: f64,
+        cell_size_m: f64,
+        margin_m: f64,
+        sign: Option<&SigningKey>,
+    ) -> Result<Manifest, GridError> {
+        let spec = GridSpec {
+            plane: &self.plane,
+            spacing_m,
+            geometry: &self.geometry,
+            cell_size_m,
+            margin_m,
+            sign,
+        };
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        grid::write(output, &self.map, &spec, threads)
     }
 }
 

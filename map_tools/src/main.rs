@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use lanealign_core::geo::{check_lat_lon, Projection};
-use lanealign_core::grid::{self, GridSpec};
+use lanealign_core::grid;
 use lanealign_core::lane_geometry::{LaneInfo, RoadClass, RoadClasses, Traffic};
 use lanealign_core::params::UNMARKED_OFFSET_SCALE;
 use lanealign_core::tile;
@@ -229,16 +229,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let compiled = compile(&inputs, &options)?;
             let written = match grid {
                 Some(cell_size_m) => {
-                    let spec = GridSpec {
-                        plane: &compiled.plane,
-                        spacing_m: spacing,
-                        geometry: &compiled.geometry,
-                        cell_size_m,
-                        margin_m: margin,
-                        sign: key.as_ref(),
-                    };
-                    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-                    let manifest = grid::write(&output, &compiled.map, &spec, threads)?;
+                    let manifest =
+                        compiled.write_grid(&output, spacing, cell_size_m, margin, key.as_ref())?;
                     let bytes: u64 = manifest.cells.iter().map(|c| c.bytes).sum();
                     format!(
                         "{} cells of {cell_size_m} m (margin {margin} m), {bytes} bytes",

@@ -11,7 +11,6 @@ use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::grid::{self, GridSpec};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::ape_2d;
 use lanealign_core::params::{CorrectorConfig, Method, Preset, UNMARKED_OFFSET_SCALE};
@@ -277,16 +276,8 @@ fn compile_map<'py>(
             let compiled = compile(&inputs, &options)?;
             let (bytes, cells) = match grid {
                 Some(cell_size_m) => {
-                    let spec = GridSpec {
-                        plane: &compiled.plane,
-                        spacing_m: spacing,
-                        geometry: &compiled.geometry,
-                        cell_size_m,
-                        margin_m: margin,
-                        sign: None,
-                    };
-                    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-                    let manifest = grid::write(&output, &compiled.map, &spec, threads)?;
+                    let manifest =
+                        compiled.write_grid(&output, spacing, cell_size_m, margin, None)?;
                     let bytes: u64 = manifest.cells.iter().map(|c| c.bytes).sum();
                     (bytes as usize, Some(manifest.cells.len()))
                 }
