@@ -68,7 +68,7 @@ pub enum GridError {
         message: String,
     },
     /// The grid's cell size or margin cannot be used.
-    #[error("grid cell size {cell_size_m} m and margin {margin_m} m: the size must be finite and at least 1 m, the margin finite and not negative")]
+    #[error("grid cell size {cell_size_m} m and margin {margin_m} m: the size must be 1 to {MAX_CELL_SIZE_M} m, the margin 0 to 4 cell sizes")]
     BadSpec {
         /// Cell size (metres).
         cell_size_m: f64,
@@ -182,12 +182,42 @@ impl Coverage {
         // margin; those lie in the cells the shrunk disk's square touches. The slack covers the
         // rounding of the cell arithmetic.
         let half = (radius_m - self.margin_m).max(0.0) + 1e-6;
-        let [x0, x1] = index_range(x[0], half, self.cell_size_m);
-        let [y0, y1] = index_range(x[1], half, self.cell_size_m);
-        (x0..=x1).all(|cx| {
-            (y0..=y1)
-                .all(|cy| !self.existing.contains(&[cx, cy]) || self.loaded.contains(&[cx, cy]))
-        })
+        let mut covered = true;
+        existing_cells_near(&self.existing, x, half, self.cell_size_m, |key| {
+            covered &= self.loaded.contains(&key);
+        });
+        covered
+    }
+}
+
+/// Calls `visit` with every cell of `existing` whose square the square of half-side `half`
+/// around `x` touches (metres, map plane). Walks whichever is smaller, that square's cells or
+/// `existing`: a query far from the map (a pose 10,000 km away) costs what the map does, not
+/// what the distance does.
+fn existing_cells_near(
+    existing: &HashSet<CellKey>,
+    x: [f64; 2],
+    half: f64,
+    cell_size_m: f64,
+    mut visit: impl FnMut(CellKey),
+) {
+    let [x0, x1] = index_range(x[0], half, cell_size_m);
+    let [y0, y1] = index_range(x[1], half, cell_size_m);
+    let span = |a: i32, b: i32| (i64::from(b) - i64::from(a) + 1) as u64;
+    if span(x0, x1).saturating_mul(span(y0, y1)) > existing.len() as u64 {
+        let inside = |k: &CellKey| (x0..=x1).contains(&k[0]) && (y0..=y1).contains(&k[1]);
+        existing
+            .iter()
+            .filter(|k| inside(k))
+            .for_each(|&k| visit(k));
+    } else {
+        for cx in x0..=x1 {
+            for cy in y0..=y1 {
+                if existing.contains(&[cx, cy]) {
+                    visit([cx, cy]);
+                }
+            }
+        }
     }
 }
 
@@ -223,8 +253,13 @@ pub fn cell_of(x: [f64; 2], cell_size_m: f64) -> CellKey {
     [cx, cy]
 }
 
+/// The largest cell (metres).
+pub const MAX_CELL_SIZE_M: f64 = 100_000.0;
+
 fn check_spec(cell_size_m: f64, margin_m: f64) -> Result<(), GridError> {
-    if cell_size_m.is_finite() && cell_size_m >= 1.0 && margin_m.is_finite() && margin_m >= 0.0 {
+    // A margin of more than a few cells would copy every point into dozens of cells.
+    let size_ok = (1.0..=MAX_CELL_SIZE_M).contains(&cell_size_m);
+    if size_ok && (0.0..=4.0 * cell_size_m).contains(&margin_m) {
         Ok(())
     } else {
         Err(GridError::BadSpec {
@@ -396,6 +431,9 @@ fn piece(cell: &GridCell, k: usize) -> (u64, crate::lane_geometry::LaneInfo, &[[
     )
 }
 
+/// The largest load radius and look-ahead (metres).
+pub const MAX_REACH_M: f64 = 10_000.0;
+
 /// How much of a grid a corrector keeps loaded: every cell within `radius_m` of its window,
 /// and of the road `ahead_m` further along its direction of travel.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -420,11 +458,11 @@ impl Default for LoadPolicy {
 }
 
 impl LoadPolicy {
-    /// Refuses a radius or distance that is negative or not finite.
+    /// Refuses a radius or distance that is negative or beyond [`MAX_REACH_M`].
     pub fn validate(&self) -> Result<(), String> {
         for (key, v) in [("radius_m", self.radius_m), ("ahead_m", self.ahead_m)] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{key} = {v}: must be finite and not negative"));
+            if !(0.0..=MAX_REACH_M).contains(&v) {
+                return Err(format!("{key} = {v}: must be 0 to {MAX_REACH_M} metres"));
             }
         }
         Ok(())
@@ -469,11 +507,17 @@ impl Grid {
             });
         }
         let bytes = crate::input::read_regular_file(&path, MAX_MANIFEST_BYTES)?;
+        Self::from_manifest(dir, &bytes)
+    }
+
+    /// The grid in folder `dir` whose manifest is `bytes` (checked as [`Self::open`] checks it).
+    pub fn from_manifest(dir: &Path, bytes: &[u8]) -> Result<Grid, GridError> {
+        let path = dir.join(MANIFEST);
         let bad = |message: String| GridError::Manifest {
             path: path.clone(),
             message,
         };
-        let text = std::str::from_utf8(&bytes).map_err(|_| bad("not UTF-8 text".into()))?;
+        let text = std::str::from_utf8(bytes).map_err(|_| bad("not UTF-8 text".into()))?;
         let manifest: Manifest = toml::from_str(text).map_err(|e| bad(e.message().to_string()))?;
         if manifest.format != MANIFEST_FORMAT {
             return Err(bad(format!(
@@ -517,7 +561,7 @@ impl Grid {
         }
         let existing = Arc::new(cells.keys().copied().collect());
         Ok(Grid {
-            checksum: xxhash_rust::xxh3::xxh3_64(&bytes),
+            checksum: xxhash_rust::xxh3::xxh3_64(bytes),
             dir: dir.to_path_buf(),
             plane: MapPlane::new(projection, manifest.origin_lat, manifest.origin_lon),
             geometry,
@@ -585,12 +629,25 @@ impl Grid {
             path: path.clone(),
             message,
         };
+        if !self.cells.contains_key(&key) {
+            return Err(bad("not in the manifest".into()));
+        }
+        let bytes = crate::input::read_regular_file(&path, tile::MAX_TILE_BYTES)?;
+        self.cell_from_bytes(key, &bytes)
+    }
+
+    /// Cell `key` from its tile bytes, checked as [`Self::load_cell`] checks a file.
+    pub fn cell_from_bytes(&self, key: CellKey, bytes: &[u8]) -> Result<GridCell, GridError> {
+        let path = self.cell_path(key);
+        let bad = |message: String| GridError::Cell {
+            path: path.clone(),
+            message,
+        };
         let entry = self
             .cells
             .get(&key)
             .ok_or_else(|| bad("not in the manifest".into()))?;
-        let bytes = crate::input::read_regular_file(&path, tile::MAX_TILE_BYTES)?;
-        let (pieces, info, origins) = tile::decode_cell(&path, &bytes)?;
+        let (pieces, info, origins) = tile::decode_cell(&path, bytes)?;
         let square = self.square(key);
         if format!("{:016x}", info.checksum) != entry.checksum || bytes.len() as u64 != entry.bytes
         {
@@ -655,15 +712,15 @@ impl Grid {
         let radius = policy.radius_m + step;
         let mut out = BTreeSet::new();
         let mut add = |p: [f64; 2]| {
-            let [x0, x1] = index_range(p[0], radius, self.manifest.cell_size_m);
-            let [y0, y1] = index_range(p[1], radius, self.manifest.cell_size_m);
-            for cx in x0..=x1 {
-                for cy in y0..=y1 {
-                    if self.existing.contains(&[cx, cy]) {
-                        out.insert([cx, cy]);
-                    }
-                }
-            }
+            existing_cells_near(
+                &self.existing,
+                p,
+                radius,
+                self.manifest.cell_size_m,
+                |key| {
+                    out.insert(key);
+                },
+            );
         };
         let mut last: Option<[f64; 2]> = None;
         for (i, &p) in window.iter().enumerate() {
@@ -749,8 +806,18 @@ pub fn write(
     for part in entries {
         cell_entries.extend(part?);
     }
-    let bounds = tile::bounds(map.points());
-    let manifest = Manifest {
+    let manifest = manifest_of(map, spec, cell_entries);
+    let text = toml::to_string(&manifest).map_err(|e| GridError::Manifest {
+        path: dir.join(MANIFEST),
+        message: e.to_string(),
+    })?;
+    crate::input::write_atomic(&dir.join(MANIFEST), text.as_bytes())?;
+    Ok(manifest)
+}
+
+/// The manifest of `map` cut into cells `entries` as `spec` says.
+fn manifest_of(map: &LaneMap, spec: &GridSpec, cells: Vec<CellEntry>) -> Manifest {
+    Manifest {
         format: MANIFEST_FORMAT,
         cell_size_m: spec.cell_size_m,
         margin_m: spec.margin_m,
@@ -766,15 +833,26 @@ pub fn write(
         unmarked_offset_scale: spec.geometry.unmarked_offset_scale,
         lanes: map.lane_count() as u64,
         points: map.len() as u64,
-        bounds,
-        cells: cell_entries,
-    };
-    let text = toml::to_string(&manifest).map_err(|e| GridError::Manifest {
-        path: dir.join(MANIFEST),
-        message: e.to_string(),
-    })?;
-    crate::input::write_atomic(&dir.join(MANIFEST), text.as_bytes())?;
-    Ok(manifest)
+        bounds: tile::bounds(map.points()),
+        cells,
+    }
+}
+
+/// A grid in memory: its manifest and each cell's key and tile bytes.
+pub type EncodedGrid = (Manifest, Vec<(CellKey, Vec<u8>)>);
+
+/// A grid of `map` in memory, on the caller's thread: its manifest and each cell's tile bytes
+/// (what [`write`] writes, for tools and tests that do not need files).
+pub fn encode(map: &LaneMap, spec: &GridSpec) -> Result<EncodedGrid, GridError> {
+    let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
+    let mut entries = Vec::with_capacity(cells.len());
+    let mut bytes = Vec::with_capacity(cells.len());
+    for cell in &cells {
+        let (entry, tile) = encode_one(cell, spec)?;
+        entries.push(entry);
+        bytes.push((cell.key, tile));
+    }
+    Ok((manifest_of(map, spec, entries), bytes))
 }
 
 fn write_cell(
@@ -782,6 +860,13 @@ fn write_cell(
     cell: &CellContent,
     spec: &GridSpec,
 ) -> Result<CellEntry, GridError> {
+    let (entry, bytes) = encode_one(cell, spec)?;
+    tile::write_bytes(&cells_dir.join(cell_file_name(cell.key)), &bytes)?;
+    Ok(entry)
+}
+
+/// One cell's tile bytes and its manifest entry.
+fn encode_one(cell: &CellContent, spec: &GridSpec) -> Result<(CellEntry, Vec<u8>), GridError> {
     let s = spec.cell_size_m;
     let key = cell.key;
     let square = [
@@ -802,14 +887,14 @@ fn write_cell(
         tile::sign(&mut bytes, key);
     }
     let info = tile::read_info(Path::new(""), &bytes)?;
-    tile::write_bytes(&cells_dir.join(cell_file_name(key)), &bytes)?;
-    Ok(CellEntry {
+    let entry = CellEntry {
         x: key[0],
         y: key[1],
         checksum: format!("{:016x}", info.checksum),
         bytes: bytes.len() as u64,
         points: cell.pieces.len() as u64,
-    })
+    };
+    Ok((entry, bytes))
 }
 
 /// Keeps one corrector's map assembled from the cells its window needs, loading them on the
@@ -1129,6 +1214,65 @@ mod tests {
             None,
             "a whole map has no grid numbering"
         );
+    }
+
+    /// A pose 10,000 km from the map, or a query reaching that far, costs what the map does:
+    /// it neither hangs walking empty cells nor claims coverage it does not have.
+    #[test]
+    fn far_queries_are_bounded_by_the_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let grid = grid_of(&town(), dir.path(), 50.0, 10.0);
+        let policy = LoadPolicy {
+            radius_m: MAX_REACH_M,
+            ahead_m: MAX_REACH_M,
+        };
+        let far = [1e7, -1e7];
+        assert!(grid
+            .wanted(&[far, [far[0] + 1.0, far[1]]], &policy)
+            .is_empty());
+        let near = grid.wanted(
+            &[[100.0, 100.0]],
+            &LoadPolicy {
+                radius_m: 10.0,
+                ahead_m: 0.0,
+            },
+        );
+        let cells: Vec<_> = near
+            .iter()
+            .map(|&k| Arc::new(grid.load_cell(k).unwrap()))
+            .collect();
+        let part = assemble(&grid, &cells).unwrap();
+        let coverage = part.coverage().unwrap();
+        assert!(
+            !coverage.covers(far, 1.5e7),
+            "reaches every cell, most not loaded"
+        );
+        assert!(coverage.covers(far, 1.0), "an empty stretch of plane");
+        assert!(coverage.covers([100.0, 100.0], 5.0));
+        let all: Vec<_> = grid
+            .cells()
+            .map(|k| Arc::new(grid.load_cell(k).unwrap()))
+            .collect();
+        assert!(assemble(&grid, &all)
+            .unwrap()
+            .coverage()
+            .unwrap()
+            .covers(far, f64::INFINITY));
+        for (size, margin) in [
+            (0.5, 0.0),
+            (2e5, 0.0),
+            (50.0, 201.0),
+            (50.0, -1.0),
+            (f64::NAN, 1.0),
+        ] {
+            assert!(partition(&town(), size, margin).is_err(), "{size} {margin}");
+        }
+        assert!(LoadPolicy {
+            radius_m: 1e300,
+            ahead_m: 0.0
+        }
+        .validate()
+        .is_err());
     }
 
     #[test]

@@ -100,13 +100,19 @@ pub fn lane_map() -> LaneMap {
     LaneMap::new(&lanes()).expect("the seed lanes make a map")
 }
 
-/// Tile bytes: unsigned and signed.
-pub fn tiles() -> Vec<Vec<u8>> {
+/// The plane and lane geometry of the seed tiles.
+pub fn tile_plane_and_geometry() -> (MapPlane, LaneGeometry) {
     let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
     let geometry = LaneGeometry {
         unmarked_offset_scale: Some(0.5),
         ..LaneGeometry::default()
     };
+    (plane, geometry)
+}
+
+/// Tile bytes: unsigned and signed.
+pub fn tiles() -> Vec<Vec<u8>> {
+    let (plane, geometry) = tile_plane_and_geometry();
     let unsigned = tile::encode(&lane_map(), &plane, 3.0, &geometry);
     let mut signed = unsigned.clone();
     tile::sign(&mut signed, &tile::SigningKey::from_bytes(&[9; 32]));

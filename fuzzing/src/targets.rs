@@ -9,11 +9,12 @@ use std::sync::{Arc, OnceLock};
 
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::grid::{self, EncodedGrid, Grid, GridCell, GridSpec};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Preset;
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::se2::Se2;
-use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::source_corrector::{correct_trajectory, Placement, SourceCorrector};
 use lanealign_core::trajectory::{self, Format};
 use lanealign_core::{lane_csv, plausibility, tile};
 use lanealign_map::lanelet2::derive_lanelet_lanes;
@@ -31,6 +32,9 @@ use crate::seeds::{self, ODOM_POSE_BYTES};
 pub enum Target {
     /// A lane tile.
     Tile,
+    /// One cell of a tile grid (listed in the manifest with its own checksum), joined with the
+    /// grid's other cells, corrected on and swapped away from.
+    GridCell,
     /// Raw OSM XML.
     OsmXml,
     /// OSM PBF.
@@ -53,8 +57,9 @@ type Outcome = Result<(), String>;
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 9] = [
+    pub const ALL: [Target; 10] = [
         Target::Tile,
+        Target::GridCell,
         Target::OsmXml,
         Target::Pbf,
         Target::Lanelet2,
@@ -69,6 +74,7 @@ impl Target {
     pub fn name(self) -> &'static str {
         match self {
             Target::Tile => "tile",
+            Target::GridCell => "grid_cell",
             Target::OsmXml => "osm_xml",
             Target::Pbf => "pbf",
             Target::Lanelet2 => "lanelet2",
@@ -89,6 +95,7 @@ impl Target {
                 use_map(&map);
                 Ok(())
             }
+            Target::GridCell => grid_cell(bytes),
             Target::OsmXml | Target::Lanelet2 => {
                 let osm = read_xml(bytes, Path::new("fuzz.osm")).map_err(|e| err(&e))?;
                 derive_all(&osm, self == Target::Lanelet2)
@@ -132,6 +139,7 @@ impl Target {
     pub fn seeds(self) -> Vec<Vec<u8>> {
         match self {
             Target::Tile => seeds::tiles(),
+            Target::GridCell => seed_grid().1.iter().map(|(_, b)| b.clone()).collect(),
             Target::OsmXml => vec![seeds::OSM_XML.as_bytes().to_vec()],
             Target::Pbf => vec![crate::pbf_writer::write(
                 &read_xml(seeds::OSM_XML.as_bytes(), Path::new("seed.osm")).expect("seed reads"),
@@ -192,14 +200,14 @@ impl Target {
                 b"}",
             ],
             Target::Kitti | Target::Tum | Target::LaneCsv => &NUMBERS,
-            Target::Tile | Target::Pbf | Target::Wire => &[],
+            Target::Tile | Target::GridCell | Target::Pbf | Target::Wire => &[],
         }
     }
 
     /// Makes a mutant reach past the integrity check most of the time: a tile mutant gets its
     /// checksum recomputed in 7 of 8 cases (else nearly every mutant stops at the checksum).
     pub fn prepare(self, mutant: &mut [u8], coin: u64) {
-        if self == Target::Tile && !coin.is_multiple_of(8) {
+        if matches!(self, Target::Tile | Target::GridCell) && !coin.is_multiple_of(8) {
             tile::seal(mutant);
         }
     }
@@ -228,6 +236,88 @@ fn derive_all(osm: &OsmData, lanelet2: bool) -> Outcome {
     };
     let map = LaneMap::new(&lanes).map_err(|e| e.to_string())?;
     use_map(&map);
+    Ok(())
+}
+
+/// The seed lanes as a grid of 20 m cells (margin 4 m): its manifest and cells.
+fn seed_grid() -> &'static EncodedGrid {
+    static GRID: OnceLock<EncodedGrid> = OnceLock::new();
+    GRID.get_or_init(|| {
+        let (plane, geometry) = seeds::tile_plane_and_geometry();
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &geometry,
+            cell_size_m: 20.0,
+            margin_m: 4.0,
+            sign: None,
+        };
+        grid::encode(&seeds::lane_map(), &spec).expect("the seed lanes make a grid")
+    })
+}
+
+/// Loads `bytes` as the cell its square names, listed in the manifest with the bytes' own
+/// checksum (so that the cell's content, not the manifest check, is what is tested), joins it
+/// with the other seed cells, corrects a drive on the result and swaps to the grid without it.
+fn grid_cell(bytes: &[u8]) -> Outcome {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let (manifest, cells) = seed_grid();
+    let info = tile::read_info(Path::new("fuzz.tile"), bytes).map_err(|e| err(&e))?;
+    let square = info.cell.ok_or("not a grid cell")?;
+    let size = manifest.cell_size_m;
+    let key = [
+        (square[0] / size).floor() as i32,
+        (square[1] / size).floor() as i32,
+    ];
+    let mut listed = manifest.clone();
+    let entry = listed
+        .cells
+        .iter_mut()
+        .find(|c| [c.x, c.y] == key)
+        .ok_or("a square the grid has no cell for")?;
+    entry.checksum = format!("{:016x}", info.checksum);
+    entry.bytes = bytes.len() as u64;
+    let text = toml::to_string(&listed).map_err(|e| err(&e))?;
+    let grid = Grid::from_manifest(Path::new("fuzz-grid"), text.as_bytes()).map_err(|e| err(&e))?;
+    let mutant = Arc::new(grid.cell_from_bytes(key, bytes).map_err(|e| err(&e))?);
+    let others: Vec<Arc<GridCell>> = cells
+        .iter()
+        .filter(|(k, _)| *k != key)
+        .map(|(k, b)| Arc::new(grid.cell_from_bytes(*k, b).expect("a seed cell loads")))
+        .collect();
+    let with: Vec<Arc<GridCell>> = others.iter().cloned().chain([mutant]).collect();
+    let with = Arc::new(grid::assemble(&grid, &with).map_err(|e| err(&e))?);
+    use_map(&with);
+    let mut corrector = SourceCorrector::new(
+        with.clone(),
+        Preset::KissIcp.params(),
+        MatchMode::Fast,
+        placement(),
+    );
+    let poses = seeds::drive(60);
+    for pose in &poses[..30] {
+        corrector.correct(pose);
+    }
+    if !others.is_empty() {
+        let without = Arc::new(grid::assemble(&grid, &others).map_err(|e| err(&e))?);
+        for j in 0..with.len() as u32 {
+            if let Some(k) = grid::renumber(&with, &without, j) {
+                assert_eq!(
+                    with.points()[j as usize],
+                    without.points()[k as usize],
+                    "a renumbered point is the same point"
+                );
+            }
+        }
+        corrector.replace_map(without);
+    }
+    for pose in &poses[30..] {
+        let (record, _) = corrector.correct(pose);
+        assert!(
+            record.pose.is_finite(),
+            "a non-finite corrected pose on a grid"
+        );
+    }
     Ok(())
 }
 

@@ -93,6 +93,11 @@ fn tile() {
 }
 
 #[test]
+fn grid_cell() {
+    fuzz(Target::GridCell);
+}
+
+#[test]
 fn osm_xml() {
     fuzz(Target::OsmXml);
 }
