@@ -382,6 +382,74 @@ fn sighup_reloads_the_tile_for_new_sessions() {
     assert!(daemon.stop().unwrap());
 }
 
+/// Always runs: SIGHUP reloads a grid too. A session streaming through the reload keeps its
+/// grid (every answer as on the old map); a new session corrects on the new grid, exactly as
+/// offline correction on the new map's tile.
+#[test]
+fn sighup_reloads_a_grid_for_new_sessions() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("regrid");
+    let setup = town_grid_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let before = offline(&setup, &name, &odometry);
+    let mut running = connect(&setup, &name);
+    wait_for_daemon(&mut running);
+    let mut answers = Vec::new();
+    for p in &odometry[..300] {
+        running.publish(0, &p.to_row_major()).unwrap();
+        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
+    }
+    // The new map: the town's lanes moved 1 m north, as a tile and as a new grid folder that
+    // the link the configuration names is switched to (the old folder stays for the running
+    // session, which reads its cells as it drives).
+    let lanes: Vec<lanealign_core::lane_map::Lane> = synthetic::town_lanes()
+        .into_iter()
+        .map(|mut lane| {
+            lane.points.iter_mut().for_each(|p| p[1] += 1.0);
+            lane
+        })
+        .collect();
+    let moved = lanealign_core::lane_map::LaneMap::new(&lanes).unwrap();
+    let dir = setup.dir.path();
+    write_town_maps(&moved, &setup.tile, &dir.join("town-grid-2"));
+    std::os::unix::fs::symlink("town-grid-2", dir.join("town-grid.new")).unwrap();
+    std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
+    rustix::process::kill_process(
+        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
+        rustix::process::Signal::HUP,
+    )
+    .unwrap();
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("grid reloaded") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(daemon.log().contains("grid reloaded"), "{}", daemon.log());
+    for p in &odometry[300..] {
+        running.publish(0, &p.to_row_major()).unwrap();
+        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
+    }
+    assert_eq!(
+        answers.len(),
+        odometry.len(),
+        "no pose lost across the reload"
+    );
+    let got = poses_of(&answers);
+    let first = got.iter().zip(&before).position(|(a, b)| a != b);
+    assert!(
+        got == before,
+        "the running session kept its grid: first difference at {first:?}\n{}",
+        daemon.log()
+    );
+    let after = offline(&setup, &name, &odometry);
+    assert!(after != before, "the new map changes corrections");
+    assert!(
+        run_replay(&setup, &name, &odometry, Rate::Max(32)) == after,
+        "a new session uses the new grid"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
 /// The daemon never shares its fate with the tile file: truncated in place and then removed
 /// while a session streams, every pose is still answered exactly as before, and the log says
 /// what happened to the file.

@@ -496,6 +496,7 @@ pub fn is_grid(path: &Path) -> bool {
 
 impl Grid {
     /// Opens the grid in folder `dir`: reads and checks its manifest (bounded, regular file).
+    /// Cells are read later from the folder `dir` resolves to now (symbolic links followed).
     pub fn open(dir: &Path) -> Result<Grid, GridError> {
         let path = dir.join(MANIFEST);
         if !path.exists() {
@@ -507,7 +508,13 @@ impl Grid {
             });
         }
         let bytes = crate::input::read_regular_file(&path, MAX_MANIFEST_BYTES)?;
-        Self::from_manifest(dir, &bytes)
+        // The folder the path names now: a grid replaced by switching a symbolic link to a new
+        // folder leaves this one reading its own cells.
+        let dir = std::fs::canonicalize(dir).map_err(|source| InputError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        Self::from_manifest(&dir, &bytes)
     }
 
     /// The grid in folder `dir` whose manifest is `bytes` (checked as [`Self::open`] checks it).

@@ -323,10 +323,19 @@ fn reload(
         std::thread::JoinHandle<WorkerSummary>,
         mpsc::Sender<Reload>,
     )],
+    loader_threads: &mut Vec<std::thread::JoinHandle<()>>,
 ) -> bool {
     if grid::is_grid(&config.tile) {
-        tracing::warn!(grid = %config.tile.display(), "SIGHUP: a grid is not reloaded while running (its cells are read as sessions need them, each checked against the manifest loaded at start); restart the daemon to use a new grid");
-        return false;
+        return match reload_grid(config, path, sources, workers) {
+            Ok(handle) => {
+                loader_threads.push(handle);
+                true
+            }
+            Err(e) => {
+                tracing::error!(error = %e, "SIGHUP: the grid was not reloaded; every session keeps the one it has");
+                false
+            }
+        };
     }
     let loaded = tile::load(&config.tile).map_err(|e| lanealign_core::report::error_chain(&e));
     let checked = loaded.and_then(|(map, info)| {
@@ -340,6 +349,7 @@ fn reload(
             for ((_, _, tx), source) in workers.iter().zip(sources) {
                 let _ = tx.send(Reload {
                     map: map.clone(),
+                    grid: None,
                     fingerprint: source_fingerprint(source, &info),
                 });
             }
@@ -351,6 +361,41 @@ fn reload(
             false
         }
     }
+}
+
+/// Opens the configured grid again (its manifest and the cells around each source's anchor,
+/// checked as at start), starts a loader for it and hands both to the workers for their new
+/// sessions; running sessions keep the grid and loader they have. The new loader's thread.
+fn reload_grid(
+    config: &Config,
+    path: &Path,
+    sources: &[ResolvedSource],
+    workers: &[(
+        String,
+        std::thread::JoinHandle<WorkerSummary>,
+        mpsc::Sender<Reload>,
+    )],
+) -> Result<std::thread::JoinHandle<()>, String> {
+    use lanealign_core::report::error_chain;
+    let (lanes, info) = prepare_grid(config, sources).map_err(|e| error_chain(&e))?;
+    config
+        .check_geometry(path, sources, &info)
+        .map_err(|e| error_chain(&e))?;
+    let Lanes::Grid { grid, starts } = lanes else {
+        return Err("not a grid".into());
+    };
+    let interval = Duration::from_secs_f64(config.metrics_interval_s);
+    let (loader, handle) = GridLoader::spawn(grid, config.grid, config.trusted_keys(), interval)
+        .map_err(|e| error_chain(&e))?;
+    for (((_, _, tx), source), map) in workers.iter().zip(sources).zip(starts) {
+        let _ = tx.send(Reload {
+            map,
+            grid: Some(loader.clone()),
+            fingerprint: source_fingerprint(source, &info),
+        });
+    }
+    tracing::info!(grid = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), "grid reloaded on SIGHUP: new sessions use it");
+    Ok(handle)
 }
 
 /// Runs until SIGINT or SIGTERM: returns each source's summary. Fails, stopping every worker,
@@ -377,13 +422,15 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     let watched = watched_file(&config.tile);
     let mut tile_watch = TileWatch::new(&watched);
     let interval = Duration::from_secs_f64(config.metrics_interval_s);
-    let (loader, loader_thread) = match &lanes {
-        Lanes::Tile(_) => (None, None),
+    let mut loader_threads = Vec::new();
+    let loader = match &lanes {
+        Lanes::Tile(_) => None,
         Lanes::Grid { grid, .. } => {
             let (loader, handle) =
                 GridLoader::spawn(grid.clone(), config.grid, config.trusted_keys(), interval)
                     .map_err(DaemonError::GridLoader)?;
-            (Some(loader), Some(handle))
+            loader_threads.push(handle);
+            Some(loader)
         }
     };
     let cleaned = remove_dead_nodes(&namespace);
@@ -491,7 +538,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         // anything else (SIGINT, SIGTERM) for shutdown.
         let waited = node.wait(SUPERVISION_PERIOD);
         if hangup.swap(false, Ordering::Relaxed) {
-            if reload(&config, &path, &sources, &workers) {
+            if reload(&config, &path, &sources, &workers, &mut loader_threads) {
                 tile_watch = TileWatch::new(&watched);
             }
         } else if waited.is_err() {
@@ -537,7 +584,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         let _ = handle.join();
     }
     drop(loader);
-    if let Some(handle) = loader_thread {
+    for handle in loader_threads {
         let _ = handle.join();
     }
     Ok(summaries)

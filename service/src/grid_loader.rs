@@ -194,6 +194,8 @@ struct Loader {
     assemble_ns: Histogram<u64>,
     maps: u64,
     failures: u64,
+    /// Cells whose failure was logged (once per cell: a session near it asks again and again).
+    refused: std::collections::HashSet<CellKey>,
 }
 
 impl Loader {
@@ -211,6 +213,7 @@ impl Loader {
             assemble_ns: histogram(),
             maps: 0,
             failures: 0,
+            refused: std::collections::HashSet::new(),
         }
     }
 
@@ -268,7 +271,9 @@ impl Loader {
                         }
                         Err(e) => {
                             self.failures += 1;
-                            tracing::warn!(error = %e, "grid cell not loaded: sessions near it keep the map they have");
+                            if self.refused.insert(key) {
+                                tracing::warn!(error = %e, "grid cell not loaded (logged once per cell; failures counted in the grid report): sessions near it keep the map they have");
+                            }
                             return None;
                         }
                     }

@@ -23,6 +23,7 @@ use lanealign_wire::service::{
 };
 
 use crate::config::ResolvedSource;
+use crate::grid_loader::GridLoader;
 use crate::metrics::{Outcome, SourceMetrics};
 use crate::session::{self, JournalFailure, PersistJob, Session, SessionSetup};
 
@@ -114,8 +115,10 @@ pub fn wire_status(status: &Status) -> (StatusCode, ReasonCode) {
 
 /// A lane map the daemon reloaded: new sessions use it.
 pub struct Reload {
-    /// The map.
+    /// The map (on a grid, the one sessions start with).
     pub map: Arc<LaneMap>,
+    /// On a grid, the loader of the new grid.
+    pub grid: Option<GridLoader>,
     /// The new journal fingerprint of the source.
     pub fingerprint: u64,
 }
@@ -442,6 +445,7 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         }
         while let Ok(reload) = worker.setup.reloads.try_recv() {
             worker.setup.sessions.map = reload.map;
+            worker.setup.sessions.grid = reload.grid;
             worker.setup.sessions.fingerprint = reload.fingerprint;
             tracing::info!(source = %name, running_sessions = worker.sessions.len(), "new sessions use the reloaded tile; running sessions keep theirs");
         }

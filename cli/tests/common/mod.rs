@@ -16,6 +16,7 @@ use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::grid::{self, GridSpec};
+use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
@@ -174,6 +175,37 @@ pub fn kitti_setup_on(data: &Path, sources: &[(&str, &str)], cell_size_m: Option
         AxisConvention::KittiCamera,
         sources,
     )
+}
+
+/// Writes `map` (in the town's plane) as the tile `tile` and, beside it, as the grid `grid`
+/// of 100 m cells.
+pub fn write_town_maps(map: &LaneMap, tile: &Path, grid: &Path) {
+    let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
+    tile::write(tile, map, &plane, 3.0, &geometry).unwrap();
+    let spec = GridSpec {
+        plane: &plane,
+        spacing_m: 3.0,
+        geometry: &geometry,
+        cell_size_m: 100.0,
+        margin_m: 50.0,
+        sign: None,
+    };
+    grid::write(grid, map, &spec, 2).unwrap();
+}
+
+/// The synthetic town as a tile (for offline correction) and as a grid the daemon serves:
+/// `town-grid`, a symbolic link to the folder `town-grid-1`.
+pub fn town_grid_setup(sources: &[&str]) -> Setup {
+    let dir = tempfile::tempdir().unwrap();
+    let (tile_path, grid_path) = (dir.path().join("town.tile"), dir.path().join("town-grid"));
+    let map = LaneMap::new(&synthetic::town_lanes()).unwrap();
+    write_town_maps(&map, &tile_path, &dir.path().join("town-grid-1"));
+    std::os::unix::fs::symlink("town-grid-1", &grid_path).unwrap();
+    let sources = sources
+        .iter()
+        .map(|name| (name.to_string(), synthetic::town_anchor()))
+        .collect();
+    write_setup(dir, tile_path, &grid_path, AxisConvention::Flu, sources)
 }
 
 /// A tile of the synthetic town and sources on it.
