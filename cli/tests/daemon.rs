@@ -316,54 +316,41 @@ fn a_source_that_cannot_start_stops_the_daemon() {
 
 /// Always runs: SIGHUP reloads the tile. A running session keeps the tile it started with and
 /// loses no pose; a session started after the reload uses the new tile.
-#[test]
-fn sighup_reloads_the_tile_for_new_sessions() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let name = unique("reload");
-    let setup = town_setup(&[&name]);
-    let daemon = start(&setup);
+/// Streams the town's drive through one session while, 300 poses in, `replace` changes the map
+/// on disk and the daemon gets SIGHUP (and logs `reloaded`): no pose is lost, the running
+/// session keeps its map (every answer as offline on the old map), and a new session corrects
+/// on the new one (as offline on the new map's tile).
+fn a_reload_keeps_running_sessions(
+    setup: &Setup,
+    name: &str,
+    replace: impl FnOnce(),
+    reloaded: &str,
+) {
+    let daemon = start(setup);
     let (_, odometry) = synthetic::drive(1, 42);
-    let before = offline(&setup, &name, &odometry);
-    let mut running = connect(&setup, &name);
+    let before = offline(setup, name, &odometry);
+    let mut running = connect(setup, name);
     wait_for_daemon(&mut running);
     let mut answers = Vec::new();
-    for p in &odometry[..300] {
-        running.publish(0, &p.to_row_major()).unwrap();
-        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
-    }
-    // The new tile: the town's lanes moved 1 m north.
-    let (map, info) = lanealign_core::tile::load(&setup.tile).unwrap();
-    let lanes: Vec<lanealign_core::lane_map::Lane> = map
-        .lanes()
-        .map(|(id, lane_info, pts)| lanealign_core::lane_map::Lane {
-            id,
-            info: lane_info,
-            points: pts.iter().map(|p| [p[0], p[1] + 1.0]).collect(),
-        })
-        .collect();
-    let moved = lanealign_core::lane_map::LaneMap::new(&lanes).unwrap();
-    lanealign_core::tile::write(
-        &setup.tile,
-        &moved,
-        &info.plane,
-        info.spacing_m,
-        &info.geometry,
-    )
-    .unwrap();
+    let mut stream = |poses: &[Pose3]| {
+        for p in poses {
+            running.publish(0, &p.to_row_major()).unwrap();
+            answers.extend(running.recv(Duration::from_secs(5)).unwrap());
+        }
+    };
+    stream(&odometry[..300]);
+    replace();
     rustix::process::kill_process(
         rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
         rustix::process::Signal::HUP,
     )
     .unwrap();
     let until = Instant::now() + Duration::from_secs(5);
-    while !daemon.log().contains("tile reloaded") && Instant::now() < until {
+    while !daemon.log().contains(reloaded) && Instant::now() < until {
         std::thread::sleep(Duration::from_millis(20));
     }
-    assert!(daemon.log().contains("tile reloaded"), "{}", daemon.log());
-    for p in &odometry[300..] {
-        running.publish(0, &p.to_row_major()).unwrap();
-        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
-    }
+    assert!(daemon.log().contains(reloaded), "{}", daemon.log());
+    stream(&odometry[300..]);
     assert_eq!(
         answers.len(),
         odometry.len(),
@@ -371,38 +358,19 @@ fn sighup_reloads_the_tile_for_new_sessions() {
     );
     assert!(
         poses_of(&answers) == before,
-        "the running session kept its tile"
+        "the running session kept its map"
     );
-    let after = offline(&setup, &name, &odometry);
-    assert!(after != before, "the new tile changes corrections");
+    let after = offline(setup, name, &odometry);
+    assert!(after != before, "the new map changes corrections");
     assert!(
-        run_replay(&setup, &name, &odometry, Rate::Max(32)) == after,
+        run_replay(setup, name, &odometry, Rate::Max(32)) == after,
         "a new session uses it"
     );
     assert!(daemon.stop().unwrap());
 }
 
-/// Always runs: SIGHUP reloads a grid too. A session streaming through the reload keeps its
-/// grid (every answer as on the old map); a new session corrects on the new grid, exactly as
-/// offline correction on the new map's tile.
-#[test]
-fn sighup_reloads_a_grid_for_new_sessions() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let name = unique("regrid");
-    let setup = town_grid_setup(&[&name]);
-    let daemon = start(&setup);
-    let (_, odometry) = synthetic::drive(1, 42);
-    let before = offline(&setup, &name, &odometry);
-    let mut running = connect(&setup, &name);
-    wait_for_daemon(&mut running);
-    let mut answers = Vec::new();
-    for p in &odometry[..300] {
-        running.publish(0, &p.to_row_major()).unwrap();
-        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
-    }
-    // The new map: the town's lanes moved 1 m north, as a tile and as a new grid folder that
-    // the link the configuration names is switched to (the old folder stays for the running
-    // session, which reads its cells as it drives).
+/// The town's lanes moved 1 m north.
+fn town_moved_north() -> lanealign_core::lane_map::LaneMap {
     let lanes: Vec<lanealign_core::lane_map::Lane> = synthetic::town_lanes()
         .into_iter()
         .map(|mut lane| {
@@ -410,44 +378,38 @@ fn sighup_reloads_a_grid_for_new_sessions() {
             lane
         })
         .collect();
-    let moved = lanealign_core::lane_map::LaneMap::new(&lanes).unwrap();
-    let dir = setup.dir.path();
-    write_town_maps(&moved, &setup.tile, &dir.join("town-grid-2"));
-    std::os::unix::fs::symlink("town-grid-2", dir.join("town-grid.new")).unwrap();
-    std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
-    rustix::process::kill_process(
-        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
-        rustix::process::Signal::HUP,
-    )
-    .unwrap();
-    let until = Instant::now() + Duration::from_secs(5);
-    while !daemon.log().contains("grid reloaded") && Instant::now() < until {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    assert!(daemon.log().contains("grid reloaded"), "{}", daemon.log());
-    for p in &odometry[300..] {
-        running.publish(0, &p.to_row_major()).unwrap();
-        answers.extend(running.recv(Duration::from_secs(5)).unwrap());
-    }
-    assert_eq!(
-        answers.len(),
-        odometry.len(),
-        "no pose lost across the reload"
-    );
-    let got = poses_of(&answers);
-    let first = got.iter().zip(&before).position(|(a, b)| a != b);
-    assert!(
-        got == before,
-        "the running session kept its grid: first difference at {first:?}\n{}",
-        daemon.log()
-    );
-    let after = offline(&setup, &name, &odometry);
-    assert!(after != before, "the new map changes corrections");
-    assert!(
-        run_replay(&setup, &name, &odometry, Rate::Max(32)) == after,
-        "a new session uses the new grid"
-    );
-    assert!(daemon.stop().unwrap());
+    lanealign_core::lane_map::LaneMap::new(&lanes).unwrap()
+}
+
+/// Always runs: SIGHUP loads the tile again for new sessions; the tile is rewritten in place.
+#[test]
+fn sighup_reloads_the_tile_for_new_sessions() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("reload");
+    let setup = town_setup(&[&name]);
+    let replace = || {
+        let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
+        lanealign_core::tile::write(&setup.tile, &town_moved_north(), &plane, 3.0, &geometry)
+            .unwrap();
+    };
+    a_reload_keeps_running_sessions(&setup, &name, replace, "tile reloaded");
+}
+
+/// Always runs: SIGHUP reloads a grid too. The new grid is written into a new folder and the
+/// link the configuration names is switched to it; the running session keeps reading the old
+/// folder as it drives.
+#[test]
+fn sighup_reloads_a_grid_for_new_sessions() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("regrid");
+    let setup = town_grid_setup(&[&name]);
+    let replace = || {
+        let dir = setup.dir.path();
+        write_town_maps(&town_moved_north(), &setup.tile, &dir.join("town-grid-2"));
+        std::os::unix::fs::symlink("town-grid-2", dir.join("town-grid.new")).unwrap();
+        std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
+    };
+    a_reload_keeps_running_sessions(&setup, &name, replace, "grid reloaded");
 }
 
 /// The daemon never shares its fate with the tile file: truncated in place and then removed

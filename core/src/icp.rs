@@ -147,7 +147,7 @@ fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut 
 /// first); with fewer it returns the identity and an infinite residual.
 ///
 /// With a tolerance band `b > 0` it minimises the trimmed sum of squared band residuals (see
-/// [`band_newton_step`]); with `b = 0` it is exactly the paper's (docs/algorithm.md, section 3).
+/// `band_newton_step`); with `b = 0` it is exactly the paper's (docs/algorithm.md, section 3).
 pub fn trimmed_icp(
     pairs: &[Correspondence],
     params: &IcpParams,

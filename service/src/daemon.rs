@@ -318,11 +318,7 @@ fn reload(
     config: &Config,
     path: &Path,
     sources: &[ResolvedSource],
-    workers: &[(
-        String,
-        std::thread::JoinHandle<WorkerSummary>,
-        mpsc::Sender<Reload>,
-    )],
+    workers: &[Worker],
     loader_threads: &mut Vec<std::thread::JoinHandle<()>>,
 ) -> bool {
     if grid::is_grid(&config.tile) {
@@ -363,6 +359,13 @@ fn reload(
     }
 }
 
+/// A running worker: its source's name, its thread and where its reloads go.
+type Worker = (
+    String,
+    std::thread::JoinHandle<WorkerSummary>,
+    mpsc::Sender<Reload>,
+);
+
 /// Opens the configured grid again (its manifest and the cells around each source's anchor,
 /// checked as at start), starts a loader for it and hands both to the workers for their new
 /// sessions; running sessions keep the grid and loader they have. The new loader's thread.
@@ -370,11 +373,7 @@ fn reload_grid(
     config: &Config,
     path: &Path,
     sources: &[ResolvedSource],
-    workers: &[(
-        String,
-        std::thread::JoinHandle<WorkerSummary>,
-        mpsc::Sender<Reload>,
-    )],
+    workers: &[Worker],
 ) -> Result<std::thread::JoinHandle<()>, String> {
     use lanealign_core::report::error_chain;
     let (lanes, info) = prepare_grid(config, sources).map_err(|e| error_chain(&e))?;

@@ -13,24 +13,32 @@
 //! the whole map). Every lane point within `margin` of a loaded cell's square is then present
 //! with its own segment, and a query whose nearest-neighbour disk stays within that reach gets
 //! exactly the whole map's answer. The assembled map knows its reach ([`Coverage`]) and counts
-//! every query that goes beyond it ([`LaneMap::uncovered_queries`]): zero means the corrections
+//! every query that goes beyond it ([`crate::lane_map::LaneMap::uncovered_queries`]): zero means the corrections
 //! equal those on the whole map, bit for bit.
+//!
+//! Here: the manifest and an opened grid ([`Grid`]); [`cells`] cuts a map into cells and joins
+//! cells back, [`write`](mod@write) writes a grid, [`loading`] says which cells a corrector needs
+//! and corrects a recorded drive on a grid.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use std::collections::{BTreeSet, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::corrector::MatchMode;
 use crate::geo::{check_lat_lon, MapPlane, Projection};
 use crate::input::InputError;
 use crate::lane_geometry::{LaneGeometry, RoadClasses, Traffic};
-use crate::lane_map::{Lane, LaneMap, LaneMapError};
-use crate::params::Params;
-use crate::pose::Pose3;
-use crate::source_corrector::{CorrectedPose, Placement, SourceCorrector};
-use crate::tile::{self, PieceOrigin, SigningKey, TileError, TileInfo};
+use crate::lane_map::LaneMapError;
+use crate::tile::{self, TileError, TileInfo};
+
+pub mod cells;
+pub mod loading;
+pub mod write;
+
+pub use cells::{assemble, partition, renumber, CellContent, Coverage, GridCell};
+pub use loading::{correct_trajectory_on_grid, GridMaps, GridRun, LoadPolicy, MAX_REACH_M};
+pub use write::{encode, write, EncodedGrid, GridSpec};
 
 /// The manifest's file name in a grid folder.
 pub const MANIFEST: &str = "manifest.toml";
@@ -130,66 +138,6 @@ pub struct Manifest {
     pub cells: Vec<CellEntry>,
 }
 
-/// One loaded cell: its pieces and where each comes from.
-pub struct GridCell {
-    /// The cell's index.
-    pub key: CellKey,
-    pieces: LaneMap,
-    origins: Vec<PieceOrigin>,
-    signer: Option<[u8; 32]>,
-}
-
-impl GridCell {
-    /// The ed25519 public key whose valid signature the cell carries (`None`: unsigned).
-    pub fn signer(&self) -> Option<[u8; 32]> {
-        self.signer
-    }
-
-    /// Lane points in the cell (margin included).
-    pub fn points(&self) -> usize {
-        self.pieces.len()
-    }
-}
-
-/// What part of the plane an assembled map answers exactly: every query whose disk lies within
-/// `margin` of the squares of loaded cells (or of cells that hold nothing).
-#[derive(Clone, Debug)]
-pub struct Coverage {
-    cell_size_m: f64,
-    margin_m: f64,
-    loaded: HashSet<CellKey>,
-    existing: Arc<HashSet<CellKey>>,
-    /// Where each lane of the map starts in the whole map: `[lane, point]`, in map order.
-    origins: Vec<PieceOrigin>,
-}
-
-impl Coverage {
-    /// The cells whose lanes the map holds.
-    pub fn loaded(&self) -> &HashSet<CellKey> {
-        &self.loaded
-    }
-
-    /// Whether the map holds every lane point within `radius_m` of `x` (metres, map plane), each
-    /// with its own segment. Conservative: it may say no to a disk that is in fact covered.
-    pub fn covers(&self, x: [f64; 2], radius_m: f64) -> bool {
-        if self.loaded.len() == self.existing.len() {
-            return true;
-        }
-        if !radius_m.is_finite() {
-            return false;
-        }
-        // Every point of the disk lies within the margin of a point of the disk shrunk by the
-        // margin; those lie in the cells the shrunk disk's square touches. The slack covers the
-        // rounding of the cell arithmetic.
-        let half = (radius_m - self.margin_m).max(0.0) + 1e-6;
-        let mut covered = true;
-        existing_cells_near(&self.existing, x, half, self.cell_size_m, |key| {
-            covered &= self.loaded.contains(&key);
-        });
-        covered
-    }
-}
-
 /// Calls `visit` with every cell of `existing` whose square the square of half-side `half`
 /// around `x` touches (metres, map plane). Walks whichever is smaller, that square's cells or
 /// `existing`: a query far from the map (a pose 10,000 km away) costs what the map does, not
@@ -221,21 +169,6 @@ fn existing_cells_near(
     }
 }
 
-/// Point `j` of `from` as a point of `to`, both assembled from cells of one grid: the same
-/// point of the same lane of the whole map. `None` when `to` lacks it (or a map is not a grid's).
-pub fn renumber(from: &LaneMap, to: &LaneMap, j: u32) -> Option<u32> {
-    let (a, b) = (from.coverage()?, to.coverage()?);
-    let k = from.lane_of(j);
-    let [lane, first] = *a.origins.get(k)?;
-    let point = first + (j - from.lane_offsets()[k]);
-    let at = b.origins.partition_point(|o| *o <= [lane, point]);
-    let k = at.checked_sub(1)?;
-    let [to_lane, to_first] = b.origins[k];
-    let offsets = to.lane_offsets();
-    let len = offsets[k + 1] - offsets[k];
-    (to_lane == lane && point < to_first + len).then(|| offsets[k] + point - to_first)
-}
-
 /// The cell indices whose squares a span `[v - half, v + half]` touches (one axis).
 fn index_range(v: f64, half: f64, cell_size_m: f64) -> [i32; 2] {
     let index = |v: f64| {
@@ -244,13 +177,6 @@ fn index_range(v: f64, half: f64, cell_size_m: f64) -> [i32; 2] {
             .clamp(i32::MIN as f64, i32::MAX as f64) as i32
     };
     [index(v - half), index(v + half)]
-}
-
-/// The cell that owns position `x` (metres, map plane).
-pub fn cell_of(x: [f64; 2], cell_size_m: f64) -> CellKey {
-    let [cx, _] = index_range(x[0], 0.0, cell_size_m);
-    let [cy, _] = index_range(x[1], 0.0, cell_size_m);
-    [cx, cy]
 }
 
 /// The largest cell (metres).
@@ -266,206 +192,6 @@ fn check_spec(cell_size_m: f64, margin_m: f64) -> Result<(), GridError> {
             cell_size_m,
             margin_m,
         })
-    }
-}
-
-/// One cell's content, made by [`partition`].
-pub struct CellContent {
-    /// The cell's index.
-    pub key: CellKey,
-    /// Its pieces as a map (lane `k` is piece `k`).
-    pub pieces: LaneMap,
-    /// Where each piece comes from.
-    pub origins: Vec<PieceOrigin>,
-}
-
-/// Splits `map` into cells of `cell_size_m` holding every point within `margin_m` of their
-/// square, each run of points extended by the neighbour its segments need.
-pub fn partition(
-    map: &LaneMap,
-    cell_size_m: f64,
-    margin_m: f64,
-) -> Result<Vec<CellContent>, GridError> {
-    check_spec(cell_size_m, margin_m)?;
-    let mut cells: BTreeMap<CellKey, (Vec<Lane>, Vec<PieceOrigin>)> = BTreeMap::new();
-    let mut members: BTreeMap<CellKey, Vec<usize>> = BTreeMap::new();
-    for (ordinal, (id, info, points)) in map.lanes().enumerate() {
-        members.clear();
-        for (j, p) in points.iter().enumerate() {
-            let [x0, x1] = index_range(p[0], margin_m, cell_size_m);
-            let [y0, y1] = index_range(p[1], margin_m, cell_size_m);
-            // One more cell below on each axis: a point exactly on a square's far edge plus the
-            // margin belongs to it too.
-            for cx in x0.saturating_sub(1)..=x1 {
-                for cy in y0.saturating_sub(1)..=y1 {
-                    if within_reach(p, [cx, cy], cell_size_m, margin_m) {
-                        members.entry([cx, cy]).or_default().push(j);
-                    }
-                }
-            }
-        }
-        for (key, indices) in &members {
-            let (lanes, origins) = cells.entry(*key).or_default();
-            for [first, last] in pieces_of(indices, points.len()) {
-                lanes.push(Lane {
-                    id,
-                    info,
-                    points: points[first..=last].to_vec(),
-                });
-                origins.push([ordinal as u32, first as u32]);
-            }
-        }
-    }
-    cells
-        .into_iter()
-        .map(|(key, (lanes, origins))| {
-            Ok(CellContent {
-                key,
-                pieces: LaneMap::new(&lanes)?,
-                origins,
-            })
-        })
-        .collect()
-}
-
-/// Whether `p` lies within `margin_m` of cell `key`'s square (closed), per axis.
-fn within_reach(p: &[f64; 2], key: CellKey, cell_size_m: f64, margin_m: f64) -> bool {
-    (0..2).all(|a| {
-        let lo = f64::from(key[a]) * cell_size_m - margin_m;
-        let hi = (f64::from(key[a]) + 1.0) * cell_size_m + margin_m;
-        lo <= p[a] && p[a] <= hi
-    })
-}
-
-/// The point ranges `[first, last]` of a lane of `n` points that a cell keeps: runs of its
-/// member points (ascending), each extended by the next point (whose segment the run's last
-/// point owns) or, for a run of the lane's last point alone, by the one before; overlapping or
-/// touching ranges are joined.
-fn pieces_of(members: &[usize], n: usize) -> Vec<[usize; 2]> {
-    let mut out: Vec<[usize; 2]> = Vec::new();
-    let mut k = 0;
-    while k < members.len() {
-        let first = members[k];
-        let mut last = first;
-        while k + 1 < members.len() && members[k + 1] == last + 1 {
-            k += 1;
-            last += 1;
-        }
-        k += 1;
-        let start = if first == n - 1 && first > 0 {
-            first - 1
-        } else {
-            first
-        };
-        let end = (last + 1).min(n - 1);
-        match out.last_mut() {
-            Some(prev) if start <= prev[1] + 1 => prev[1] = prev[1].max(end),
-            _ => out.push([start, end]),
-        }
-    }
-    out
-}
-
-/// Joins the pieces of `cells` into the lanes they came from, in the whole map's order; the
-/// map's coverage is `cells` (see [`Coverage`]).
-pub fn assemble(grid: &Grid, cells: &[Arc<GridCell>]) -> Result<LaneMap, GridError> {
-    let mut pieces: Vec<(PieceOrigin, &GridCell, usize)> = cells
-        .iter()
-        .flat_map(|c| {
-            c.origins
-                .iter()
-                .enumerate()
-                .map(move |(k, &o)| (o, &**c, k))
-        })
-        .collect();
-    pieces.sort_unstable_by_key(|p| p.0);
-    let mut lanes: Vec<Lane> = Vec::new();
-    let mut origins: Vec<PieceOrigin> = Vec::new();
-    let mut current: Option<(u32, usize)> = None;
-    for ([ordinal, first], cell, k) in pieces {
-        let (id, info, points) = piece(cell, k);
-        let first = first as usize;
-        if let (Some((o, start)), Some(lane)) = (current, lanes.last_mut()) {
-            let end = start + lane.points.len();
-            if o == ordinal && first <= end {
-                let overlap = end.min(first + points.len()) - first;
-                let at = first - start;
-                if lane.points[at..at + overlap] != points[..overlap]
-                    || lane.id != id
-                    || lane.info != info
-                {
-                    return Err(GridError::Cell {
-                        path: grid.cell_path(cell.key),
-                        message: format!("lane {id} differs from the same lane in another cell"),
-                    });
-                }
-                lane.points.extend_from_slice(&points[overlap..]);
-                continue;
-            }
-        }
-        current = Some((ordinal, first));
-        origins.push([ordinal, first as u32]);
-        lanes.push(Lane {
-            id,
-            info,
-            points: points.to_vec(),
-        });
-    }
-    let coverage = Coverage {
-        cell_size_m: grid.manifest.cell_size_m,
-        margin_m: grid.manifest.margin_m,
-        loaded: cells.iter().map(|c| c.key).collect(),
-        existing: grid.existing.clone(),
-        origins,
-    };
-    Ok(LaneMap::new(&lanes)?.with_coverage(coverage))
-}
-
-fn piece(cell: &GridCell, k: usize) -> (u64, crate::lane_geometry::LaneInfo, &[[f64; 2]]) {
-    let o = cell.pieces.lane_offsets();
-    let range = o[k] as usize..o[k + 1] as usize;
-    (
-        cell.pieces.lane_ids()[k],
-        cell.pieces.lane_info()[k],
-        &cell.pieces.points()[range],
-    )
-}
-
-/// The largest load radius and look-ahead (metres).
-pub const MAX_REACH_M: f64 = 10_000.0;
-
-/// How much of a grid a corrector keeps loaded: every cell within `radius_m` of its window,
-/// and of the road `ahead_m` further along its direction of travel.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LoadPolicy {
-    /// Cells within this distance of any window pose are loaded (metres).
-    pub radius_m: f64,
-    /// How far ahead of the newest pose, along its direction of travel, cells are prefetched
-    /// (metres).
-    pub ahead_m: f64,
-}
-
-impl Default for LoadPolicy {
-    /// 250 m around the window, 300 m ahead: on the KITTI drives' OpenStreetMap lanes (a point
-    /// every 26 m on average) the 100 nearest points of a pose lie within about 250 m.
-    fn default() -> Self {
-        LoadPolicy {
-            radius_m: 250.0,
-            ahead_m: 300.0,
-        }
-    }
-}
-
-impl LoadPolicy {
-    /// Refuses a radius or distance that is negative or beyond [`MAX_REACH_M`].
-    pub fn validate(&self) -> Result<(), String> {
-        for (key, v) in [("radius_m", self.radius_m), ("ahead_m", self.ahead_m)] {
-            if !(0.0..=MAX_REACH_M).contains(&v) {
-                return Err(format!("{key} = {v}: must be 0 to {MAX_REACH_M} metres"));
-            }
-        }
-        Ok(())
     }
 }
 
@@ -702,13 +428,7 @@ impl Grid {
 
     /// Cell `key`'s own square `[min x, min y, max x, max y]` (metres, map plane).
     pub fn square(&self, key: CellKey) -> [f64; 4] {
-        let s = self.manifest.cell_size_m;
-        [
-            f64::from(key[0]) * s,
-            f64::from(key[1]) * s,
-            (f64::from(key[0]) + 1.0) * s,
-            (f64::from(key[1]) + 1.0) * s,
-        ]
+        square_of(key, self.manifest.cell_size_m)
     }
 
     /// The cells (that hold lanes) a corrector with this window needs under `policy`: within
@@ -756,299 +476,28 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
 }
 
+/// Cell `key`'s own square `[min x, min y, max x, max y]` in a grid of `cell_size_m` cells.
+fn square_of(key: CellKey, cell_size_m: f64) -> [f64; 4] {
+    let s = cell_size_m;
+    [
+        f64::from(key[0]) * s,
+        f64::from(key[1]) * s,
+        (f64::from(key[0]) + 1.0) * s,
+        (f64::from(key[1]) + 1.0) * s,
+    ]
+}
+
 /// The file name of cell `key` inside the grid's `cells` folder.
 pub fn cell_file_name(key: CellKey) -> String {
     format!("{}_{}.tile", key[0], key[1])
 }
 
-/// What [`write`] needs besides the map: its plane, how it was made, and the grid.
-pub struct GridSpec<'a> {
-    /// The plane of the map.
-    pub plane: &'a MapPlane,
-    /// The spacing the lanes were resampled at (metres).
-    pub spacing_m: f64,
-    /// How the lanes were derived.
-    pub geometry: &'a LaneGeometry,
-    /// Side of a cell's square (metres).
-    pub cell_size_m: f64,
-    /// How far beyond its square a cell holds lane points (metres).
-    pub margin_m: f64,
-    /// Sign every cell with this key.
-    pub sign: Option<&'a SigningKey>,
-}
-
-/// Writes `map` as a grid into folder `dir`: every cell, then the manifest (each atomically;
-/// the manifest last, so that a reader never sees a manifest naming a cell not yet written).
-/// Cells are encoded in parallel by the caller's choice of `encode_threads` (at least 1).
-pub fn write(
-    dir: &Path,
-    map: &LaneMap,
-    spec: &GridSpec,
-    encode_threads: usize,
-) -> Result<Manifest, GridError> {
-    let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
-    let cells_dir = dir.join("cells");
-    std::fs::create_dir_all(&cells_dir).map_err(|source| InputError::Io {
-        path: cells_dir.clone(),
-        source,
-    })?;
-    let chunk = cells.len().div_ceil(encode_threads.max(1)).max(1);
-    let entries: Vec<Result<Vec<CellEntry>, GridError>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = cells
-            .chunks(chunk)
-            .map(|part| {
-                scope.spawn(|| {
-                    part.iter()
-                        .map(|c| write_cell(&cells_dir, c, spec))
-                        .collect()
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
-            .collect()
-    });
-    let mut cell_entries = Vec::with_capacity(cells.len());
-    for part in entries {
-        cell_entries.extend(part?);
-    }
-    let manifest = manifest_of(map, spec, cell_entries);
-    let text = toml::to_string(&manifest).map_err(|e| GridError::Manifest {
-        path: dir.join(MANIFEST),
-        message: e.to_string(),
-    })?;
-    crate::input::write_atomic(&dir.join(MANIFEST), text.as_bytes())?;
-    Ok(manifest)
-}
-
-/// The manifest of `map` cut into cells `entries` as `spec` says.
-fn manifest_of(map: &LaneMap, spec: &GridSpec, cells: Vec<CellEntry>) -> Manifest {
-    Manifest {
-        format: MANIFEST_FORMAT,
-        cell_size_m: spec.cell_size_m,
-        margin_m: spec.margin_m,
-        projection: spec.plane.projection.name().into(),
-        origin_lat: spec.plane.origin_lat,
-        origin_lon: spec.plane.origin_lon,
-        spacing_m: spec.spacing_m,
-        traffic: match spec.geometry.traffic {
-            Traffic::Right => "right".into(),
-            Traffic::Left => "left".into(),
-        },
-        road_classes: spec.geometry.classes.bits(),
-        unmarked_offset_scale: spec.geometry.unmarked_offset_scale,
-        lanes: map.lane_count() as u64,
-        points: map.len() as u64,
-        bounds: tile::bounds(map.points()),
-        cells,
-    }
-}
-
-/// A grid in memory: its manifest and each cell's key and tile bytes.
-pub type EncodedGrid = (Manifest, Vec<(CellKey, Vec<u8>)>);
-
-/// A grid of `map` in memory, on the caller's thread: its manifest and each cell's tile bytes
-/// (what [`write`] writes, for tools and tests that do not need files).
-pub fn encode(map: &LaneMap, spec: &GridSpec) -> Result<EncodedGrid, GridError> {
-    let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
-    let mut entries = Vec::with_capacity(cells.len());
-    let mut bytes = Vec::with_capacity(cells.len());
-    for cell in &cells {
-        let (entry, tile) = encode_one(cell, spec)?;
-        entries.push(entry);
-        bytes.push((cell.key, tile));
-    }
-    Ok((manifest_of(map, spec, entries), bytes))
-}
-
-fn write_cell(
-    cells_dir: &Path,
-    cell: &CellContent,
-    spec: &GridSpec,
-) -> Result<CellEntry, GridError> {
-    let (entry, bytes) = encode_one(cell, spec)?;
-    tile::write_bytes(&cells_dir.join(cell_file_name(cell.key)), &bytes)?;
-    Ok(entry)
-}
-
-/// One cell's tile bytes and its manifest entry.
-fn encode_one(cell: &CellContent, spec: &GridSpec) -> Result<(CellEntry, Vec<u8>), GridError> {
-    let s = spec.cell_size_m;
-    let key = cell.key;
-    let square = [
-        f64::from(key[0]) * s,
-        f64::from(key[1]) * s,
-        (f64::from(key[0]) + 1.0) * s,
-        (f64::from(key[1]) + 1.0) * s,
-    ];
-    let mut bytes = tile::encode_cell(
-        &cell.pieces,
-        &cell.origins,
-        square,
-        spec.plane,
-        spec.spacing_m,
-        spec.geometry,
-    );
-    if let Some(key) = spec.sign {
-        tile::sign(&mut bytes, key);
-    }
-    let info = tile::read_info(Path::new(""), &bytes)?;
-    let entry = CellEntry {
-        x: key[0],
-        y: key[1],
-        checksum: format!("{:016x}", info.checksum),
-        bytes: bytes.len() as u64,
-        points: cell.pieces.len() as u64,
-    };
-    Ok((entry, bytes))
-}
-
-/// Keeps one corrector's map assembled from the cells its window needs, loading them on the
-/// caller's thread (for offline correction; the daemon loads on a thread of its own).
-pub struct GridMaps {
-    grid: Arc<Grid>,
-    policy: LoadPolicy,
-    cells: HashMap<CellKey, Arc<GridCell>>,
-    current: BTreeSet<CellKey>,
-    last_update: Option<[f64; 2]>,
-    cells_read: u64,
-}
-
-impl GridMaps {
-    /// Maps from `grid` under `policy`; nothing is loaded yet.
-    pub fn new(grid: Arc<Grid>, policy: LoadPolicy) -> GridMaps {
-        GridMaps {
-            grid,
-            policy,
-            cells: HashMap::new(),
-            current: BTreeSet::new(),
-            last_update: None,
-            cells_read: 0,
-        }
-    }
-
-    /// The map a corrector whose window is `window` needs (plus the position about to be pushed,
-    /// `next`), when it differs from the last one returned: cells are loaded, those no longer
-    /// needed dropped. `None` when the last map still serves (it holds every cell needed, or
-    /// no cell is near). Checks only after the newest pose moved a quarter cell since the last
-    /// check.
-    pub fn update(
-        &mut self,
-        window: &[[f64; 2]],
-        next: [f64; 2],
-    ) -> Result<Option<LaneMap>, GridError> {
-        let step = self.grid.manifest.cell_size_m / 4.0;
-        if self.last_update.is_some_and(|q| distance(q, next) < step) {
-            return Ok(None);
-        }
-        self.last_update = Some(next);
-        let mut path = Vec::with_capacity(window.len() + 1);
-        path.extend_from_slice(window);
-        path.push(next);
-        let wanted = self.grid.wanted(&path, &self.policy);
-        // No cell near (a stretch without lanes): the last map keeps serving, and its coverage
-        // counts any query that reaches past it.
-        if wanted.is_empty() || wanted.is_subset(&self.current) {
-            return Ok(None);
-        }
-        self.cells.retain(|k, _| wanted.contains(k));
-        for &key in &wanted {
-            if !self.cells.contains_key(&key) {
-                self.cells.insert(key, Arc::new(self.grid.load_cell(key)?));
-                self.cells_read += 1;
-            }
-        }
-        let cells: Vec<Arc<GridCell>> = wanted.iter().map(|k| self.cells[k].clone()).collect();
-        self.current = wanted;
-        Ok(Some(assemble(&self.grid, &cells)?))
-    }
-}
-
-/// What a run on a grid loaded and whether every answer was the whole map's.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub struct GridRun {
-    /// Maps assembled (the first and every change of the set of cells).
-    pub maps: u64,
-    /// Cells read from disk.
-    pub cells_read: u64,
-    /// The most cells loaded at once.
-    pub most_cells: usize,
-    /// Neighbour queries beyond the loaded cells: zero means every correction equals the whole
-    /// map's, bit for bit.
-    pub uncovered_queries: u64,
-}
-
-impl GridMaps {
-    /// The map for a corrector about to push `next` with window `window`, counted in `run`.
-    fn next_map(
-        &mut self,
-        window: &[[f64; 2]],
-        next: [f64; 2],
-        run: &mut GridRun,
-    ) -> Result<Option<LaneMap>, GridError> {
-        let map = self.update(window, next)?;
-        if map.is_some() {
-            run.maps += 1;
-            run.most_cells = run.most_cells.max(self.current.len());
-        }
-        run.cells_read = self.cells_read;
-        Ok(map)
-    }
-}
-
-/// Corrects a whole recorded trajectory on a grid, as [`correct_trajectory`] does on one map:
-/// before each pose, the cells its corrector needs under `policy` are loaded (on this thread).
-pub fn correct_trajectory_on_grid(
-    grid: Arc<Grid>,
-    policy: LoadPolicy,
-    params: Params,
-    mode: MatchMode,
-    placement: Placement,
-    poses: &[Pose3],
-) -> Result<(Vec<CorrectedPose>, GridRun), GridError> {
-    let mut maps = GridMaps::new(grid, policy);
-    let mut run = GridRun::default();
-    let Some(first) = poses.first() else {
-        return Ok((Vec::new(), run));
-    };
-    let start = placement_position(&placement, first);
-    let map = maps
-        .next_map(&[], start, &mut run)?
-        .ok_or_else(|| GridError::Cell {
-            path: maps.grid.dir.clone(),
-            message: format!(
-                "no cell holds lanes within {} m of the first pose {start:?}",
-                policy.radius_m
-            ),
-        })?;
-    let mut corrector = SourceCorrector::new(Arc::new(map), params, mode, placement);
-    let mut out = Vec::with_capacity(poses.len());
-    for pose in poses {
-        if pose.problem().is_none() {
-            let next = corrector.predicted_position_in_map(pose);
-            if let Some(map) = maps.next_map(corrector.window(), next, &mut run)? {
-                run.uncovered_queries += corrector.map().uncovered_queries();
-                corrector.replace_map(Arc::new(map));
-            }
-        }
-        out.push(corrector.correct(pose).0);
-    }
-    run.uncovered_queries += corrector.map().uncovered_queries();
-    Ok((out, run))
-}
-
-/// Where the placement puts `pose` in the map plane before any correction (metres).
-fn placement_position(placement: &Placement, pose: &Pose3) -> [f64; 2] {
-    placement
-        .anchored_from_odom
-        .apply(placement.convention.to_planar(pose).planar_position())
-}
-
 #[cfg(test)]
 mod tests {
+    use super::cells::pieces_of;
     use super::*;
     use crate::lane_geometry::LaneInfo;
+    use crate::lane_map::{Lane, LaneMap};
 
     #[test]
     fn pieces_keep_the_segment_neighbours() {
