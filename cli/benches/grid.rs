@@ -139,12 +139,7 @@ fn main() -> anyhow::Result<()> {
         GridLoader::spawn(grid.clone(), policy, None, Duration::from_secs(3600))?;
     let first = odometry[0].planar_position();
     let wanted = grid.wanted(&[first], &policy);
-    let cells0 = wanted
-        .iter()
-        .map(|&k| grid.load_cell(k).map(Arc::new))
-        .collect::<Result<Vec<_>, _>>()?;
-    let start_map = Arc::new(grid::assemble(&grid, &cells0)?);
-    drop(cells0);
+    let start_map = Arc::new(grid.map_of(wanted)?);
     let mut corrector = SourceCorrector::new(start_map, params, MatchMode::Fast, placement());
     let mut view = loader.view(1);
     // Every buffer the drive fills is allocated up front: the memory curve is the grid's.

@@ -10,7 +10,7 @@ use lanealign_core::grid::{self, correct_trajectory_on_grid, Grid, GridRun, Load
 use lanealign_core::lane_csv;
 use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::params::Params;
+use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::Pose3;
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{correct_trajectory, CorrectedPose, Placement};
@@ -93,6 +93,18 @@ pub enum MapSource {
 }
 
 impl MapSource {
+    /// Loads the map for a corrector configured as `config`, refusing a tile (or grid) whose
+    /// lane geometry the method was not made for.
+    pub fn load_for(&self, config: &CorrectorConfig) -> anyhow::Result<LoadedMap> {
+        let loaded = self.load()?;
+        if let (Some(geometry), MapSource::Tile { path, .. }) = (&loaded.geometry, self) {
+            config
+                .check_geometry(geometry)
+                .with_context(|| format!("tile {}", path.display()))?;
+        }
+        Ok(loaded)
+    }
+
     /// Loads the map and places the source on it.
     pub fn load(&self) -> anyhow::Result<LoadedMap> {
         match self {
@@ -188,11 +200,7 @@ fn load_grid(
             LoadPolicy::default().radius_m
         );
     }
-    let cells = wanted
-        .iter()
-        .map(|&k| grid.load_cell(k).map(Arc::new))
-        .collect::<Result<Vec<_>, _>>()?;
-    let map = grid::assemble(&grid, &cells)?;
+    let map = grid.map_of(wanted)?;
     Ok(LoadedMap {
         map: Arc::new(map),
         anchored_from_odom,

@@ -461,11 +461,7 @@ impl Corrector {
     /// window's queries (see [`crate::grid`]).
     pub fn replace_map(&mut self, map: Arc<LaneMap>) {
         if let Matcher::Fast(cache) = &mut self.matcher {
-            if self.map.coverage().is_some() && map.coverage().is_some() {
-                cache.carry_over(&self.map, &map);
-            } else {
-                cache.forget_map();
-            }
+            cache.carry_over(&self.map, &map);
         }
         self.map = map;
     }

@@ -408,12 +408,18 @@ impl LaneMap {
                 .map(|r| (self.squared_distance(p, r.item), r.item)),
         );
         out.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        if self.coverage.is_some() {
+            let reach = if n.get() == self.len() {
+                f64::INFINITY
+            } else {
+                out[out.len() - 1].0.sqrt()
+            };
+            self.note_query(p, reach);
+        }
         if n.get() == self.len() {
-            self.note_query(p, f64::INFINITY);
             return;
         }
         let last = out[out.len() - 1].0;
-        self.note_query(p, last.sqrt());
         let tie_start = out.partition_point(|c| c.0 < last);
         let kiddo_radius = found.iter().map(|r| r.distance).fold(0.0, f64::max);
         let mut ties: Vec<Candidate> = tree

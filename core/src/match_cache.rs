@@ -143,20 +143,11 @@ impl std::fmt::Debug for MatchCache {
 }
 
 impl MatchCache {
-    /// Forgets every pose's cached answers and candidates: the map changed.
-    pub fn forget_map(&mut self) {
-        for c in &mut self.poses {
-            c.wide.points.clear();
-            c.wide.radius = f64::NEG_INFINITY;
-            c.proof = None;
-            c.last = None;
-        }
-    }
-
     /// The map changed from `old` to `new`, two maps assembled from cells of one grid: every
     /// proof whose points are the same in both (its disk is covered by both, so both hold the
     /// whole map's points there) is kept, its points renumbered into `new`; everything else is
-    /// forgotten (see [`Self::forget_map`]). What is kept answers as it would have on `new`.
+    /// forgotten (all of it when either map is not a grid's). What is kept answers as it would
+    /// have on `new`.
     pub fn carry_over(&mut self, old: &LaneMap, new: &LaneMap) {
         let covered = |x: [f64; 2], r: f64| {
             let both = old.coverage().zip(new.coverage());
@@ -280,12 +271,14 @@ fn match_one(
             // The answer rests on every point within the deciding distance (and the proof
             // below on two contender margins more); with fewer than N points in the whole
             // map and none passing, on all of them.
-            let needed = if answer.is_none() && keys.len() < params.neighbours {
-                f64::INFINITY
-            } else {
-                reach.sqrt() + 2.0 * CONTENDER_MARGIN
-            };
-            map.note_query(x, needed);
+            if map.coverage().is_some() {
+                let needed = if answer.is_none() && keys.len() < params.neighbours {
+                    f64::INFINITY
+                } else {
+                    reach.sqrt() + 2.0 * CONTENDER_MARGIN
+                };
+                map.note_query(x, needed);
+            }
             // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
             // within the deciding distance plus twice the contender margin (a partner may lie
             // up to one margin beyond the answer, and its contenders one more).

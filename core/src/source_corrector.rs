@@ -47,6 +47,15 @@ pub struct Placement {
     pub smoothing: Option<Smoothing>,
 }
 
+impl Placement {
+    /// Where the anchor places `pose` (the source's convention) in the map plane, before any
+    /// correction (metres, frame `anchored`).
+    pub fn position_in_anchored(&self, pose: &Pose3) -> [f64; 2] {
+        self.anchored_from_odom
+            .apply(self.convention.to_planar(pose).planar_position())
+    }
+}
+
 /// Everything a source corrector's future answers depend on (see [`CorrectorState`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SourceState {
@@ -97,13 +106,9 @@ impl SourceCorrector {
     /// Where `pose` would lie in the map plane under the correction in force (metres): the
     /// position the next step queries around.
     pub fn predicted_position_in_map(&self, pose: &Pose3) -> [f64; 2] {
-        let anchored = apply_planar_correction(
-            &self.placement.anchored_from_odom,
-            &self.placement.convention.to_planar(pose),
-        );
         self.corrector
             .map_from_anchored()
-            .apply(anchored.planar_position())
+            .apply(self.placement.position_in_anchored(pose))
     }
 
     /// The lane map in use.

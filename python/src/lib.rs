@@ -168,10 +168,7 @@ fn correct<'py>(
     };
     let run = py
         .detach(|| -> anyhow::Result<_> {
-            let loaded = source.load()?;
-            if let (Some(geometry), MapSource::Tile { .. }) = (&loaded.geometry, &source) {
-                config.check_geometry(geometry)?;
-            }
+            let loaded = source.load_for(&config)?;
             let placement = Placement {
                 convention: frame,
                 anchored_from_odom: loaded.anchored_from_odom,

@@ -23,7 +23,7 @@ use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::service::{Namespace, NodeCreateError, NodeListError, SourceName, DAEMON_NODE};
 
 use crate::config::{Config, ConfigError, ResolvedSource};
-use crate::grid_loader::GridLoader;
+use crate::grid_loader::{load_trusted, GridLoader};
 use crate::journal::fingerprint;
 use crate::session::SessionSetup;
 use crate::worker::{self, Reload, WorkerError, WorkerSetup, WorkerSummary};
@@ -149,16 +149,7 @@ fn prepare_grid(
         let wanted = grid.wanted(&[origin], &config.grid);
         let cells = wanted
             .iter()
-            .map(|&key| {
-                let cell = grid.load_cell(key).map_err(|e| lanealign_core::report::error_chain(&e))?;
-                match &trusted {
-                    Some(keys) if !cell.signer().is_some_and(|s| keys.contains(&s)) => Err(format!(
-                        "{}: not signed by a key in trusted_tile_keys: compile the grid with `lanealign-map compile --grid SIZE_M --sign KEY`",
-                        grid.cell_path(key).display()
-                    )),
-                    _ => Ok(Arc::new(cell)),
-                }
-            })
+            .map(|&key| load_trusted(&grid, key, &trusted).map(Arc::new))
             .collect::<Result<Vec<_>, _>>()
             .map_err(&bad)?;
         if cells.is_empty() {

@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
-use lanealign_core::grid::{self, CellKey, Grid, GridCell, LoadPolicy};
+use lanealign_core::grid::{self, CellKey, CellNeeds, Grid, GridCell, LoadPolicy};
 use lanealign_core::lane_map::LaneMap;
 
 /// A request to the loader thread.
@@ -90,7 +90,7 @@ impl GridLoader {
             loader: self.clone(),
             id,
             current: BTreeSet::new(),
-            last_check: None,
+            needs: CellNeeds::default(),
             pending: None,
         }
     }
@@ -102,7 +102,7 @@ pub struct GridView {
     id: u64,
     /// The cells of the session's map (empty: the map it started with).
     current: BTreeSet<CellKey>,
-    last_check: Option<[f64; 2]>,
+    needs: CellNeeds,
     pending: Option<(BTreeSet<CellKey>, Receiver<Arc<LaneMap>>)>,
 }
 
@@ -134,18 +134,13 @@ impl GridView {
     /// (metres, map plane) need are not all in the current one. Checks once per quarter cell
     /// driven, and only with no request in flight.
     pub fn request_if_needed(&mut self, window: &[[f64; 2]], next: [f64; 2]) {
-        let step = self.loader.grid.manifest().cell_size_m / 4.0;
-        if self.pending.is_some() || self.last_check.is_some_and(|q| dist(q, next) < step) {
+        if self.pending.is_some() {
             return;
         }
-        self.last_check = Some(next);
-        let mut path = Vec::with_capacity(window.len() + 1);
-        path.extend_from_slice(window);
-        path.push(next);
-        let wanted = self.loader.grid.wanted(&path, &self.loader.policy);
-        if wanted.is_empty() || wanted.is_subset(&self.current) {
+        let (grid, policy) = (&self.loader.grid, &self.loader.policy);
+        let Some(wanted) = self.needs.check(grid, policy, window, next, &self.current) else {
             return;
-        }
+        };
         let (reply, rx) = mpsc::channel();
         let request = Request::Map {
             requester: self.id,
@@ -164,19 +159,19 @@ impl Drop for GridView {
     }
 }
 
-fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
-}
-
 /// Loads a cell and refuses one not signed by a trusted key (when keys are configured).
-fn load_trusted(grid: &Grid, key: CellKey, trusted: &Trusted) -> Result<GridCell, String> {
+pub(crate) fn load_trusted(
+    grid: &Grid,
+    key: CellKey,
+    trusted: &Trusted,
+) -> Result<GridCell, String> {
     let cell = grid
         .load_cell(key)
         .map_err(|e| lanealign_core::report::error_chain(&e))?;
     if let Some(keys) = trusted {
         if !cell.signer().is_some_and(|s| keys.contains(&s)) {
             return Err(format!(
-                "{}: not signed by a trusted key",
+                "{}: not signed by a key in trusted_tile_keys: compile the grid with `lanealign-map compile --grid SIZE_M --sign KEY`",
                 grid.cell_path(key).display()
             ));
         }

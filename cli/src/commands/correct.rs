@@ -6,11 +6,11 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
-use lanealign_cli::maps::{LoadedMap, MapSource};
+use lanealign_cli::maps::MapSource;
 use lanealign_cli::{evaluation, plots, report, results, status_file};
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
-use lanealign_core::grid::{self, Grid, LoadPolicy};
+use lanealign_core::grid::{Grid, LoadPolicy};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::ape_2d;
@@ -247,18 +247,6 @@ pub fn status_csv(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
     }))
 }
 
-/// Loads the map for `config` and refuses a tile whose lane geometry the method was not made
-/// for.
-pub fn load_map(source: &MapSource, config: &CorrectorConfig) -> anyhow::Result<LoadedMap> {
-    let loaded = source.load()?;
-    if let (Some(geometry), MapSource::Tile { path, .. }) = (&loaded.geometry, source) {
-        config
-            .check_geometry(geometry)
-            .with_context(|| format!("tile {}", path.display()))?;
-    }
-    Ok(loaded)
-}
-
 /// Runs `lanealign correct`.
 pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     let config = args.corrector.config()?;
@@ -268,7 +256,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         bail!("{}: no poses", args.input.display());
     }
     let source = args.map.source(&config)?;
-    let loaded = load_map(&source, &config)?;
+    let loaded = source.load_for(&config)?;
     if let Some(InputReport::Osm(r)) = &loaded.report {
         if r.missing_node_refs > 0 || r.ways_without_geometry > 0 {
             eprintln!(
@@ -387,12 +375,7 @@ fn lanes_along(
         radius_m: 0.0,
         ahead_m: 0.0,
     };
-    let cells = grid
-        .wanted(&positions, &along)
-        .into_iter()
-        .map(|k| grid.load_cell(k).map(Arc::new))
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(grid::assemble(grid, &cells)?)
+    Ok(grid.map_of(grid.wanted(&positions, &along))?)
 }
 
 /// `metrics.json` and the plots of a results folder: raw and corrected against ground truth.

@@ -52,6 +52,39 @@ impl LoadPolicy {
     }
 }
 
+/// When a corrector needs cells its map lacks: checked once per quarter cell driven (the cells
+/// a window needs change no faster), shared by [`GridMaps`] and the daemon's sessions.
+#[derive(Clone, Debug, Default)]
+pub struct CellNeeds {
+    last_check: Option<[f64; 2]>,
+}
+
+impl CellNeeds {
+    /// The cells a corrector with `window` (oldest first) about to push `next` needs under
+    /// `policy` (metres, map plane), when `current` lacks any of them; `None` when it lacks none,
+    /// when no cell is near (a stretch without lanes: the current map keeps serving), or when the
+    /// newest pose has not moved a quarter cell since the last check.
+    pub fn check(
+        &mut self,
+        grid: &Grid,
+        policy: &LoadPolicy,
+        window: &[[f64; 2]],
+        next: [f64; 2],
+        current: &BTreeSet<CellKey>,
+    ) -> Option<BTreeSet<CellKey>> {
+        let step = grid.manifest().cell_size_m / 4.0;
+        if self.last_check.is_some_and(|q| distance(q, next) < step) {
+            return None;
+        }
+        self.last_check = Some(next);
+        let mut path = Vec::with_capacity(window.len() + 1);
+        path.extend_from_slice(window);
+        path.push(next);
+        let wanted = grid.wanted(&path, policy);
+        (!wanted.is_empty() && !wanted.is_subset(current)).then_some(wanted)
+    }
+}
+
 /// Keeps one corrector's map assembled from the cells its window needs, loading them on the
 /// caller's thread (for offline correction; the daemon loads on a thread of its own).
 pub struct GridMaps {
@@ -59,7 +92,7 @@ pub struct GridMaps {
     policy: LoadPolicy,
     cells: HashMap<CellKey, Arc<GridCell>>,
     current: BTreeSet<CellKey>,
-    last_update: Option<[f64; 2]>,
+    needs: CellNeeds,
     cells_read: u64,
 }
 
@@ -71,7 +104,7 @@ impl GridMaps {
             policy,
             cells: HashMap::new(),
             current: BTreeSet::new(),
-            last_update: None,
+            needs: CellNeeds::default(),
             cells_read: 0,
         }
     }
@@ -86,20 +119,12 @@ impl GridMaps {
         window: &[[f64; 2]],
         next: [f64; 2],
     ) -> Result<Option<LaneMap>, GridError> {
-        let step = self.grid.manifest.cell_size_m / 4.0;
-        if self.last_update.is_some_and(|q| distance(q, next) < step) {
+        let Some(wanted) = self
+            .needs
+            .check(&self.grid, &self.policy, window, next, &self.current)
+        else {
             return Ok(None);
-        }
-        self.last_update = Some(next);
-        let mut path = Vec::with_capacity(window.len() + 1);
-        path.extend_from_slice(window);
-        path.push(next);
-        let wanted = self.grid.wanted(&path, &self.policy);
-        // No cell near (a stretch without lanes): the last map keeps serving, and its coverage
-        // counts any query that reaches past it.
-        if wanted.is_empty() || wanted.is_subset(&self.current) {
-            return Ok(None);
-        }
+        };
         self.cells.retain(|k, _| wanted.contains(k));
         for &key in &wanted {
             if !self.cells.contains_key(&key) {
@@ -160,7 +185,7 @@ pub fn correct_trajectory_on_grid(
     let Some(first) = poses.first() else {
         return Ok((Vec::new(), run));
     };
-    let start = placement_position(&placement, first);
+    let start = placement.position_in_anchored(first);
     let map = maps
         .next_map(&[], start, &mut run)?
         .ok_or_else(|| GridError::Cell {
@@ -184,11 +209,4 @@ pub fn correct_trajectory_on_grid(
     }
     run.uncovered_queries += corrector.map().uncovered_queries();
     Ok((out, run))
-}
-
-/// Where the placement puts `pose` in the map plane before any correction (metres).
-fn placement_position(placement: &Placement, pose: &Pose3) -> [f64; 2] {
-    placement
-        .anchored_from_odom
-        .apply(placement.convention.to_planar(pose).planar_position())
 }

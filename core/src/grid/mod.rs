@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use crate::geo::{check_lat_lon, MapPlane, Projection};
 use crate::input::InputError;
 use crate::lane_geometry::{LaneGeometry, RoadClasses, Traffic};
-use crate::lane_map::LaneMapError;
+use crate::lane_map::{LaneMap, LaneMapError};
 use crate::tile::{self, TileError, TileInfo};
 
 pub mod cells;
@@ -37,7 +37,9 @@ pub mod loading;
 pub mod write;
 
 pub use cells::{assemble, partition, renumber, CellContent, Coverage, GridCell};
-pub use loading::{correct_trajectory_on_grid, GridMaps, GridRun, LoadPolicy, MAX_REACH_M};
+pub use loading::{
+    correct_trajectory_on_grid, CellNeeds, GridMaps, GridRun, LoadPolicy, MAX_REACH_M,
+};
 pub use write::{encode, write, EncodedGrid, GridSpec};
 
 /// The manifest's file name in a grid folder.
@@ -369,6 +371,16 @@ impl Grid {
         self.cell_from_bytes(key, &bytes)
     }
 
+    /// The map of cells `keys`, each loaded (and checked) from disk and joined (see
+    /// [`assemble`]): for a map used once, where nothing is worth caching.
+    pub fn map_of(&self, keys: impl IntoIterator<Item = CellKey>) -> Result<LaneMap, GridError> {
+        let cells = keys
+            .into_iter()
+            .map(|key| self.load_cell(key).map(Arc::new))
+            .collect::<Result<Vec<_>, _>>()?;
+        assemble(self, &cells)
+    }
+
     /// Cell `key` from its tile bytes, checked as [`Self::load_cell`] checks a file.
     pub fn cell_from_bytes(&self, key: CellKey, bytes: &[u8]) -> Result<GridCell, GridError> {
         let path = self.cell_path(key);
@@ -549,16 +561,22 @@ mod tests {
         Grid::open(dir).unwrap()
     }
 
+    /// The map of the cells within `radius_m` of `x`; `None` when no cell is near.
+    fn around(grid: &Grid, x: [f64; 2], radius_m: f64) -> Option<LaneMap> {
+        let policy = LoadPolicy {
+            radius_m,
+            ahead_m: 0.0,
+        };
+        let wanted = grid.wanted(&[x], &policy);
+        (!wanted.is_empty()).then(|| grid.map_of(wanted).unwrap())
+    }
+
     #[test]
     fn all_cells_assemble_into_the_whole_map() {
         let dir = tempfile::tempdir().unwrap();
         let map = town();
         let grid = grid_of(&map, dir.path(), 50.0, 10.0);
-        let cells: Vec<Arc<GridCell>> = grid
-            .cells()
-            .map(|k| Arc::new(grid.load_cell(k).unwrap()))
-            .collect();
-        let whole = assemble(&grid, &cells).unwrap();
+        let whole = grid.map_of(grid.cells()).unwrap();
         assert_eq!(whole, map);
     }
 
@@ -579,21 +597,9 @@ mod tests {
         let (mut checked, mut vouched) = (0, 0);
         for _ in 0..40 {
             let centre = [next() * 450.0 - 20.0, next() * 450.0 - 30.0];
-            let wanted = grid.wanted(
-                &[centre],
-                &LoadPolicy {
-                    radius_m: next() * 80.0,
-                    ahead_m: 0.0,
-                },
-            );
-            let cells: Vec<Arc<GridCell>> = wanted
-                .iter()
-                .map(|&k| Arc::new(grid.load_cell(k).unwrap()))
-                .collect();
-            if cells.is_empty() {
+            let Some(part) = around(&grid, centre, next() * 80.0) else {
                 continue;
-            }
-            let part = assemble(&grid, &cells).unwrap();
+            };
             for _ in 0..50 {
                 let x = [
                     centre[0] + next() * 120.0 - 60.0,
@@ -633,20 +639,7 @@ mod tests {
     fn renumbering_finds_the_same_point() {
         let dir = tempfile::tempdir().unwrap();
         let grid = grid_of(&town(), dir.path(), 60.0, 10.0);
-        let part = |x: f64| {
-            let wanted = grid.wanted(
-                &[[x, 200.0]],
-                &LoadPolicy {
-                    radius_m: 100.0,
-                    ahead_m: 0.0,
-                },
-            );
-            let cells: Vec<_> = wanted
-                .iter()
-                .map(|&k| Arc::new(grid.load_cell(k).unwrap()))
-                .collect();
-            assemble(&grid, &cells).unwrap()
-        };
+        let part = |x: f64| around(&grid, [x, 200.0], 100.0).unwrap();
         let (a, b) = (part(100.0), part(200.0));
         let (mut found, mut missing) = (0, 0);
         for j in 0..a.len() as u32 {
@@ -686,18 +679,7 @@ mod tests {
         assert!(grid
             .wanted(&[far, [far[0] + 1.0, far[1]]], &policy)
             .is_empty());
-        let near = grid.wanted(
-            &[[100.0, 100.0]],
-            &LoadPolicy {
-                radius_m: 10.0,
-                ahead_m: 0.0,
-            },
-        );
-        let cells: Vec<_> = near
-            .iter()
-            .map(|&k| Arc::new(grid.load_cell(k).unwrap()))
-            .collect();
-        let part = assemble(&grid, &cells).unwrap();
+        let part = around(&grid, [100.0, 100.0], 10.0).unwrap();
         let coverage = part.coverage().unwrap();
         assert!(
             !coverage.covers(far, 1.5e7),
@@ -705,11 +687,8 @@ mod tests {
         );
         assert!(coverage.covers(far, 1.0), "an empty stretch of plane");
         assert!(coverage.covers([100.0, 100.0], 5.0));
-        let all: Vec<_> = grid
-            .cells()
-            .map(|k| Arc::new(grid.load_cell(k).unwrap()))
-            .collect();
-        assert!(assemble(&grid, &all)
+        assert!(grid
+            .map_of(grid.cells())
             .unwrap()
             .coverage()
             .unwrap()
