@@ -214,32 +214,54 @@ impl<R: BufRead> Iterator for Lines<R> {
 /// Writes output files so that they appear only together, when everything succeeded: each is
 /// written to a temporary file beside it, and all are renamed into place by [`Outputs::commit`].
 /// Dropped without committing, the temporary files are removed.
+///
+/// A path that names an existing file through symbolic links replaces the file the links name
+/// (the links stay). A path that names something other than a file (`/dev/null`, a FIFO, a
+/// terminal) is written to directly at commit: renaming over it would replace a device node
+/// (for root, the system's `/dev/null`) with a plain file.
 #[derive(Default)]
 pub struct Outputs {
     staged: Vec<(PathBuf, PathBuf)>,
+    direct: Vec<(PathBuf, Vec<u8>)>,
 }
 
 impl Outputs {
-    /// Stages `bytes` for `path` (written now to a temporary file beside it).
+    /// Stages `bytes` for `path` (written now to a temporary file beside the file it names, or
+    /// kept for commit when it names a device or FIFO).
     pub fn stage(&mut self, path: &Path, bytes: &[u8]) -> Result<(), InputError> {
-        let mut name = path.as_os_str().to_owned();
-        name.push(format!(".partial-{}", std::process::id()));
-        let tmp = PathBuf::from(name);
-        std::fs::write(&tmp, bytes).map_err(|source| InputError::Io {
+        let io = |source| InputError::Io {
             path: path.to_path_buf(),
             source,
-        })?;
-        self.staged.push((tmp, path.to_path_buf()));
+        };
+        let target = match std::fs::metadata(path) {
+            Ok(m) if m.is_dir() => {
+                return Err(io(std::io::Error::from(std::io::ErrorKind::IsADirectory)))
+            }
+            Ok(m) if !m.is_file() => {
+                self.direct.push((path.to_path_buf(), bytes.to_vec()));
+                return Ok(());
+            }
+            Ok(_) => std::fs::canonicalize(path).map_err(io)?,
+            Err(_) => path.to_path_buf(),
+        };
+        let mut name = target.as_os_str().to_owned();
+        name.push(format!(".partial-{}", std::process::id()));
+        let tmp = PathBuf::from(name);
+        std::fs::write(&tmp, bytes).map_err(io)?;
+        self.staged.push((tmp, target));
         Ok(())
     }
 
-    /// Renames every staged file into place.
+    /// Renames every staged file into place, then writes to the devices and FIFOs.
     pub fn commit(mut self) -> Result<(), InputError> {
         for (tmp, path) in std::mem::take(&mut self.staged) {
             std::fs::rename(&tmp, &path).map_err(|source| InputError::Io {
                 path: path.clone(),
                 source,
             })?;
+        }
+        for (path, bytes) in std::mem::take(&mut self.direct) {
+            std::fs::write(&path, bytes).map_err(|source| InputError::Io { path, source })?;
         }
         Ok(())
     }
@@ -263,6 +285,37 @@ impl Drop for Outputs {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn outputs_through_links_replace_the_file_and_fifos_are_written_not_replaced() {
+        use std::os::unix::fs::FileTypeExt;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("file.txt");
+        std::fs::write(&file, "old").unwrap();
+        let link = dir.path().join("link.txt");
+        std::os::unix::fs::symlink(&file, &link).unwrap();
+        write_atomic(&link, b"new").unwrap();
+        assert!(
+            std::fs::symlink_metadata(&link).unwrap().is_symlink(),
+            "the link stays"
+        );
+        assert_eq!(std::fs::read(&file).unwrap(), b"new");
+
+        let fifo = dir.path().join("fifo");
+        let c_path = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+        assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+        let reader = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || std::fs::read(fifo).unwrap())
+        };
+        write_atomic(&fifo, b"through the pipe").unwrap();
+        assert_eq!(reader.join().unwrap(), b"through the pipe");
+        let kind = std::fs::symlink_metadata(&fifo).unwrap().file_type();
+        assert!(kind.is_fifo(), "still a FIFO, not a file renamed over it");
+
+        let e = write_atomic(dir.path(), b"x").unwrap_err().to_string();
+        assert!(e.contains("directory"), "{e}");
+    }
 
     #[test]
     fn quotes_are_short_and_escape_control_characters() {
