@@ -102,19 +102,38 @@ pub fn partition(
     cell_size_m: f64,
     margin_m: f64,
 ) -> Result<Vec<CellContent>, GridError> {
+    let lanes = map
+        .lanes()
+        .enumerate()
+        .map(|(ordinal, (id, info, points))| (ordinal as u32, id, info, points));
+    partition_lanes(lanes, cell_size_m, margin_m, |_| true)
+}
+
+/// One lane as [`partition_lanes`] takes it: its ordinal in the whole map, id, info and points
+/// (metres, map plane).
+pub type OrderedLane<'a> = (u32, u64, LaneInfo, &'a [[f64; 2]]);
+
+/// The cells among those `keep` accepts that `lanes` reach, as [`partition`] cuts them.
+/// `lanes` are any of the whole map's lanes, in the whole map's order, with their ordinals there;
+/// a cell is complete (equal to the one [`partition`] makes of the whole map) when every lane
+/// with a point within `margin_m` of its square is among them. A compiler that streams its
+/// input cuts a region's cells at a time this way.
+pub fn partition_lanes<'a>(
+    lanes: impl IntoIterator<Item = OrderedLane<'a>>,
+    cell_size_m: f64,
+    margin_m: f64,
+    keep: impl Fn(CellKey) -> bool,
+) -> Result<Vec<CellContent>, GridError> {
     check_spec(cell_size_m, margin_m)?;
     let mut cells: BTreeMap<CellKey, (Vec<Lane>, Vec<PieceOrigin>)> = BTreeMap::new();
     let mut members: BTreeMap<CellKey, Vec<usize>> = BTreeMap::new();
-    for (ordinal, (id, info, points)) in map.lanes().enumerate() {
+    for (ordinal, id, info, points) in lanes {
         members.clear();
         for (j, p) in points.iter().enumerate() {
-            let [x0, x1] = index_range(p[0], margin_m, cell_size_m);
-            let [y0, y1] = index_range(p[1], margin_m, cell_size_m);
-            // One more cell below on each axis: a point exactly on a square's far edge plus the
-            // margin belongs to it too.
-            for cx in x0.saturating_sub(1)..=x1 {
-                for cy in y0.saturating_sub(1)..=y1 {
-                    if within_reach(p, [cx, cy], cell_size_m, margin_m) {
+            let [[x0, x1], [y0, y1]] = cells_near(*p, cell_size_m, margin_m);
+            for cx in x0..=x1 {
+                for cy in y0..=y1 {
+                    if keep([cx, cy]) && within_reach(p, [cx, cy], cell_size_m, margin_m) {
                         members.entry([cx, cy]).or_default().push(j);
                     }
                 }
@@ -128,7 +147,7 @@ pub fn partition(
                     info,
                     points: points[first..=last].to_vec(),
                 });
-                origins.push([ordinal as u32, first as u32]);
+                origins.push([ordinal, first as u32]);
             }
         }
     }
@@ -142,6 +161,15 @@ pub fn partition(
             })
         })
         .collect()
+}
+
+/// The cells whose square within `margin_m` may hold `p` (metres, map plane): x indices
+/// `[0][0]..=[0][1]`, y indices `[1][0]..=[1][1]`. One more cell below on each axis than the
+/// margin reaches: a point exactly on a square's far edge plus the margin belongs to it too.
+pub fn cells_near(p: [f64; 2], cell_size_m: f64, margin_m: f64) -> [[i32; 2]; 2] {
+    let [x0, x1] = index_range(p[0], margin_m, cell_size_m);
+    let [y0, y1] = index_range(p[1], margin_m, cell_size_m);
+    [[x0.saturating_sub(1), x1], [y0.saturating_sub(1), y1]]
 }
 
 /// Whether `p` lies within `margin_m` of cell `key`'s square (closed), per axis.

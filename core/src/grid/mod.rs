@@ -36,11 +36,16 @@ pub mod cells;
 pub mod loading;
 pub mod write;
 
-pub use cells::{assemble, partition, renumber, CellContent, Coverage, GridCell};
+pub use cells::{
+    assemble, cells_near, partition, partition_lanes, renumber, CellContent, Coverage, GridCell,
+    OrderedLane,
+};
 pub use loading::{
     correct_trajectory_on_grid, CellNeeds, GridMaps, GridRun, LoadPolicy, MAX_REACH_M,
 };
-pub use write::{encode, write, EncodedGrid, GridSpec};
+pub use write::{
+    create_cells_dir, encode, write, write_cells, write_manifest, EncodedGrid, GridSpec, MapSummary,
+};
 
 /// The manifest's file name in a grid folder.
 pub const MANIFEST: &str = "manifest.toml";
@@ -736,6 +741,45 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("give the grid's folder"), "{e}");
+    }
+
+    #[test]
+    fn a_manifest_too_large_to_read_is_not_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let plane = MapPlane::new(Projection::Tangent, 48.98, 8.39);
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &LaneGeometry::default(),
+            cell_size_m: 100.0,
+            margin_m: 10.0,
+            sign: None,
+        };
+        let cells = |n: i32| -> Vec<CellEntry> {
+            (0..n)
+                .map(|k| CellEntry {
+                    x: k % 1000,
+                    y: k / 1000,
+                    checksum: format!("{:016x}", u64::MAX - k as u64),
+                    bytes: 1 << 20,
+                    points: 1 << 20,
+                })
+                .collect()
+        };
+        let mut summary = MapSummary::empty();
+        summary.add(&[[0.0, 0.0], [1.0, 1.0]]);
+        // About 100 bytes a cell: 200,000 cells fit, 400,000 do not.
+        let written = write_manifest(dir.path(), &spec, &summary, cells(200_000)).unwrap();
+        assert_eq!(written.cells.len(), 200_000);
+        std::fs::remove_file(dir.path().join(MANIFEST)).unwrap();
+        let e = write_manifest(dir.path(), &spec, &summary, cells(400_000))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("400000 cells") && e.contains("larger cells"),
+            "{e}"
+        );
+        assert!(!dir.path().join(MANIFEST).exists());
     }
 
     #[test]

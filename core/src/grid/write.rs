@@ -1,6 +1,6 @@
 //! Writing a map as a grid: every cell's tile and the manifest, to a folder or in memory.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::geo::MapPlane;
 use crate::input::InputError;
@@ -10,7 +10,7 @@ use crate::tile::{self, SigningKey};
 
 use super::{
     cell_file_name, partition, square_of, CellContent, CellEntry, CellKey, GridError, Manifest,
-    MANIFEST, MANIFEST_FORMAT,
+    MANIFEST, MANIFEST_FORMAT, MAX_MANIFEST_BYTES,
 };
 
 /// What [`write`](fn@write) needs besides the map: its plane, how it was made, and the grid.
@@ -39,22 +39,12 @@ pub fn write(
     encode_threads: usize,
 ) -> Result<Manifest, GridError> {
     let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
-    let cells_dir = dir.join("cells");
-    std::fs::create_dir_all(&cells_dir).map_err(|source| InputError::Io {
-        path: cells_dir.clone(),
-        source,
-    })?;
+    let cells_dir = create_cells_dir(dir)?;
     let chunk = cells.len().div_ceil(encode_threads.max(1)).max(1);
     let entries: Vec<Result<Vec<CellEntry>, GridError>> = std::thread::scope(|scope| {
         let handles: Vec<_> = cells
             .chunks(chunk)
-            .map(|part| {
-                scope.spawn(|| {
-                    part.iter()
-                        .map(|c| write_cell(&cells_dir, c, spec))
-                        .collect()
-                })
-            })
+            .map(|part| scope.spawn(|| write_cells(&cells_dir, part, spec)))
             .collect();
         handles
             .into_iter()
@@ -65,17 +55,115 @@ pub fn write(
     for part in entries {
         cell_entries.extend(part?);
     }
-    let manifest = manifest_of(map, spec, cell_entries);
+    write_manifest(dir, spec, &MapSummary::of(map), cell_entries)
+}
+
+/// Creates `dir/cells` (and `dir`) for [`write_cells`]; returns its path.
+pub fn create_cells_dir(dir: &Path) -> Result<PathBuf, GridError> {
+    let cells_dir = dir.join("cells");
+    std::fs::create_dir_all(&cells_dir).map_err(|source| InputError::Io {
+        path: cells_dir.clone(),
+        source,
+    })?;
+    Ok(cells_dir)
+}
+
+/// Encodes `cells` and writes each (atomically) into `cells_dir`; returns their manifest
+/// entries in the same order.
+pub fn write_cells(
+    cells_dir: &Path,
+    cells: &[CellContent],
+    spec: &GridSpec,
+) -> Result<Vec<CellEntry>, GridError> {
+    cells
+        .iter()
+        .map(|cell| {
+            let (entry, bytes) = encode_one(cell, spec)?;
+            tile::write_bytes(&cells_dir.join(cell_file_name(cell.key)), &bytes)?;
+            Ok(entry)
+        })
+        .collect()
+}
+
+/// Writes the manifest of a map summed up by `summary` and cut into the cells `cells` (in any
+/// order) into folder `dir`, atomically, once every cell is written; returns it.
+pub fn write_manifest(
+    dir: &Path,
+    spec: &GridSpec,
+    summary: &MapSummary,
+    mut cells: Vec<CellEntry>,
+) -> Result<Manifest, GridError> {
+    cells.sort_by_key(|c| (c.x, c.y));
+    let manifest = manifest_of(summary, spec, cells);
     let text = toml::to_string(&manifest).map_err(|e| GridError::Manifest {
         path: dir.join(MANIFEST),
         message: e.to_string(),
     })?;
+    if text.len() as u64 > MAX_MANIFEST_BYTES {
+        return Err(GridError::Manifest {
+            path: dir.join(MANIFEST),
+            message: format!(
+                "{} cells make a manifest of {:.1} MiB, more than the {} MiB a grid may have: \
+                 use larger cells, or compile the area as regions (docs/fleet.md)",
+                manifest.cells.len(),
+                text.len() as f64 / (1 << 20) as f64,
+                MAX_MANIFEST_BYTES >> 20
+            ),
+        });
+    }
     crate::input::write_atomic(&dir.join(MANIFEST), text.as_bytes())?;
     Ok(manifest)
 }
 
-/// The manifest of `map` cut into cells `entries` as `spec` says.
-fn manifest_of(map: &LaneMap, spec: &GridSpec, cells: Vec<CellEntry>) -> Manifest {
+/// What a manifest records of the whole map: its lane and point counts and bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapSummary {
+    /// Lanes with at least one point.
+    pub lanes: u64,
+    /// Lane points.
+    pub points: u64,
+    /// Bounding box of every point `[min x, min y, max x, max y]` (metres, map plane).
+    pub bounds: [f64; 4],
+}
+
+impl MapSummary {
+    /// The summary of a map without lanes, to [`add`](MapSummary::add) lanes to.
+    pub fn empty() -> MapSummary {
+        MapSummary {
+            lanes: 0,
+            points: 0,
+            bounds: tile::bounds(&[]),
+        }
+    }
+
+    /// The summary of `map`.
+    pub fn of(map: &LaneMap) -> MapSummary {
+        MapSummary {
+            lanes: map.lane_count() as u64,
+            points: map.len() as u64,
+            bounds: tile::bounds(map.points()),
+        }
+    }
+
+    /// Adds one lane's points (metres, map plane); a lane without points adds nothing.
+    pub fn add(&mut self, points: &[[f64; 2]]) {
+        if points.is_empty() {
+            return;
+        }
+        let b = tile::bounds(points);
+        self.lanes += 1;
+        self.points += points.len() as u64;
+        self.bounds = [
+            self.bounds[0].min(b[0]),
+            self.bounds[1].min(b[1]),
+            self.bounds[2].max(b[2]),
+            self.bounds[3].max(b[3]),
+        ];
+    }
+}
+
+/// The manifest of a map summed up by `summary` cut into cells `entries` as `spec` says.
+fn manifest_of(summary: &MapSummary, spec: &GridSpec, cells: Vec<CellEntry>) -> Manifest {
     Manifest {
         format: MANIFEST_FORMAT,
         cell_size_m: spec.cell_size_m,
@@ -90,9 +178,9 @@ fn manifest_of(map: &LaneMap, spec: &GridSpec, cells: Vec<CellEntry>) -> Manifes
         },
         road_classes: spec.geometry.classes.bits(),
         unmarked_offset_scale: spec.geometry.unmarked_offset_scale,
-        lanes: map.lane_count() as u64,
-        points: map.len() as u64,
-        bounds: tile::bounds(map.points()),
+        lanes: summary.lanes,
+        points: summary.points,
+        bounds: summary.bounds,
         cells,
     }
 }
@@ -111,17 +199,7 @@ pub fn encode(map: &LaneMap, spec: &GridSpec) -> Result<EncodedGrid, GridError> 
         entries.push(entry);
         bytes.push((cell.key, tile));
     }
-    Ok((manifest_of(map, spec, entries), bytes))
-}
-
-fn write_cell(
-    cells_dir: &Path,
-    cell: &CellContent,
-    spec: &GridSpec,
-) -> Result<CellEntry, GridError> {
-    let (entry, bytes) = encode_one(cell, spec)?;
-    tile::write_bytes(&cells_dir.join(cell_file_name(cell.key)), &bytes)?;
-    Ok(entry)
+    Ok((manifest_of(&MapSummary::of(map), spec, entries), bytes))
 }
 
 /// One cell's tile bytes and its manifest entry.
