@@ -129,10 +129,12 @@ pub fn write(osm: &OsmData) -> Vec<u8> {
             })
             .collect();
         packed(&mut r, 9, ids.into_iter());
+        // Any other kind is written as 3, a member type PBF does not define (a regression case).
         let kinds = rel.members.iter().map(|m| match m.kind.as_str() {
             "node" => 0,
             "way" => 1,
-            _ => 2,
+            "relation" => 2,
+            _ => 3,
         });
         packed(&mut r, 10, kinds);
         bytes_field(&mut group, 4, &r);

@@ -17,6 +17,8 @@ use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{correct_trajectory, Placement, SourceCorrector};
 use lanealign_core::trajectory::{self, Format};
 use lanealign_core::{lane_csv, plausibility, tile};
+use lanealign_map::compile::{compile, CompileError, CompileOptions};
+use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::lanelet2::derive_lanelet_lanes;
 use lanealign_map::osm::{read_xml, OsmData};
 use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
@@ -39,6 +41,8 @@ pub enum Target {
     OsmXml,
     /// OSM PBF.
     Pbf,
+    /// OSM PBF compiled into a grid as it streams, against the grid of the map read in memory.
+    PbfGrid,
     /// A Lanelet2 map (OSM XML with lanelet relations).
     Lanelet2,
     /// A KITTI pose file.
@@ -57,11 +61,12 @@ type Outcome = Result<(), String>;
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 10] = [
+    pub const ALL: [Target; 11] = [
         Target::Tile,
         Target::GridCell,
         Target::OsmXml,
         Target::Pbf,
+        Target::PbfGrid,
         Target::Lanelet2,
         Target::Kitti,
         Target::Tum,
@@ -77,6 +82,7 @@ impl Target {
             Target::GridCell => "grid_cell",
             Target::OsmXml => "osm_xml",
             Target::Pbf => "pbf",
+            Target::PbfGrid => "pbf_grid",
             Target::Lanelet2 => "lanelet2",
             Target::Kitti => "kitti",
             Target::Tum => "tum",
@@ -96,6 +102,7 @@ impl Target {
                 Ok(())
             }
             Target::GridCell => grid_cell(bytes),
+            Target::PbfGrid => pbf_grid(bytes),
             Target::OsmXml | Target::Lanelet2 => {
                 let osm = read_xml(bytes, Path::new("fuzz.osm")).map_err(|e| err(&e))?;
                 derive_all(&osm, self == Target::Lanelet2)
@@ -141,7 +148,7 @@ impl Target {
             Target::Tile => seeds::tiles(),
             Target::GridCell => seed_grid().1.iter().map(|(_, b)| b.clone()).collect(),
             Target::OsmXml => vec![seeds::OSM_XML.as_bytes().to_vec()],
-            Target::Pbf => vec![crate::pbf_writer::write(
+            Target::Pbf | Target::PbfGrid => vec![crate::pbf_writer::write(
                 &read_xml(seeds::OSM_XML.as_bytes(), Path::new("seed.osm")).expect("seed reads"),
             )],
             Target::Lanelet2 => vec![seeds::LANELET2_XML.as_bytes().to_vec()],
@@ -200,7 +207,7 @@ impl Target {
                 b"}",
             ],
             Target::Kitti | Target::Tum | Target::LaneCsv => &NUMBERS,
-            Target::Tile | Target::GridCell | Target::Pbf | Target::Wire => &[],
+            Target::Tile | Target::GridCell | Target::Pbf | Target::PbfGrid | Target::Wire => &[],
         }
     }
 
@@ -211,6 +218,69 @@ impl Target {
             tile::seal(mutant);
         }
     }
+}
+
+/// Compiles PBF `bytes` into a grid of 20 m cells as `lanealign-map compile --grid` does
+/// (streaming) and cuts the map read in memory into the same grid: both refuse it, or the two
+/// folders hold the same files with the same bytes (else a panic, the harness's finding). The
+/// streaming compile may refuse a way twice in one input, which memory takes.
+fn pbf_grid(bytes: &[u8]) -> Outcome {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let dir = tempfile::tempdir().map_err(|e| err(&e))?;
+    let input = dir.path().join("fuzz.osm.pbf");
+    std::fs::write(&input, bytes).map_err(|e| err(&e))?;
+    let inputs = [input];
+    let options = CompileOptions::default();
+    let (cell_size_m, margin_m) = (20.0, 4.0);
+    let grid = GridOptions {
+        cell_size_m,
+        margin_m,
+        sign: None,
+    };
+    let (streamed, in_memory) = (dir.path().join("streamed"), dir.path().join("in_memory"));
+    let by_stream = compile_grid(&inputs, &options, &streamed, &grid);
+    let by_memory = compile(&inputs, &options).and_then(|c| {
+        c.write_grid(&in_memory, 3.0, cell_size_m, margin_m, None)
+            .map_err(CompileError::from)
+    });
+    match (by_stream, by_memory) {
+        (Ok(_), Ok(_)) => {
+            assert!(
+                same_files(&streamed, &in_memory),
+                "the streamed grid differs from the in-memory grid"
+            );
+            Ok(())
+        }
+        (Err(e), Err(_)) | (Err(e @ CompileError::DuplicateWay { .. }), Ok(_)) => Err(err(&e)),
+        (Ok(_), Err(e)) => panic!("read in memory it is refused ({e}), streamed it is accepted"),
+        (Err(e), Ok(_)) => panic!("read in memory it is accepted, streamed it is refused ({e})"),
+    }
+}
+
+/// Whether grid folders `a` and `b` hold the same files with the same bytes.
+fn same_files(a: &Path, b: &Path) -> bool {
+    let listing = |dir: &Path| -> Vec<(std::ffi::OsString, Vec<u8>)> {
+        let mut files: Vec<_> = ["manifest.toml"]
+            .iter()
+            .map(|name| {
+                (
+                    name.into(),
+                    std::fs::read(dir.join(name)).unwrap_or_default(),
+                )
+            })
+            .collect();
+        if let Ok(cells) = std::fs::read_dir(dir.join("cells")) {
+            for entry in cells.flatten() {
+                files.push((
+                    entry.file_name(),
+                    std::fs::read(entry.path()).unwrap_or_default(),
+                ));
+            }
+        }
+        files.sort();
+        files
+    };
+    listing(a) == listing(b)
 }
 
 /// Queries a loaded map the way the corrector does.

@@ -11,7 +11,9 @@ use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses};
 use lanealign_core::lane_map::{Lane, LaneMap, LaneMapError};
 use lanealign_core::tile::SigningKey;
 
+use crate::lane_spill::SpillError;
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
+use crate::node_store::NodeStoreError;
 use crate::osm::{read_xml_file, OsmData, OsmError};
 use crate::osm_lanes::{derive_lanes, DeriveReport, LaneOptions};
 use crate::pbf::{read_pbf_file, PbfError};
@@ -55,6 +57,33 @@ pub enum CompileError {
     /// The lanes do not make a map.
     #[error(transparent)]
     Map(#[from] LaneMapError),
+    /// The grid could not be written.
+    #[error(transparent)]
+    Grid(#[from] GridError),
+    /// The scratch file of node locations of a streaming compile failed.
+    #[error("in {dir}: {source}")]
+    NodeScratch {
+        /// The folder it was in (the output's).
+        dir: PathBuf,
+        /// What failed.
+        source: NodeStoreError,
+    },
+    /// A scratch file of derived lanes of a streaming compile failed.
+    #[error("in {dir}: {source}")]
+    LaneScratch {
+        /// The folder it was in (the output's).
+        dir: PathBuf,
+        /// What failed.
+        source: SpillError,
+    },
+    /// A way appears twice in one input, so its lanes have no place in the map's order.
+    #[error("{path}: way {way} appears more than once (an OSM file holds each way once)")]
+    DuplicateWay {
+        /// The input.
+        path: PathBuf,
+        /// The way's id.
+        way: i64,
+    },
 }
 
 /// Reads one input by its extension: `.osm.pbf` / `.pbf` as PBF, `.osm` / `.xml` as XML.

@@ -11,7 +11,10 @@
 //! ```
 
 pub mod compile;
+pub mod grid_compile;
+pub mod lane_spill;
 pub mod lanelet2;
+pub mod node_store;
 pub mod osm;
 pub mod osm_lanes;
 pub mod pbf;

@@ -13,6 +13,7 @@ use lanealign_core::lane_geometry::{LaneInfo, RoadClass, RoadClasses, Traffic};
 use lanealign_core::params::UNMARKED_OFFSET_SCALE;
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
+use lanealign_map::grid_compile::{compile_grid, GridOptions, Reading};
 use lanealign_map::osm_lanes::LaneOptions;
 
 #[derive(Parser)]
@@ -101,6 +102,22 @@ fn read_secret_key(path: &std::path::Path) -> anyhow::Result<tile::SigningKey> {
             )
         })?;
     Ok(tile::SigningKey::from_bytes(&seed))
+}
+
+/// What each input contributed, one line per input on standard error.
+fn print_reports(inputs: &[PathBuf], reports: &[InputReport]) {
+    for (path, report) in inputs.iter().zip(reports) {
+        match report {
+            InputReport::Osm(r) => eprintln!(
+                "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes, or nodes over 5 km apart); {} missing node references",
+                path.display(), r.ways_read(), r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
+            ),
+            InputReport::Lanelet2(r) => eprintln!(
+                "{}: Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
+                path.display(), r.lanelets_used, r.lanelets_not_drivable, r.lanelets_broken
+            ),
+        }
+    }
 }
 
 fn parse_origin(s: &str) -> anyhow::Result<(f64, f64)> {
@@ -226,45 +243,46 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 },
             };
             let start = Instant::now();
-            let compiled = compile(&inputs, &options)?;
-            let written = match grid {
+            match grid {
                 Some(cell_size_m) => {
-                    let manifest =
-                        compiled.write_grid(&output, spacing, cell_size_m, margin, key.as_ref())?;
-                    let bytes: u64 = manifest.cells.iter().map(|c| c.bytes).sum();
-                    format!(
-                        "{} cells of {cell_size_m} m (margin {margin} m), {bytes} bytes",
-                        manifest.cells.len()
-                    )
+                    let grid = GridOptions {
+                        cell_size_m,
+                        margin_m: margin,
+                        sign: key.as_ref(),
+                    };
+                    let done = compile_grid(&inputs, &options, &output, &grid)?;
+                    print_reports(&inputs, &done.reports);
+                    let (m, plane) = (&done.manifest, &done.plane);
+                    let bytes: u64 = m.cells.iter().map(|c| c.bytes).sum();
+                    eprintln!(
+                        "{}: {} lanes, {} points, {:.1} lane-km, {} cells of {cell_size_m} m (margin {margin} m), {bytes} bytes, origin {:.7},{:.7} ({}); {}; {}; {:.2} s",
+                        output.display(), m.lanes, m.points, done.lane_length_m / 1000.0,
+                        m.cells.len(), plane.origin_lat, plane.origin_lon, plane.projection.name(),
+                        done.geometry,
+                        match &done.reading {
+                            Reading::Streamed => "streamed (nodes and lanes on disk)".to_string(),
+                            Reading::InMemory(why) => format!("read in memory: {why}"),
+                        },
+                        start.elapsed().as_secs_f64()
+                    );
                 }
                 None => {
+                    let compiled = compile(&inputs, &options)?;
                     let mut bytes = compiled.tile_bytes(spacing);
                     if let Some(key) = &key {
                         tile::sign(&mut bytes, key);
                     }
                     tile::write_bytes(&output, &bytes)?;
-                    format!("{} bytes", bytes.len())
-                }
-            };
-            for (path, report) in inputs.iter().zip(&compiled.reports) {
-                match report {
-                    InputReport::Osm(r) => eprintln!(
-                        "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes, or nodes over 5 km apart); {} missing node references",
-                        path.display(), r.ways_read(), r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
-                    ),
-                    InputReport::Lanelet2(r) => eprintln!(
-                        "{}: Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
-                        path.display(), r.lanelets_used, r.lanelets_not_drivable, r.lanelets_broken
-                    ),
+                    print_reports(&inputs, &compiled.reports);
+                    let (map, plane) = (&compiled.map, &compiled.plane);
+                    eprintln!(
+                        "{}: {} lanes, {} points, {:.1} lane-km, {} bytes, origin {:.7},{:.7} ({}); {}; {:.2} s",
+                        output.display(), map.lane_count(), map.len(), map.lane_length_m() / 1000.0,
+                        bytes.len(), plane.origin_lat, plane.origin_lon, plane.projection.name(),
+                        compiled.geometry, start.elapsed().as_secs_f64()
+                    );
                 }
             }
-            let (map, plane) = (&compiled.map, &compiled.plane);
-            eprintln!(
-                "{}: {} lanes, {} points, {:.1} lane-km, {written}, origin {:.7},{:.7} ({}); {}; {:.2} s",
-                output.display(), map.lane_count(), map.len(), map.lane_length_m() / 1000.0,
-                plane.origin_lat, plane.origin_lon, plane.projection.name(), compiled.geometry,
-                start.elapsed().as_secs_f64()
-            );
         }
         Command::Keygen { output } => {
             let mut seed = [0u8; 32];

@@ -61,6 +61,18 @@ pub struct OsmData {
     pub relations: Vec<Relation>,
 }
 
+/// Where nodes are: in memory ([`OsmData`]) or in a store on disk.
+pub trait NodePositions {
+    /// Node `id`'s `(lat, lon)` in degrees (WGS84), `None` when it is unknown.
+    fn position(&self, id: i64) -> Option<(f64, f64)>;
+}
+
+impl NodePositions for OsmData {
+    fn position(&self, id: i64) -> Option<(f64, f64)> {
+        self.position(id)
+    }
+}
+
 impl OsmData {
     /// A node's `(lat, lon)` in degrees.
     pub fn position(&self, id: i64) -> Option<(f64, f64)> {

@@ -8,7 +8,7 @@ use lanealign_core::lane_geometry::{LaneGeometry, LaneInfo, RoadClass, RoadClass
 use lanealign_core::lane_map::{resample, Lane};
 use lanealign_core::params::{Method, UNMARKED_OFFSET_SCALE};
 
-use crate::osm::{tag, OsmData, Tags, Way};
+use crate::osm::{tag, NodePositions, OsmData, Tags, Way};
 
 /// How lanes are derived.
 #[derive(Clone, Debug, PartialEq)]
@@ -89,6 +89,15 @@ impl DeriveReport {
     /// Ways in the input: every way is used, not drivable or without geometry.
     pub fn ways_read(&self) -> usize {
         self.ways_used + self.ways_not_drivable + self.ways_without_geometry
+    }
+
+    /// Adds the counts of `other` (a part of the same input derived apart).
+    pub fn add(&mut self, other: &DeriveReport) {
+        self.ways_not_drivable += other.ways_not_drivable;
+        self.ways_used += other.ways_used;
+        self.ways_without_geometry += other.ways_without_geometry;
+        self.missing_node_refs += other.missing_node_refs;
+        self.lanes += other.lanes;
     }
 }
 
@@ -235,14 +244,14 @@ pub fn has_plausible_steps(line: &[[f64; 2]]) -> bool {
 /// distinct points or two consecutive nodes more than [`MAX_NODE_GAP_M`] apart. Counts missing
 /// node references into `report`.
 fn way_line(
-    osm: &OsmData,
+    nodes: &impl NodePositions,
     way: &Way,
     plane: &MapPlane,
     report: &mut DeriveReport,
 ) -> Option<Vec<[f64; 2]>> {
     let mut line: Vec<[f64; 2]> = Vec::with_capacity(way.nodes.len());
     for id in &way.nodes {
-        match osm.position(*id) {
+        match nodes.position(*id) {
             Some((lat, lon)) => {
                 let p = plane.project(lat, lon);
                 if line.last() != Some(&p) {
@@ -265,88 +274,103 @@ pub fn derive_lanes(
     let mut report = DeriveReport::default();
     let mut lanes = Vec::new();
     for way in &osm.ways {
-        let road_class = tag(&way.tags, "highway")
-            .and_then(RoadClass::from_osm)
-            .filter(|&c| opts.classes.contains(c) && tag(&way.tags, "area") != Some("yes"));
-        let Some(road_class) = road_class else {
-            report.ways_not_drivable += 1;
-            continue;
-        };
-        let class = road_class.name();
-        let Some(mut line) = way_line(osm, way, plane, &mut report) else {
-            report.ways_without_geometry += 1;
-            continue;
-        };
-        if matches!(tag(&way.tags, "oneway"), Some("-1" | "reverse")) {
-            line.reverse();
-        }
-        report.ways_used += 1;
-        let counts = lane_counts(class, &way.tags);
-        let id = |k: u32| (way.id.unsigned_abs() << 5) | u64::from(k & 31);
-        let lanes_tagged = ["lanes", "lanes:forward", "lanes:backward"]
-            .iter()
-            .any(|key| tag(&way.tags, key).is_some());
-        let mut tags_flags = 0;
-        if lanes_tagged {
-            tags_flags |= LaneInfo::LANES_TAGGED;
-        }
-        if counts.shared {
-            let forward = resample(&line, opts.spacing_m);
-            let mut reversed = line.clone();
-            reversed.reverse();
-            let flags = tags_flags | LaneInfo::SHARED;
-            lanes.push(Lane {
-                id: id(0),
-                info: LaneInfo::new(road_class, flags),
-                points: forward,
-            });
-            lanes.push(Lane {
-                id: id(1),
-                info: LaneInfo::new(road_class, flags | LaneInfo::BACKWARD),
-                points: resample(&reversed, opts.spacing_m),
-            });
-            continue;
-        }
-        let total = counts.forward + counts.backward;
-        let width = lane_width(class, &way.tags, total);
-        if tagged_lane_width(&way.tags, total).is_some() {
-            tags_flags |= LaneInfo::WIDTH_TAGGED;
-        }
-        let unmarked = tag(&way.tags, "lanes").is_none()
-            && counts.forward > 0
-            && counts.backward > 0
-            && matches!(class, "residential" | "unclassified" | "living_street");
-        if unmarked {
-            tags_flags |= LaneInfo::UNMARKED;
-        }
-        let scale = if unmarked {
-            opts.unmarked_offset_scale
-        } else {
-            1.0
-        };
-        // Lanes numbered from the road's left edge (in the way's direction). Right-hand
-        // traffic puts the backward lanes on the left, left-hand traffic the forward ones.
-        for k in 0..total {
-            let forward = match opts.traffic {
-                Traffic::Right => k >= counts.backward,
-                Traffic::Left => k < counts.forward,
-            };
-            let offset = (total as f64 / 2.0 - k as f64 - 0.5) * width * scale;
-            let mut centre = offset_polyline(&line, offset);
-            let mut flags = tags_flags;
-            if !forward {
-                centre.reverse();
-                flags |= LaneInfo::BACKWARD;
-            }
-            lanes.push(Lane {
-                id: id(k),
-                info: LaneInfo::new(road_class, flags),
-                points: resample(&centre, opts.spacing_m),
-            });
-        }
+        derive_way_lanes(way, osm, plane, opts, &mut report, &mut lanes);
     }
-    report.lanes = lanes.len();
     (lanes, report)
+}
+
+/// Appends the lane centerlines of `way` (none when it is not drivable or has no usable
+/// geometry) to `lanes`, its nodes placed by `nodes` and projected with `plane`; counts what it
+/// did into `report`. Lanes come in the order of their lane numbers.
+pub fn derive_way_lanes(
+    way: &Way,
+    nodes: &impl NodePositions,
+    plane: &MapPlane,
+    opts: &LaneOptions,
+    report: &mut DeriveReport,
+    lanes: &mut Vec<Lane>,
+) {
+    let road_class = tag(&way.tags, "highway")
+        .and_then(RoadClass::from_osm)
+        .filter(|&c| opts.classes.contains(c) && tag(&way.tags, "area") != Some("yes"));
+    let Some(road_class) = road_class else {
+        report.ways_not_drivable += 1;
+        return;
+    };
+    let class = road_class.name();
+    let Some(mut line) = way_line(nodes, way, plane, report) else {
+        report.ways_without_geometry += 1;
+        return;
+    };
+    if matches!(tag(&way.tags, "oneway"), Some("-1" | "reverse")) {
+        line.reverse();
+    }
+    report.ways_used += 1;
+    let counts = lane_counts(class, &way.tags);
+    let id = |k: u32| (way.id.unsigned_abs() << 5) | u64::from(k & 31);
+    let lanes_tagged = ["lanes", "lanes:forward", "lanes:backward"]
+        .iter()
+        .any(|key| tag(&way.tags, key).is_some());
+    let mut tags_flags = 0;
+    if lanes_tagged {
+        tags_flags |= LaneInfo::LANES_TAGGED;
+    }
+    if counts.shared {
+        let forward = resample(&line, opts.spacing_m);
+        let mut reversed = line.clone();
+        reversed.reverse();
+        let flags = tags_flags | LaneInfo::SHARED;
+        lanes.push(Lane {
+            id: id(0),
+            info: LaneInfo::new(road_class, flags),
+            points: forward,
+        });
+        lanes.push(Lane {
+            id: id(1),
+            info: LaneInfo::new(road_class, flags | LaneInfo::BACKWARD),
+            points: resample(&reversed, opts.spacing_m),
+        });
+        report.lanes += 2;
+        return;
+    }
+    let total = counts.forward + counts.backward;
+    let width = lane_width(class, &way.tags, total);
+    if tagged_lane_width(&way.tags, total).is_some() {
+        tags_flags |= LaneInfo::WIDTH_TAGGED;
+    }
+    let unmarked = tag(&way.tags, "lanes").is_none()
+        && counts.forward > 0
+        && counts.backward > 0
+        && matches!(class, "residential" | "unclassified" | "living_street");
+    if unmarked {
+        tags_flags |= LaneInfo::UNMARKED;
+    }
+    let scale = if unmarked {
+        opts.unmarked_offset_scale
+    } else {
+        1.0
+    };
+    // Lanes numbered from the road's left edge (in the way's direction). Right-hand
+    // traffic puts the backward lanes on the left, left-hand traffic the forward ones.
+    for k in 0..total {
+        let forward = match opts.traffic {
+            Traffic::Right => k >= counts.backward,
+            Traffic::Left => k < counts.forward,
+        };
+        let offset = (total as f64 / 2.0 - k as f64 - 0.5) * width * scale;
+        let mut centre = offset_polyline(&line, offset);
+        let mut flags = tags_flags;
+        if !forward {
+            centre.reverse();
+            flags |= LaneInfo::BACKWARD;
+        }
+        lanes.push(Lane {
+            id: id(k),
+            info: LaneInfo::new(road_class, flags),
+            points: resample(&centre, opts.spacing_m),
+        });
+        report.lanes += 1;
+    }
 }
 
 #[cfg(test)]

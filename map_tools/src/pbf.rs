@@ -28,7 +28,7 @@ fn quantise(nano: i64) -> i64 {
 
 /// A node's coordinates in nanodegrees, quantised; `Err` names the node when they are outside
 /// WGS84 (latitude within ±90°, longitude within ±180°).
-fn node_position(id: i64, nano_lat: i64, nano_lon: i64) -> Result<(i64, i64), String> {
+pub(crate) fn node_position(id: i64, nano_lat: i64, nano_lon: i64) -> Result<(i64, i64), String> {
     if nano_lat.abs() > 90_000_000_000 || nano_lon.abs() > 180_000_000_000 {
         return Err(format!(
             "node {id}: coordinates out of range ({}, {})",
@@ -81,12 +81,54 @@ fn add_element(d: &mut OsmData, e: Element<'_>) -> Result<(), String> {
 /// The elements of one blob.
 fn decode_block(blob: &Blob) -> Result<OsmData, String> {
     let mut block_data = OsmData::default();
-    if let BlobDecode::OsmData(block) = blob.decode().map_err(|e| e.to_string())? {
-        for e in block.elements() {
-            add_element(&mut block_data, e)?;
-        }
-    }
+    for_each_element(blob, |e| add_element(&mut block_data, e))?;
     Ok(block_data)
+}
+
+/// Calls `visit` with every element of one blob (none for a header blob). osmpbf 0.3.8 panics
+/// on some malformed blocks (an unknown relation member type unwraps a protobuf enum, found by
+/// fuzzing): such a block is an error like any other.
+pub(crate) fn for_each_element(
+    blob: &Blob,
+    mut visit: impl FnMut(Element<'_>) -> Result<(), String>,
+) -> Result<(), String> {
+    std::panic::catch_unwind(AssertUnwindSafe(|| {
+        if let BlobDecode::OsmData(block) = blob.decode().map_err(|e| e.to_string())? {
+            for e in block.elements() {
+                visit(e)?;
+            }
+        }
+        Ok(())
+    }))
+    .unwrap_or_else(|payload| {
+        let why = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("no message");
+        Err(format!(
+            "a malformed data block (the PBF decoder failed: {why})"
+        ))
+    })
+}
+
+/// Calls `visit` with every blob of the PBF file at `path` (a regular file) and its place in the
+/// file (0 for the first), on every core, in no particular order; the first error stops the
+/// walk.
+pub(crate) fn for_each_blob(
+    path: &Path,
+    visit: impl Fn(u64, &Blob) -> Result<(), String> + Sync,
+) -> Result<(), PbfError> {
+    let err = |message: String| PbfError {
+        path: path.to_path_buf(),
+        message,
+    };
+    let file = open_regular(path).map_err(|e| err(e.to_string()))?;
+    BlobReader::new(std::io::BufReader::new(file))
+        .zip(0u64..)
+        .par_bridge()
+        .try_for_each(|(blob, k)| visit(k, &blob.map_err(|e| e.to_string())?))
+        .map_err(err)
 }
 
 /// Reads a PBF file (regular files only); ways and relations come out ordered by id (see
@@ -108,23 +150,7 @@ pub fn read_pbf<R: Read + Send>(input: R, path: &Path) -> Result<OsmData, PbfErr
     let blobs = BlobReader::new(input);
     let mut data = blobs
         .par_bridge()
-        .map(|blob| {
-            let blob = blob.map_err(|e| e.to_string())?;
-            // osmpbf 0.3.8 panics on some malformed blocks (an unknown relation member type
-            // unwraps a protobuf enum, found by fuzzing): such a block is an error like any other.
-            std::panic::catch_unwind(AssertUnwindSafe(|| decode_block(&blob))).unwrap_or_else(
-                |payload| {
-                    let why = payload
-                        .downcast_ref::<String>()
-                        .map(String::as_str)
-                        .or_else(|| payload.downcast_ref::<&str>().copied())
-                        .unwrap_or("no message");
-                    Err(format!(
-                        "a malformed data block (the PBF decoder failed: {why})"
-                    ))
-                },
-            )
-        })
+        .map(|blob| decode_block(&blob.map_err(|e| e.to_string())?))
         .try_reduce(OsmData::default, |mut a, b| {
             a.merge(b);
             Ok(a)

@@ -19,6 +19,7 @@ use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile;
 use lanealign_core::trajectory::Trajectory;
 use lanealign_map::compile::{compile, CompileOptions};
+use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_wire::payload::StatusCode;
 use lanealign_wire::service::{Namespace, SourceName};
@@ -232,7 +233,8 @@ fn eval<'py>(
     Ok(d)
 }
 
-/// Compiles road data into a lane tile, as `lanealign-map compile` does; returns what it holds.
+/// Compiles road data into a lane tile (or with `grid` a grid folder; PBF inputs stream), as
+/// `lanealign-map compile` does; returns what it holds.
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
 #[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE, grid=None, margin=50.0))]
@@ -270,27 +272,33 @@ fn compile_map<'py>(
     };
     let (lanes, points, lane_km, bytes, cells) = py
         .detach(|| -> anyhow::Result<_> {
+            if let Some(cell_size_m) = grid {
+                let grid = GridOptions {
+                    cell_size_m,
+                    margin_m: margin,
+                    sign: None,
+                };
+                let done = compile_grid(&inputs, &options, &output, &grid)?;
+                let m = &done.manifest;
+                let bytes: u64 = m.cells.iter().map(|c| c.bytes).sum();
+                return Ok((
+                    m.lanes as usize,
+                    m.points as usize,
+                    done.lane_length_m / 1000.0,
+                    bytes as usize,
+                    Some(m.cells.len()),
+                ));
+            }
             let compiled = compile(&inputs, &options)?;
-            let (bytes, cells) = match grid {
-                Some(cell_size_m) => {
-                    let manifest =
-                        compiled.write_grid(&output, spacing, cell_size_m, margin, None)?;
-                    let bytes: u64 = manifest.cells.iter().map(|c| c.bytes).sum();
-                    (bytes as usize, Some(manifest.cells.len()))
-                }
-                None => {
-                    let bytes = compiled.tile_bytes(spacing);
-                    tile::write_bytes(&output, &bytes)?;
-                    (bytes.len(), None)
-                }
-            };
+            let bytes = compiled.tile_bytes(spacing);
+            tile::write_bytes(&output, &bytes)?;
             let map = &compiled.map;
             Ok((
                 map.lane_count(),
                 map.len(),
                 map.lane_length_m() / 1000.0,
-                bytes,
-                cells,
+                bytes.len(),
+                None,
             ))
         })
         .map_err(error)?;
