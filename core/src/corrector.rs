@@ -13,7 +13,8 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use crate::confidence::{
-    alignment_information, correction_at, correction_from, Covariance, PoseUncertainty,
+    alignment_information, correction_at, correction_from, inherited_map_error, Covariance,
+    PoseUncertainty,
 };
 use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
 use crate::lane_map::{Candidate, LaneMap};
@@ -188,7 +189,8 @@ pub struct Step {
     /// The accumulated correction after this step (the paper's `T_acc`): apply it to an anchored
     /// position for the corrected one.
     pub map_from_anchored: Se2,
-    /// The covariance of the corrected pose's error (map plane; x, y in metres, yaw in radians).
+    /// The covariance of the corrected pose's error (map plane; x, y in metres, yaw in radians):
+    /// the filter's, plus the map error the pose inherits from its last alignment.
     pub covariance: Covariance,
     /// What happened.
     pub status: Status,
@@ -350,8 +352,10 @@ pub struct CorrectorState {
     pub travelled_m: f64,
     /// The last position pushed (metres, frame `anchored`).
     pub last_position_in_anchored: Option<[f64; 2]>,
-    /// The covariance of the current pose (see [`Step::covariance`]).
+    /// The filter's covariance of the current pose (without the inherited map error).
     pub covariance: Covariance,
+    /// The map error the pose inherits from its last alignment (x, y; metres squared, map plane).
+    pub map_error: [[f64; 2]; 2],
 }
 
 /// One odometry source's corrector.
@@ -366,6 +370,9 @@ pub struct Corrector {
     travelled_m: f64,
     last_position_in_anchored: Option<[f64; 2]>,
     uncertainty: PoseUncertainty,
+    /// The map error the pose inherits from its last alignment (see
+    /// [`inherited_map_error`]).
+    map_error: [[f64; 2]; 2],
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -392,6 +399,7 @@ impl Corrector {
             travelled_m: 0.0,
             last_position_in_anchored: None,
             uncertainty: PoseUncertainty::new(&params),
+            map_error: [[0.0; 2]; 2],
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -422,6 +430,7 @@ impl Corrector {
             travelled_m: self.travelled_m,
             last_position_in_anchored: self.last_position_in_anchored,
             covariance: self.uncertainty.covariance(),
+            map_error: self.map_error,
         }
     }
 
@@ -448,6 +457,7 @@ impl Corrector {
         c.travelled_m = state.travelled_m;
         c.last_position_in_anchored = state.last_position_in_anchored;
         c.uncertainty = PoseUncertainty::from_covariance(&state.covariance);
+        c.map_error = state.map_error;
         c
     }
 
@@ -466,9 +476,15 @@ impl Corrector {
         self.map = map;
     }
 
-    /// The covariance of the current corrected pose (see [`Step::covariance`]).
+    /// The covariance of the current corrected pose (see [`Step::covariance`]): the filter's,
+    /// plus the map error inherited from the last alignment.
     pub fn covariance(&self) -> Covariance {
-        self.uncertainty.covariance()
+        let mut covariance = self.uncertainty.covariance();
+        for (row, inherited) in covariance.iter_mut().zip(&self.map_error) {
+            row[0] += inherited[0];
+            row[1] += inherited[1];
+        }
+        covariance
     }
 
     /// The current correction (the paper's `T_acc`).
@@ -492,7 +508,7 @@ impl Corrector {
             return Step {
                 position_in_map: [f64::NAN, f64::NAN],
                 map_from_anchored: self.map_from_anchored,
-                covariance: self.uncertainty.covariance(),
+                covariance: self.covariance(),
                 status: Status::InvalidInput,
                 timing: StepTiming::default(),
             };
@@ -646,6 +662,11 @@ impl Corrector {
             }
         }
         self.uncertainty.update(&information, share);
+        if let Some(inherited) =
+            inherited_map_error(&self.map, &self.correspondences, self.icp.kept())
+        {
+            self.map_error = inherited;
+        }
         applied
     }
 
@@ -666,7 +687,7 @@ impl Corrector {
         Step {
             position_in_map: self.window.as_slice()[self.window.len() - 1],
             map_from_anchored: self.map_from_anchored,
-            covariance: self.uncertainty.covariance(),
+            covariance: self.covariance(),
             status,
             timing: StepTiming::default(),
         }
@@ -873,18 +894,33 @@ mod tests {
             ..small_params()
         };
         let mut c = Corrector::new(l_shaped_map(), params);
-        let steps: Vec<Step> = l_drive([0.0, 1.0]).into_iter().map(|p| c.push(p)).collect();
-        let along_east = |s: &Step| s.covariance[0][0];
-        let across_east = |s: &Step| s.covariance[1][1];
+        // Each step with the filter's covariance (the published one adds the map's error).
+        let (steps, filter): (Vec<Step>, Vec<Covariance>) = l_drive([0.0, 1.0])
+            .into_iter()
+            .map(|p| (c.push(p), c.state().covariance))
+            .unzip();
+        let along_east = |k: usize| filter[k][0][0];
+        let across_east = |k: usize| filter[k][1][1];
         let straight = &steps[140];
         assert!(matches!(straight.status, Status::Accepted { .. }));
         assert!(straight.status.applied_directions() < 3, "{straight:?}");
         assert!(
-            along_east(straight) > 3.0 * across_east(straight),
+            along_east(140) > 3.0 * across_east(140),
+            "{:?}",
+            filter[140]
+        );
+        assert!(along_east(140) > along_east(60), "grows");
+        // The published covariance adds the lanes' error across the road only.
+        assert!(
+            (straight.covariance[0][0] - along_east(140)).abs() < 1e-9,
             "{:?}",
             straight.covariance
         );
-        assert!(along_east(&steps[140]) > along_east(&steps[60]), "grows");
+        assert!(
+            straight.covariance[1][1] > across_east(140) + 0.1,
+            "{:?}",
+            straight.covariance
+        );
         assert!(
             straight.position_in_map[1].abs() < 0.5,
             "across: corrected {:?}",
@@ -895,10 +931,10 @@ mod tests {
         let after = &steps[280];
         assert!(matches!(after.status, Status::Accepted { .. }));
         assert!(
-            along_east(after) < 0.5 * along_east(straight),
+            along_east(280) < 0.5 * along_east(140),
             "{:?} then {:?}",
-            straight.covariance,
-            after.covariance
+            filter[140],
+            filter[280]
         );
     }
 

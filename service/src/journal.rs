@@ -38,7 +38,10 @@ pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
 const ANSWER_LEN: usize = 272;
 const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP02";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP03";
+/// Snapshots before the inherited map error was kept (read with none: the published covariance
+/// lacks it until the session's next accepted step).
+const SNAPSHOT_MAGIC_V2: &[u8; 8] = b"LASNAP02";
 /// The largest window a snapshot may hold (poses): the corrector's own limit.
 const MAX_WINDOW: u64 = 1_000_000;
 
@@ -266,6 +269,9 @@ impl Snapshot {
         for row in &c.covariance {
             e.f64s(row);
         }
+        for row in &c.map_error {
+            e.f64s(row);
+        }
         match c.last_position_in_anchored {
             Some(p) => e.u32(1).f64s(&p),
             None => e.u32(0).f64s(&[0.0, 0.0]),
@@ -283,12 +289,19 @@ impl Snapshot {
         e.0
     }
 
-    /// A snapshot from its bytes; `None` for anything but a complete, valid snapshot.
+    /// A snapshot from its bytes (this format or the one before); `None` for anything but a
+    /// complete, valid snapshot.
     pub fn decode(bytes: &[u8]) -> Option<Snapshot> {
         let (body, sum) = bytes.split_at(bytes.len().checked_sub(8)?);
-        if xxh3_64(body).to_le_bytes() != sum || body.get(..8)? != SNAPSHOT_MAGIC {
+        if xxh3_64(body).to_le_bytes() != sum {
             return None;
         }
+        let magic = body.get(..8)?;
+        let has_map_error = match magic {
+            m if m == SNAPSHOT_MAGIC => true,
+            m if m == SNAPSHOT_MAGIC_V2 => false,
+            _ => return None,
+        };
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -297,6 +310,11 @@ impl Snapshot {
         let failures = d.u32()?;
         let travelled_m = d.f64()?;
         let covariance = [d.f64s::<3>()?, d.f64s::<3>()?, d.f64s::<3>()?];
+        let map_error = if has_map_error {
+            [d.f64s::<2>()?, d.f64s::<2>()?]
+        } else {
+            [[0.0; 2]; 2]
+        };
         let last_position = (d.u32()?, d.f64s::<2>()?);
         let smoothed = (d.u32()?, d.se2()?);
         let n = d.u64()?;
@@ -307,7 +325,8 @@ impl Snapshot {
         let finite = window.iter().flatten().all(|v| v.is_finite())
             && window_path_m.is_finite()
             && travelled_m.is_finite()
-            && covariance.iter().flatten().all(|v| v.is_finite());
+            && covariance.iter().flatten().all(|v| v.is_finite())
+            && map_error.iter().flatten().all(|v| v.is_finite());
         let flag = |f: u32| (f <= 1).then_some(f == 1);
         let state = SourceState {
             corrector: CorrectorState {
@@ -318,6 +337,7 @@ impl Snapshot {
                 travelled_m,
                 last_position_in_anchored: flag(last_position.0)?.then_some(last_position.1),
                 covariance,
+                map_error,
             },
             smoothed: flag(smoothed.0)?.then_some(smoothed.1),
         };
@@ -561,12 +581,22 @@ mod tests {
                     travelled_m: 12.5,
                     last_position_in_anchored: Some([5.0, 6.0]),
                     covariance: [[0.5, 0.1, 1e-3], [0.1, 0.7, -2e-3], [1e-3, -2e-3, 1e-4]],
+                    map_error: [[0.4, -0.1], [-0.1, 0.3]],
                 },
                 smoothed: None,
             },
         };
         let bytes = snap.encode();
-        assert_eq!(Snapshot::decode(&bytes), Some(snap));
+        assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
+        // The format before: no map error (16 bytes fewer), read as none.
+        let mut v2 = SNAPSHOT_MAGIC_V2.to_vec();
+        let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
+        v2.extend_from_slice(&bytes[8..at]);
+        v2.extend_from_slice(&bytes[at + 32..bytes.len() - 8]);
+        v2.extend_from_slice(&xxh3_64(&v2).to_le_bytes());
+        let mut old = snap.clone();
+        old.state.corrector.map_error = [[0.0; 2]; 2];
+        assert_eq!(Snapshot::decode(&v2), Some(old));
         for cut in [0, 8, 100, bytes.len() - 1] {
             assert!(Snapshot::decode(&bytes[..cut]).is_none(), "cut at {cut}");
         }
