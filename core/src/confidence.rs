@@ -21,7 +21,7 @@
 //!   road; where the odometry is more certain than the map, it is kept.
 //!
 //! - **What is published** adds to that filter covariance the map's own error the pose inherits
-//!   from the lanes it was last aligned to ([`inherited_map_error`]): observations of the same
+//!   from the lanes it was last aligned to ([`Alignment::inherited_map_error`]): observations of the same
 //!   lanes do not average it away. The filter's covariance alone measures how well the odometry
 //!   and the map agree; the published one, how far the pose may be from the world.
 //!
@@ -68,9 +68,22 @@ pub fn lane_sigma_m(info: LaneInfo) -> f64 {
     }
 }
 
-/// The information (inverse covariance) an alignment gives about a small correction
-/// `(dx, dy, dyaw)` of the window taken at `center` (metres, map plane): the kept pairs'
-/// sources after the fit, each constraining the distance across its matched lane.
+/// What an alignment says about the pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Alignment {
+    /// The information (inverse covariance) about a small correction `(dx, dy, dyaw)` of the
+    /// window taken at the center: each kept pair constrains the distance across its lane.
+    pub information: Matrix3<f64>,
+    /// The map's own error a pose aligned to the kept pairs inherits (2x2 covariance of x and
+    /// y, metres, map plane): each pair's lane is off by its [`lane_sigma_m`] across its
+    /// direction, and the pose follows the lanes however often it sees them, so this does not
+    /// shrink with more observations, unlike the filter's covariance. The average over the kept
+    /// pairs of `MAP_ERROR_VAR_SCALE sigma^2 n n'` (`n` the lane's normal); `None` without pairs.
+    pub inherited_map_error: Option<[[f64; 2]; 2]>,
+}
+
+/// What the alignment of the kept pairs' sources after the fit says about a small correction of
+/// the window taken at `center` (metres, map plane), and the map error it leaves the pose with.
 ///
 /// `spacing_m[i]` is the path length from window pose `i` to the next (metres; 0 for the newest):
 /// a pose stands for that stretch of wander out of [`WANDER_CORRELATION_M`].
@@ -81,8 +94,10 @@ pub fn alignment_information(
     fitted_sources: &[[f64; 2]],
     center: [f64; 2],
     spacing_m: &[f64],
-) -> Matrix3<f64> {
+) -> Alignment {
     let wander_var = WANDER_SIGMA_M * WANDER_SIGMA_M;
+    let mut inherited = [[0.0; 2]; 2];
+    let mut inherited_count = 0usize;
     let mut information = Matrix3::zeros();
     // Pairs of one stretch of the window share its map offset error: with independent variances
     // `a_i` and a shared `b`, the stretch's information is
@@ -107,6 +122,12 @@ pub fn alignment_information(
         }
         let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
         let normal = [-direction[1], direction[0]];
+        for (r, row) in inherited.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v += sigma * sigma * normal[r] * normal[c];
+            }
+        }
+        inherited_count += 1;
         let p = fitted_sources[k as usize];
         let arm = [p[0] - center[0], p[1] - center[1]];
         // d(normal . p) / d(dx, dy, dyaw) for p moved by a rotation about `center`.
@@ -118,7 +139,12 @@ pub fn alignment_information(
         let share = (spacing_m[pair.index] / WANDER_CORRELATION_M).clamp(1e-3, 1.0);
         block.add(j, share / wander_var, sigma * sigma);
     }
-    information + block.information()
+    Alignment {
+        information: information + block.information(),
+        inherited_map_error: (inherited_count > 0).then(|| {
+            inherited.map(|row| row.map(|v| v * MAP_ERROR_VAR_SCALE / inherited_count as f64))
+        }),
+    }
 }
 
 /// How much larger than its lanes' sigmas ([`lane_sigma_m`], as variances) the map error a
@@ -127,35 +153,6 @@ pub fn alignment_information(
 /// longer than the sigmas say; 1, 2 and 3 put 8, 10 and 11 of the 20 sequences in the 0.85-0.99
 /// coverage band, against 5 without the term.
 pub const MAP_ERROR_VAR_SCALE: f64 = 2.0;
-
-/// The map's own error a pose aligned to the kept pairs inherits (2x2 covariance of x and y,
-/// metres, map plane): each pair's lane is off by its [`lane_sigma_m`] across its direction, and
-/// the pose follows the lanes however often it sees them, so this does not shrink with more
-/// observations, unlike the filter's covariance. The average over the kept pairs of
-/// `MAP_ERROR_VAR_SCALE sigma^2 n n'` (`n` the lane's normal); `None` without pairs.
-pub fn inherited_map_error(
-    map: &LaneMap,
-    pairs: &[Correspondence],
-    kept: &[u32],
-) -> Option<[[f64; 2]; 2]> {
-    let mut sum = [[0.0; 2]; 2];
-    let mut count = 0usize;
-    for &k in kept {
-        let point = pairs[k as usize].point;
-        let Some((_, _, direction)) = map.segment_of(point) else {
-            continue;
-        };
-        let sigma = lane_sigma_m(map.lane_info()[map.lane_of(point)]);
-        let normal = [-direction[1], direction[0]];
-        for (r, row) in sum.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v += sigma * sigma * normal[r] * normal[c];
-            }
-        }
-        count += 1;
-    }
-    (count > 0).then(|| sum.map(|row| row.map(|v| v * MAP_ERROR_VAR_SCALE / count as f64)))
-}
 
 /// Over what stretch of road the map's offset error stays the same (metres): OSM ways are
 /// traced from the same imagery by the same mappers, so neighbouring lanes are off together.

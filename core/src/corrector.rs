@@ -13,8 +13,7 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use crate::confidence::{
-    alignment_information, correction_at, correction_from, inherited_map_error, Covariance,
-    PoseUncertainty,
+    alignment_information, correction_at, correction_from, Covariance, PoseUncertainty,
 };
 use crate::icp::{trimmed_icp, IcpParams, IcpScratch};
 use crate::lane_map::{Candidate, LaneMap};
@@ -371,7 +370,7 @@ pub struct Corrector {
     last_position_in_anchored: Option<[f64; 2]>,
     uncertainty: PoseUncertainty,
     /// The map error the pose inherits from its last alignment (see
-    /// [`inherited_map_error`]).
+    /// [`Alignment::inherited_map_error`](crate::confidence::Alignment::inherited_map_error)).
     map_error: [[f64; 2]; 2],
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
@@ -634,7 +633,7 @@ impl Corrector {
         self.spacings
             .extend(window.windows(2).map(|s| distance(s[0], s[1])));
         self.spacings.push(0.0);
-        let information = alignment_information(
+        let alignment = alignment_information(
             &self.map,
             &self.correspondences,
             self.icp.kept(),
@@ -642,6 +641,7 @@ impl Corrector {
             center,
             &self.spacings,
         );
+        let information = alignment.information;
         let share = if self.window.path_m > 0.0 {
             (self.travelled_m / self.window.path_m).min(1.0)
         } else {
@@ -662,9 +662,7 @@ impl Corrector {
             }
         }
         self.uncertainty.update(&information, share);
-        if let Some(inherited) =
-            inherited_map_error(&self.map, &self.correspondences, self.icp.kept())
-        {
+        if let Some(inherited) = alignment.inherited_map_error {
             self.map_error = inherited;
         }
         applied

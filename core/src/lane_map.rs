@@ -134,6 +134,11 @@ pub fn resample(points: &[[f64; 2]], spacing_m: f64) -> Vec<[f64; 2]> {
     kept
 }
 
+/// The length of a polyline (metres, in the units of its points).
+pub fn polyline_length_m(points: &[[f64; 2]]) -> f64 {
+    points.windows(2).map(|w| distance(w[0], w[1])).sum()
+}
+
 #[inline]
 fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     let dx = b[0] - a[0];
@@ -338,9 +343,7 @@ impl LaneMap {
 
     /// The summed length of every lane's centreline (metres).
     pub fn lane_length_m(&self) -> f64 {
-        self.lanes()
-            .map(|(_, _, pts)| pts.windows(2).map(|w| distance(w[0], w[1])).sum::<f64>())
-            .sum()
+        self.lanes().map(|(_, _, pts)| polyline_length_m(pts)).sum()
     }
 
     /// The lane (index in map order) that point `j` belongs to.

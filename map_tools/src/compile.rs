@@ -86,10 +86,15 @@ pub enum CompileError {
     },
 }
 
+/// Whether `path` names a PBF input (`.osm.pbf`, `.pbf`; any case).
+pub fn is_pbf(path: &Path) -> bool {
+    path.to_string_lossy().to_lowercase().ends_with(".pbf")
+}
+
 /// Reads one input by its extension: `.osm.pbf` / `.pbf` as PBF, `.osm` / `.xml` as XML.
 pub fn read_input(path: &Path) -> Result<OsmData, CompileError> {
     let name = path.to_string_lossy().to_lowercase();
-    if name.ends_with(".pbf") {
+    if is_pbf(path) {
         Ok(read_pbf_file(path)?)
     } else if name.ends_with(".osm") || name.ends_with(".xml") {
         Ok(read_xml_file(path)?)
@@ -115,12 +120,44 @@ fn spinner(message: String) -> (indicatif::ProgressBar, Arc<AtomicBool>) {
     (bar, done)
 }
 
-fn centre(inputs: &[OsmData]) -> Option<(f64, f64)> {
-    let mut b = [i64::MAX, i64::MAX, i64::MIN, i64::MIN];
-    for &(lat, lon) in inputs.iter().flat_map(|d| d.nodes.values()) {
-        b = [b[0].min(lat), b[1].min(lon), b[2].max(lat), b[3].max(lon)];
+/// The bounds of node positions `[min lat, min lon, max lat, max lon]` (nanodegrees), whose
+/// centre is the map plane's origin when none is given.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct NodeBounds([i64; 4]);
+
+impl NodeBounds {
+    /// The bounds of no node.
+    pub(crate) const EMPTY: NodeBounds = NodeBounds([i64::MAX, i64::MAX, i64::MIN, i64::MIN]);
+
+    /// Widened to hold a node at `lat`, `lon` (nanodegrees).
+    pub(crate) fn add(&mut self, lat: i64, lon: i64) {
+        self.join(NodeBounds([lat, lon, lat, lon]));
     }
-    (b[0] <= b[2]).then(|| ((b[0] + b[2]) as f64 / 2e9, (b[1] + b[3]) as f64 / 2e9))
+
+    /// Widened to hold `other`.
+    pub(crate) fn join(&mut self, other: NodeBounds) {
+        let (b, o) = (&mut self.0, other.0);
+        *b = [
+            b[0].min(o[0]),
+            b[1].min(o[1]),
+            b[2].max(o[2]),
+            b[3].max(o[3]),
+        ];
+    }
+
+    /// The centre `(lat, lon)` in degrees; `None` for the bounds of no node.
+    pub(crate) fn centre(self) -> Option<(f64, f64)> {
+        let b = self.0;
+        (b[0] <= b[2]).then(|| ((b[0] + b[2]) as f64 / 2e9, (b[1] + b[3]) as f64 / 2e9))
+    }
+}
+
+fn centre(inputs: &[OsmData]) -> Option<(f64, f64)> {
+    let mut bounds = NodeBounds::EMPTY;
+    for &(lat, lon) in inputs.iter().flat_map(|d| d.nodes.values()) {
+        bounds.add(lat, lon);
+    }
+    bounds.centre()
 }
 
 /// A compiled lane map and everything a tile records about it.

@@ -24,12 +24,12 @@ use lanealign_core::lane_map::{Lane, LaneMapError};
 use lanealign_core::tile::SigningKey;
 use osmpbf::Element;
 
-use crate::compile::{compile, CompileError, CompileOptions, InputReport};
+use crate::compile::{compile, is_pbf, CompileError, CompileOptions, InputReport, NodeBounds};
 use crate::lane_spill::{BlockKey, BlockLanes, LaneSpill, SpillError, SpilledLanes};
 use crate::node_store::{NodeStore, NodeStoreError, NodeWriter};
-use crate::osm::Way;
+use crate::osm::tag;
 use crate::osm_lanes::{derive_way_lanes, DeriveReport};
-use crate::pbf::{for_each_blob, for_each_element, node_position};
+use crate::pbf::{for_each_blob, for_each_element, node_of, relation_of, way_of};
 
 /// The grid to cut.
 pub struct GridOptions<'a> {
@@ -78,10 +78,7 @@ pub fn compile_grid(
     output: &Path,
     grid: &GridOptions,
 ) -> Result<GridCompiled, CompileError> {
-    let all_pbf = inputs
-        .iter()
-        .all(|p| p.to_string_lossy().to_lowercase().ends_with(".pbf"));
-    let reason = if all_pbf {
+    let reason = if inputs.iter().all(|p| is_pbf(p)) {
         match stream(inputs, options, output, grid)? {
             Ok(done) => return Ok(done),
             Err(reason) => reason,
@@ -124,33 +121,24 @@ fn stream(
 ) -> Result<Result<GridCompiled, String>, CompileError> {
     let cells_dir = grid::create_cells_dir(output)?;
     let mut stores = Vec::with_capacity(inputs.len());
-    let mut bounds = [i64::MAX, i64::MAX, i64::MIN, i64::MIN];
+    let unsorted = |path: &Path, why: &dyn std::fmt::Display| {
+        format!(
+            "{}: {why} (`osmium sort` sorts it, so that it streams)",
+            path.display()
+        )
+    };
+    let mut bounds = NodeBounds::EMPTY;
     for path in inputs {
         let stored = match store_nodes(path, output)? {
             Ok(stored) => stored,
-            Err(unsorted) => {
-                return Ok(Err(format!(
-                    "{}: {unsorted} (`osmium sort` sorts it, so that it streams)",
-                    path.display()
-                )))
-            }
+            Err(why) => return Ok(Err(unsorted(path, &why))),
         };
-        let b = stored.bounds;
+        bounds.join(stored.bounds);
         stores.push(stored);
-        bounds = [
-            bounds[0].min(b[0]),
-            bounds[1].min(b[1]),
-            bounds[2].max(b[2]),
-            bounds[3].max(b[3]),
-        ];
     }
     let (lat, lon) = match options.origin {
         Some(origin) => origin,
-        None if bounds[0] <= bounds[2] => (
-            (bounds[0] + bounds[2]) as f64 / 2e9,
-            (bounds[1] + bounds[3]) as f64 / 2e9,
-        ),
-        None => return Err(CompileError::NoNodes),
+        None => bounds.centre().ok_or(CompileError::NoNodes)?,
     };
     let plane = MapPlane::new(options.projection, lat, lon);
     let block_cells = (BLOCK_M / grid.cell_size_m).round().clamp(1.0, 64.0) as i32;
@@ -160,12 +148,7 @@ fn stream(
         match derive_streamed(path, output, store, &plane, options, &mut spill)? {
             Derived::Lanes(report) => reports.push(InputReport::Osm(report)),
             Derived::Lanelet2 => return Ok(Err(format!("{} is a Lanelet2 map", path.display()))),
-            Derived::Unsorted(why) => {
-                return Ok(Err(format!(
-                    "{}: {why} (`osmium sort` sorts it, so that it streams)",
-                    path.display()
-                )))
-            }
+            Derived::Unsorted(why) => return Ok(Err(unsorted(path, &why))),
         }
     }
     drop(stores);
@@ -204,9 +187,8 @@ fn store_nodes(
     let writer = NodeWriter::new_in(dir).map_err(|e| node_error(dir, e))?;
     let order = Mutex::new(InOrder {
         writer,
-        next: 0,
-        waiting: BTreeMap::new(),
-        bounds: [i64::MAX, i64::MAX, i64::MIN, i64::MIN],
+        blobs: InFileOrder::default(),
+        bounds: NodeBounds::EMPTY,
         unsorted: None,
         with_ways: Vec::new(),
     });
@@ -214,23 +196,20 @@ fn store_nodes(
         let mut nodes = Vec::new();
         let mut ways = false;
         for_each_element(blob, |e| {
-            let (id, lat, lon) = match e {
-                Element::Node(n) => (n.id(), n.nano_lat(), n.nano_lon()),
-                Element::DenseNode(n) => (n.id(), n.nano_lat(), n.nano_lon()),
-                Element::Way(_) | Element::Relation(_) => {
-                    ways = true;
-                    return Ok(());
+            match node_of(&e) {
+                Some(node) => {
+                    let (id, (lat, lon)) = node?;
+                    nodes.push((id, lat, lon));
                 }
-            };
-            let (lat, lon) = node_position(id, lat, lon)?;
-            nodes.push((id, lat, lon));
+                None => ways = true,
+            }
             Ok(())
         })?;
         let mut order = order.lock().unwrap_or_else(PoisonError::into_inner);
         if ways {
             order.with_ways.push(k);
         }
-        order.waiting.insert(k, nodes);
+        order.blobs.insert(k, nodes);
         order.write_ready().map_err(|e| e.to_string())?;
         match &order.unsorted {
             None => Ok(()),
@@ -256,7 +235,7 @@ struct StoredNodes {
     /// Its nodes.
     store: NodeStore,
     /// Their bounds `[min lat, min lon, max lat, max lon]` (nanodegrees).
-    bounds: [i64; 4],
+    bounds: NodeBounds,
     /// The blobs (by place in the file) that hold ways or relations, ascending: the second pass
     /// decodes only these.
     with_ways: Vec<u64>,
@@ -269,12 +248,40 @@ fn node_error(dir: &Path, source: NodeStoreError) -> CompileError {
     }
 }
 
+/// What the cores made of each blob, handed back in the blobs' file order.
+struct InFileOrder<T> {
+    next: u64,
+    waiting: BTreeMap<u64, T>,
+}
+
+impl<T> Default for InFileOrder<T> {
+    fn default() -> Self {
+        InFileOrder {
+            next: 0,
+            waiting: BTreeMap::new(),
+        }
+    }
+}
+
+impl<T> InFileOrder<T> {
+    /// What the cores made of blob `k` (0 for the file's first).
+    fn insert(&mut self, k: u64, made: T) {
+        self.waiting.insert(k, made);
+    }
+
+    /// The next blob's, once every blob before it has been handed back.
+    fn next_ready(&mut self) -> Option<T> {
+        let made = self.waiting.remove(&self.next)?;
+        self.next += 1;
+        Some(made)
+    }
+}
+
 /// Blocks of nodes put back in file order for the store.
 struct InOrder {
     writer: NodeWriter,
-    next: u64,
-    waiting: BTreeMap<u64, Vec<(i64, i64, i64)>>,
-    bounds: [i64; 4],
+    blobs: InFileOrder<Vec<(i64, i64, i64)>>,
+    bounds: NodeBounds,
     unsorted: Option<NodeStoreError>,
     with_ways: Vec<u64>,
 }
@@ -283,14 +290,12 @@ impl InOrder {
     /// Appends every waiting block that is next in the file; after nodes out of order, only
     /// drops them.
     fn write_ready(&mut self) -> Result<(), NodeStoreError> {
-        while let Some(nodes) = self.waiting.remove(&self.next) {
-            self.next += 1;
+        while let Some(nodes) = self.blobs.next_ready() {
             if self.unsorted.is_some() {
                 continue;
             }
             for &(_, lat, lon) in &nodes {
-                let b = &mut self.bounds;
-                *b = [b[0].min(lat), b[1].min(lon), b[2].max(lat), b[3].max(lon)];
+                self.bounds.add(lat, lon);
             }
             match self.writer.append(&nodes) {
                 Err(e @ NodeStoreError::Unsorted { .. }) => self.unsorted = Some(e),
@@ -327,8 +332,7 @@ fn derive_streamed(
 ) -> Result<Derived, CompileError> {
     let order = Mutex::new(WaysInOrder {
         spill,
-        next: 0,
-        waiting: BTreeMap::new(),
+        blobs: InFileOrder::default(),
         last_way: None,
         report: DeriveReport::default(),
         stop: None,
@@ -337,7 +341,7 @@ fn derive_streamed(
         let mut report = DeriveReport::default();
         if stored.with_ways.binary_search(&k).is_err() {
             let mut order = order.lock().unwrap_or_else(PoisonError::into_inner);
-            order.waiting.insert(k, (Vec::new(), report));
+            order.blobs.insert(k, (Vec::new(), report));
             order.write_ready();
             return Ok(());
         }
@@ -346,11 +350,7 @@ fn derive_streamed(
         for_each_element(blob, |e| {
             match e {
                 Element::Way(w) => {
-                    let way = Way {
-                        id: w.id(),
-                        nodes: w.refs().collect(),
-                        tags: w.tags().map(|(k, v)| (k.into(), v.into())).collect(),
-                    };
+                    let way = way_of(&w);
                     derive_way_lanes(
                         &way,
                         &stored.store,
@@ -363,13 +363,10 @@ fn derive_streamed(
                         ways.push((way.id, std::mem::take(&mut lanes)));
                     }
                 }
+                // Read whole, as the in-memory reader does, so that a malformed member is
+                // refused here too.
                 Element::Relation(r) => {
-                    // Read whole, as the in-memory reader does, so that a malformed member
-                    // is refused here too (osmpbf panics on some, caught as an error).
-                    for m in r.members() {
-                        std::hint::black_box(m.role().is_ok());
-                    }
-                    if r.tags().any(|(k, v)| k == "type" && v == "lanelet") {
+                    if tag(&relation_of(&r).tags, "type") == Some("lanelet") {
                         return Err(LANELET2.into());
                     }
                 }
@@ -384,7 +381,7 @@ fn derive_streamed(
             e
         })?;
         let mut order = order.lock().unwrap_or_else(PoisonError::into_inner);
-        order.waiting.insert(k, (ways, report));
+        order.blobs.insert(k, (ways, report));
         order.write_ready();
         match &order.stop {
             None => Ok(()),
@@ -433,8 +430,7 @@ impl std::fmt::Display for Stop {
 /// Blobs of derived lanes put back in file order for the spill.
 struct WaysInOrder<'a> {
     spill: &'a mut LaneSpill,
-    next: u64,
-    waiting: BTreeMap<u64, BlobLanes>,
+    blobs: InFileOrder<BlobLanes>,
     last_way: Option<i64>,
     report: DeriveReport,
     stop: Option<Stop>,
@@ -444,8 +440,7 @@ impl WaysInOrder<'_> {
     /// Pushes every waiting blob that is next in the file into the spill, checking that ways
     /// ascend by id.
     fn write_ready(&mut self) {
-        while let Some((ways, report)) = self.waiting.remove(&self.next) {
-            self.next += 1;
+        while let Some((ways, report)) = self.blobs.next_ready() {
             self.report.add(&report);
             if self.stop.is_some() {
                 continue;

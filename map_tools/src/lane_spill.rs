@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use lanealign_core::grid::{cells_near, MapSummary};
 use lanealign_core::lane_geometry::{LaneInfo, RoadClass};
-use lanealign_core::lane_map::{Lane, MAX_POINTS};
+use lanealign_core::lane_map::{polyline_length_m, Lane, MAX_POINTS};
 
 /// A block's index: it holds cells `[x b, (x + 1) b) x [y b, (y + 1) b)` (`b` cells a side).
 pub type BlockKey = [i32; 2];
@@ -122,11 +122,7 @@ impl LaneSpill {
             self.buffer.extend_from_slice(&self.record);
         }
         self.summary.add(&lane.points);
-        self.length_m += lane
-            .points
-            .windows(2)
-            .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
-            .sum::<f64>();
+        self.length_m += polyline_length_m(&lane.points);
         if self.buffer.len() >= RUN_BYTES {
             self.write_run()?;
         }

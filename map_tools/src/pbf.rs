@@ -28,7 +28,7 @@ fn quantise(nano: i64) -> i64 {
 
 /// A node's coordinates in nanodegrees, quantised; `Err` names the node when they are outside
 /// WGS84 (latitude within ±90°, longitude within ±180°).
-pub(crate) fn node_position(id: i64, nano_lat: i64, nano_lon: i64) -> Result<(i64, i64), String> {
+fn node_position(id: i64, nano_lat: i64, nano_lon: i64) -> Result<(i64, i64), String> {
     if nano_lat.abs() > 90_000_000_000 || nano_lon.abs() > 180_000_000_000 {
         return Err(format!(
             "node {id}: coordinates out of range ({}, {})",
@@ -40,42 +40,65 @@ pub(crate) fn node_position(id: i64, nano_lat: i64, nano_lon: i64) -> Result<(i6
 }
 
 fn add_element(d: &mut OsmData, e: Element<'_>) -> Result<(), String> {
-    let tags = |it: &mut dyn Iterator<Item = (&str, &str)>| -> Vec<(String, String)> {
-        it.map(|(k, v)| (k.to_string(), v.to_string())).collect()
-    };
     match e {
-        Element::Node(n) => {
-            let at = node_position(n.id(), n.nano_lat(), n.nano_lon())?;
-            d.nodes.insert(n.id(), at);
+        Element::Way(w) => d.ways.push(way_of(&w)),
+        Element::Relation(r) => d.relations.push(relation_of(&r)),
+        node => {
+            if let Some(n) = node_of(&node) {
+                let (id, at) = n?;
+                d.nodes.insert(id, at);
+            }
         }
-        Element::DenseNode(n) => {
-            let at = node_position(n.id(), n.nano_lat(), n.nano_lon())?;
-            d.nodes.insert(n.id(), at);
-        }
-        Element::Way(w) => d.ways.push(Way {
-            id: w.id(),
-            nodes: w.refs().collect(),
-            tags: tags(&mut w.tags()),
-        }),
-        Element::Relation(r) => d.relations.push(Relation {
-            id: r.id(),
-            members: r
-                .members()
-                .map(|m| Member {
-                    kind: match m.member_type {
-                        RelMemberType::Node => "node",
-                        RelMemberType::Way => "way",
-                        RelMemberType::Relation => "relation",
-                    }
-                    .to_string(),
-                    id: m.member_id,
-                    role: m.role().unwrap_or_default().to_string(),
-                })
-                .collect(),
-            tags: tags(&mut r.tags()),
-        }),
     }
     Ok(())
+}
+
+/// A node's id and `(lat, lon)` (nanodegrees, quantised).
+pub(crate) type NodeAt = (i64, (i64, i64));
+
+/// A node element's id and position (`Err` outside WGS84); `None` for a way or relation.
+pub(crate) fn node_of(e: &Element<'_>) -> Option<Result<NodeAt, String>> {
+    let (id, lat, lon) = match e {
+        Element::Node(n) => (n.id(), n.nano_lat(), n.nano_lon()),
+        Element::DenseNode(n) => (n.id(), n.nano_lat(), n.nano_lon()),
+        Element::Way(_) | Element::Relation(_) => return None,
+    };
+    Some(node_position(id, lat, lon).map(|at| (id, at)))
+}
+
+fn tags_of<'a>(tags: impl Iterator<Item = (&'a str, &'a str)>) -> Vec<(String, String)> {
+    tags.map(|(k, v)| (k.to_string(), v.to_string())).collect()
+}
+
+/// A way element as the readers keep it.
+pub(crate) fn way_of(w: &osmpbf::Way<'_>) -> Way {
+    Way {
+        id: w.id(),
+        nodes: w.refs().collect(),
+        tags: tags_of(w.tags()),
+    }
+}
+
+/// A relation element as the readers keep it (osmpbf panics on some malformed members: callers
+/// decode within [`for_each_element`], which turns that into an error).
+pub(crate) fn relation_of(r: &osmpbf::Relation<'_>) -> Relation {
+    Relation {
+        id: r.id(),
+        members: r
+            .members()
+            .map(|m| Member {
+                kind: match m.member_type {
+                    RelMemberType::Node => "node",
+                    RelMemberType::Way => "way",
+                    RelMemberType::Relation => "relation",
+                }
+                .to_string(),
+                id: m.member_id,
+                role: m.role().unwrap_or_default().to_string(),
+            })
+            .collect(),
+        tags: tags_of(r.tags()),
+    }
 }
 
 /// The elements of one blob.
