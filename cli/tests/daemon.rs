@@ -90,6 +90,42 @@ fn sessions_have_their_own_correctors_and_answers() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: a session whose stamps say 100 Hz on a source set for the presets' 10 Hz is
+/// answered as before, and the daemon's log says once which setting fits it.
+#[test]
+fn a_source_faster_than_its_corrector_is_set_for_is_told_in_the_log() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("fast");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(2, 42);
+    let poses = &odometry[..300];
+    let stamps: Vec<i64> = (0..300)
+        .map(|i| 1_700_000_000_000_000_000 + i * 10_000_000)
+        .collect();
+    let mut conn = connect(&setup, &name);
+    let r = replay(
+        &mut conn,
+        &name,
+        poses,
+        &stamps,
+        Rate::Max(16),
+        Duration::from_secs(10),
+        Duration::from_secs(10),
+    )
+    .unwrap();
+    assert!(
+        poses_of(&r.answers) == offline(&setup, &name, poses),
+        "bit for bit"
+    );
+    // The warning is written before the 64th answer is sent.
+    let log = daemon.log();
+    let told = log.matches("the poses come at about 100 Hz").count();
+    assert_eq!(told, 1, "{log}");
+    assert!(log.contains("set odometry_rate_hz = 100"), "{log}");
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 /// Always runs: workers and clients that poll (busy-spin, and spin-then-block with pauses
 /// longer than its budget, so that it blocks too) answer every pose once, equal to offline
 /// correction bit for bit.

@@ -48,3 +48,60 @@ fn outputs_appear_only_when_the_whole_run_succeeded() {
         "{err}"
     );
 }
+
+#[test]
+fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = dir.path().join("lanes.csv");
+    let mut text = String::from("lane_id,x,y\n");
+    for i in 0..200 {
+        text.push_str(&format!("1,{},0\n", i as f64 * 3.0));
+    }
+    std::fs::write(&lanes, text).unwrap();
+    // 100 Hz along the lane at 10 m/s, 0.5 m beside it.
+    let poses = dir.path().join("poses.tum");
+    let lines: String = (0..2000)
+        .map(|i| {
+            format!(
+                "{} {} 0.5 0 0 0 0 1\n",
+                1.7e9 + i as f64 * 0.01,
+                i as f64 * 0.1
+            )
+        })
+        .collect();
+    std::fs::write(&poses, lines).unwrap();
+    let run = |set: &[&str]| {
+        let status = dir.path().join("status.csv");
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args([
+                "correct", "--preset", "kiss-icp", "--format", "tum", "--lanes",
+            ])
+            .arg(&lanes)
+            .args(set)
+            .arg(&poses)
+            .arg("-o")
+            .arg(dir.path().join("out.tum"))
+            .arg("--status")
+            .arg(&status)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        let carried = std::fs::read_to_string(&status)
+            .unwrap()
+            .lines()
+            .filter(|l| l.contains(",carried,"))
+            .count();
+        (err, carried)
+    };
+    let (err, carried) = run(&[]);
+    assert!(
+        err.contains("WARN the poses come at about 100 Hz")
+            && err.contains("--set odometry_rate_hz=100"),
+        "{err}"
+    );
+    assert_eq!(carried, 0);
+    let (err, carried) = run(&["--set", "odometry_rate_hz=100"]);
+    assert!(!err.contains("Hz (their stamps)"), "{err}");
+    assert_eq!(carried, 1800, "nine of every ten poses");
+}

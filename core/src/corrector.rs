@@ -85,19 +85,28 @@ pub enum Status {
     },
     /// The input pose was not finite: it was not added and nothing changed.
     InvalidInput,
+    /// The pose came between window poses of a source faster than the presets' rate
+    /// ([`Params::odometry_rate_hz`]): it did not enter the window and is answered with the
+    /// correction in force; no matching ran.
+    Carried {
+        /// Poses in the window.
+        window_len: usize,
+    },
 }
 
 impl Status {
     /// Every status name, in the order of [`Status::name`]'s match.
-    pub const NAMES: [&'static str; 5] = [
+    pub const NAMES: [&'static str; 6] = [
         "warming_up",
         "accepted",
         "rejected",
         "reset",
         "invalid_input",
+        "carried",
     ];
 
-    /// A short lowercase name: `warming_up`, `accepted`, `rejected`, `reset`, `invalid_input`.
+    /// A short lowercase name: `warming_up`, `accepted`, `rejected`, `reset`, `invalid_input`,
+    /// `carried`.
     pub fn name(&self) -> &'static str {
         match self {
             Status::WarmingUp { .. } => Self::NAMES[0],
@@ -105,6 +114,7 @@ impl Status {
             Status::Rejected { .. } => Self::NAMES[2],
             Status::Reset { .. } => Self::NAMES[3],
             Status::InvalidInput => Self::NAMES[4],
+            Status::Carried { .. } => Self::NAMES[5],
         }
     }
 
@@ -151,6 +161,7 @@ impl Status {
     pub fn window_len(&self) -> usize {
         match *self {
             Status::WarmingUp { window_len }
+            | Status::Carried { window_len }
             | Status::Accepted { window_len, .. }
             | Status::Rejected { window_len, .. }
             | Status::Reset { window_len, .. } => window_len,
@@ -355,6 +366,8 @@ pub struct CorrectorState {
     pub covariance: Covariance,
     /// The map error the pose inherits from its last alignment (x, y; metres squared, map plane).
     pub map_error: [[f64; 2]; 2],
+    /// Poses answered as [`Status::Carried`] since the last one that entered the window.
+    pub carried: u32,
 }
 
 /// One odometry source's corrector.
@@ -372,6 +385,10 @@ pub struct Corrector {
     /// The map error the pose inherits from its last alignment (see
     /// [`Alignment::inherited_map_error`](crate::confidence::Alignment::inherited_map_error)).
     map_error: [[f64; 2]; 2],
+    /// Poses carried since the last one that entered the window.
+    carried: u32,
+    /// Every how many poses one enters the window ([`Params::window_stride`]).
+    window_stride: u32,
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -399,6 +416,8 @@ impl Corrector {
             last_position_in_anchored: None,
             uncertainty: PoseUncertainty::new(&params),
             map_error: [[0.0; 2]; 2],
+            carried: 0,
+            window_stride: u32::try_from(params.window_stride()).unwrap_or(u32::MAX),
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -430,6 +449,7 @@ impl Corrector {
             last_position_in_anchored: self.last_position_in_anchored,
             covariance: self.uncertainty.covariance(),
             map_error: self.map_error,
+            carried: self.carried,
         }
     }
 
@@ -457,6 +477,7 @@ impl Corrector {
         c.last_position_in_anchored = state.last_position_in_anchored;
         c.uncertainty = PoseUncertainty::from_covariance(&state.covariance);
         c.map_error = state.map_error;
+        c.carried = state.carried;
         c
     }
 
@@ -523,6 +544,19 @@ impl Corrector {
                 .drive(self.map_from_anchored.rotate(motion), &p);
         }
         self.last_position_in_anchored = Some(position_in_anchored);
+        if self.carried + 1 < self.window_stride && self.window.len() > 0 {
+            self.carried += 1;
+            return Step {
+                position_in_map: self.map_from_anchored.apply(position_in_anchored),
+                map_from_anchored: self.map_from_anchored,
+                covariance: self.covariance(),
+                status: Status::Carried {
+                    window_len: self.window.len(),
+                },
+                timing: StepTiming::default(),
+            };
+        }
+        self.carried = 0;
         self.window
             .push(self.map_from_anchored.apply(position_in_anchored));
         if let Matcher::Fast(cache) = &mut self.matcher {
@@ -878,6 +912,79 @@ mod tests {
                 assert_eq!(restored.state(), first.state());
                 let after = run(&mut restored, cut);
                 assert_eq!(after, uninterrupted[cut..], "{mode:?}, cut at {cut}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_faster_source_feeds_its_window_at_the_presets_rate() {
+        // The L-shaped drive at ten times the rate: nine interpolated poses between each two.
+        let slow = l_drive([0.0, 1.0]);
+        let fast: Vec<[f64; 2]> = slow
+            .windows(2)
+            .flat_map(|w| {
+                (0..10).map(move |j| {
+                    let f = j as f64 / 10.0;
+                    [
+                        w[0][0] + f * (w[1][0] - w[0][0]),
+                        w[0][1] + f * (w[1][1] - w[0][1]),
+                    ]
+                })
+            })
+            .collect();
+        let paper = small_params();
+        let mut at_rate = paper;
+        at_rate.odometry_rate_hz = 100.0;
+        assert_eq!((paper.window_stride(), at_rate.window_stride()), (1, 10));
+        let mut c = Corrector::new(l_shaped_map(), at_rate);
+        let steps: Vec<Step> = fast.iter().map(|&p| c.push(p)).collect();
+        let mut reference = Corrector::new(l_shaped_map(), paper);
+        for (i, step) in steps.iter().enumerate() {
+            if i % 10 == 0 {
+                // Every tenth pose enters the window and is corrected as at the preset's rate.
+                let mut expected = reference.push(slow[i / 10]);
+                expected.covariance = step.covariance;
+                let mut got = *step;
+                got.timing = expected.timing;
+                assert_eq!(got, expected, "pose {i}");
+            } else {
+                // The poses between get the correction in force, and the window stays.
+                let before = &steps[i - 1];
+                assert_eq!(
+                    step.status,
+                    Status::Carried {
+                        window_len: before.status.window_len()
+                    },
+                    "pose {i}"
+                );
+                assert_eq!(step.map_from_anchored, before.map_from_anchored);
+                assert_eq!(
+                    step.position_in_map,
+                    before.map_from_anchored.apply(fast[i]),
+                    "pose {i}"
+                );
+            }
+        }
+        let last_window_step = steps
+            .iter()
+            .rev()
+            .find(|s| !matches!(s.status, Status::Carried { .. }));
+        assert!(matches!(
+            last_window_step.map(|s| s.status),
+            Some(Status::Accepted { .. })
+        ));
+        // A corrector restored between window poses continues the count.
+        for cut in [1, 13, 205, 1111] {
+            let mut first = Corrector::new(l_shaped_map(), at_rate);
+            fast[..cut].iter().for_each(|&p| {
+                first.push(p);
+            });
+            let mut restored =
+                Corrector::restore(l_shaped_map(), at_rate, MatchMode::Fast, first.state());
+            for (i, &p) in fast.iter().enumerate().skip(cut) {
+                let mut got = restored.push(p);
+                got.timing = steps[i].timing;
+                assert_eq!(got, steps[i], "cut at {cut}, pose {i}");
             }
         }
     }

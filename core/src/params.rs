@@ -60,7 +60,16 @@ pub struct Params {
     /// window's information outweighs the pose's current uncertainty by this ratio (0 applies
     /// every correction whole, as the paper does).
     pub min_evidence_ratio: f64,
+    /// The rate of the source's poses (Hz). The presets' pose counts (`min_window`,
+    /// `max_window`, `max_failures`) were chosen for [`PRESET_RATE_HZ`] odometry; a faster
+    /// source has only every `round(odometry_rate_hz / PRESET_RATE_HZ)`-th pose enter the window,
+    /// and the poses between are answered with the correction in force
+    /// ([`crate::corrector::Status::Carried`]), so that its window spans the same stretch of road.
+    pub odometry_rate_hz: f64,
 }
+
+/// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
+pub const PRESET_RATE_HZ: f64 = 10.0;
 
 /// The unmarked-street offset scale of lanealign's lane geometry (see
 /// [`crate::lane_geometry::LaneGeometry`] and docs/method.md).
@@ -194,6 +203,7 @@ impl Preset {
             initial_sigma_m: 1.0,
             initial_sigma_yaw_deg: 1.0,
             min_evidence_ratio: 0.0,
+            odometry_rate_hz: PRESET_RATE_HZ,
         }
     }
 
@@ -345,6 +355,16 @@ impl Params {
                 return Err(invalid(key, v, "must be positive and below 1e6"));
             }
         }
+        if !(self.odometry_rate_hz.is_finite()
+            && self.odometry_rate_hz > 0.0
+            && self.odometry_rate_hz <= 100_000.0)
+        {
+            return Err(invalid(
+                "odometry_rate_hz",
+                self.odometry_rate_hz,
+                "must be positive and at most 100000",
+            ));
+        }
         if self.icp_max_iterations == 0 || self.icp_max_iterations > 100_000 {
             return Err(invalid(
                 "icp_max_iterations",
@@ -353,6 +373,12 @@ impl Params {
             ));
         }
         Ok(())
+    }
+
+    /// Of the source's poses, every how many enters the window (1: every pose): the source's
+    /// rate over the presets' ([`Params::odometry_rate_hz`]), rounded, at least 1.
+    pub fn window_stride(&self) -> usize {
+        (self.odometry_rate_hz / PRESET_RATE_HZ).round().max(1.0) as usize
     }
 }
 
@@ -421,6 +447,9 @@ pub struct Overrides {
     /// See [`Params::min_evidence_ratio`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_evidence_ratio: Option<f64>,
+    /// See [`Params::odometry_rate_hz`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub odometry_rate_hz: Option<f64>,
 }
 
 impl Overrides {
@@ -451,6 +480,7 @@ impl Overrides {
                 .initial_sigma_yaw_deg
                 .unwrap_or(base.initial_sigma_yaw_deg),
             min_evidence_ratio: self.min_evidence_ratio.unwrap_or(base.min_evidence_ratio),
+            odometry_rate_hz: self.odometry_rate_hz.unwrap_or(base.odometry_rate_hz),
         }
     }
 }

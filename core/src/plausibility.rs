@@ -3,6 +3,7 @@
 //! carry on (the run's output is still what the corrector computed).
 
 use crate::lane_map::LaneMap;
+use crate::params::Params;
 use crate::pose::{AxisConvention, Pose3};
 use crate::se2::Se2;
 
@@ -97,6 +98,76 @@ pub fn no_correction_warning(poses: usize, accepted: usize) -> Option<String> {
     })
 }
 
+/// How much faster than the corrector's [`Params::odometry_rate_hz`] a source's stamps may say it
+/// is before its window is suspect of spanning too short a stretch of road.
+pub const MAX_RATE_RATIO: f64 = 1.5;
+
+/// Stamps closer than this (seconds) are no sensor's: counters or a fixed value, not time.
+const MIN_PLAUSIBLE_INTERVAL_S: f64 = 1e-5;
+
+/// The rate (Hz) consecutive stamps (seconds, in arrival order) say the source runs at: the
+/// median interval's; `None` without at least two plausible intervals (positive and at least
+/// 10 us; a source whose stamps are counters or constant says nothing).
+pub fn rate_from_stamps(stamps_s: &[f64]) -> Option<f64> {
+    let mut intervals: Vec<f64> = stamps_s
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|dt| dt.is_finite() && *dt >= MIN_PLAUSIBLE_INTERVAL_S)
+        .collect();
+    if intervals.len() < 2 || intervals.len() * 2 < stamps_s.len() {
+        return None;
+    }
+    let mid = intervals.len() / 2;
+    let (_, median, _) = intervals.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(1.0 / *median)
+}
+
+/// A warning when a source's measured `rate_hz` is well above the rate `params` are set for: its
+/// window then spans a fraction of the road the preset was chosen for.
+pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
+    (rate_hz > MAX_RATE_RATIO * params.odometry_rate_hz).then(|| {
+        format!(
+            "the poses come at about {rate_hz:.0} Hz (their stamps) but the corrector is set for \
+             {:.0} Hz, so its window spans only part of the road its preset was chosen for: set \
+             odometry_rate_hz = {rate_hz:.0} (--set odometry_rate_hz={rate_hz:.0}, or in the \
+             source's overrides)",
+            params.odometry_rate_hz
+        )
+    })
+}
+
+/// Gathers a session's first stamps to tell its rate once (see [`rate_from_stamps`]), without
+/// allocating per pose.
+#[derive(Clone, Debug, Default)]
+pub struct RateProbe {
+    stamps_s: Vec<f64>,
+    done: bool,
+}
+
+impl RateProbe {
+    /// Stamps gathered before the rate is told.
+    pub const STAMPS: usize = 64;
+
+    /// Takes the next stamp (seconds); returns the rate once, when enough stamps are in (and
+    /// `None` for good after, or when the stamps tell no rate).
+    pub fn observe(&mut self, stamp_s: f64) -> Option<f64> {
+        if self.done {
+            return None;
+        }
+        if self.stamps_s.capacity() == 0 {
+            self.stamps_s.reserve_exact(Self::STAMPS);
+        }
+        self.stamps_s.push(stamp_s);
+        if self.stamps_s.len() < Self::STAMPS {
+            return None;
+        }
+        self.done = true;
+        let rate = rate_from_stamps(&self.stamps_s);
+        self.stamps_s = Vec::new();
+        rate
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,5 +203,37 @@ mod tests {
         assert!(w.contains("2.5 km"), "{w}");
         assert!(no_correction_warning(10, 0).is_some());
         assert!(no_correction_warning(10, 1).is_none());
+    }
+
+    #[test]
+    fn a_source_faster_than_its_preset_is_noticed_and_the_setting_named() {
+        let params = crate::params::Preset::KissIcp.robust_params();
+        let stamps = |hz: f64| {
+            (0..100)
+                .map(|i| 1.7e9 + i as f64 / hz)
+                .collect::<Vec<f64>>()
+        };
+        let rate = rate_from_stamps(&stamps(100.0)).unwrap();
+        assert!((rate - 100.0).abs() < 1e-3, "{rate}");
+        let w = rate_warning(rate, &params).unwrap();
+        assert!(w.contains("odometry_rate_hz=100"), "{w}");
+        assert!(rate_warning(rate_from_stamps(&stamps(10.0)).unwrap(), &params).is_none());
+        assert!(rate_warning(rate_from_stamps(&stamps(14.0)).unwrap(), &params).is_none());
+        let mut set = params;
+        set.odometry_rate_hz = 100.0;
+        assert!(rate_warning(rate, &set).is_none());
+        // Counters, a constant or stamps out of order tell no rate.
+        let counters: Vec<f64> = (0..100).map(|i| i as f64 * 1e-9).collect();
+        assert_eq!(rate_from_stamps(&counters), None);
+        assert_eq!(rate_from_stamps(&[0.0; 100]), None);
+        assert_eq!(rate_from_stamps(&[3.0, 2.0, 1.0, 0.0]), None);
+        // The probe tells it once, after its stamps are in.
+        let mut probe = RateProbe::default();
+        let told: Vec<Option<f64>> = stamps(100.0)
+            .into_iter()
+            .map(|s| probe.observe(s))
+            .collect();
+        assert_eq!(told.iter().flatten().count(), 1);
+        assert!(told[RateProbe::STAMPS - 1].is_some());
     }
 }

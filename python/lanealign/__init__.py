@@ -41,6 +41,7 @@ def correct(
     projection: Optional[str] = None,
     method: str = "robust",
     frame: str = "flu",
+    odometry_rate_hz: Optional[float] = None,
 ) -> Corrected:
     """Correct a trajectory against lane centrelines, as ``lanealign correct`` does.
 
@@ -50,7 +51,9 @@ def correct(
     frame). ``anchor`` = (lat, lon, yaw_deg, east_m, north_m) places the odometry frame on Earth
     (needed with ``osm`` and ``tile``); ``projection``: ``"tangent"`` (default for osm) or
     ``"kitti"``. ``preset``: liodom, basalt, kiss-icp or orb-slam3; ``method``: robust or paper;
-    ``frame``: ``"flu"`` or ``"kitti-camera"``.
+    ``frame``: ``"flu"`` or ``"kitti-camera"``. ``odometry_rate_hz``: the poses' rate when it is
+    above the presets' 10 Hz (only every ``round(rate / 10)``-th pose then enters the window,
+    the others get the correction in force, status ``"carried"``).
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
     out, status, covariance = _lanealign.correct(
@@ -63,6 +66,7 @@ def correct(
         projection=projection,
         method=method,
         frame=frame,
+        odometry_rate_hz=odometry_rate_hz,
     )
     return Corrected(out, status, covariance)
 

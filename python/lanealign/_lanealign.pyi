@@ -15,6 +15,7 @@ def correct(
     projection: Optional[str] = ...,
     method: str = ...,
     frame: str = ...,
+    odometry_rate_hz: Optional[float] = ...,
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = ...) -> Dict[str, Union[float, int]]: ...
 def compile_map(

@@ -36,7 +36,7 @@ fn error(e: impl Into<anyhow::Error>) -> PyErr {
 }
 
 /// The status names, indexed by the codes `correct` returns.
-const STATUS_NAMES: [&str; 5] = Status::NAMES;
+const STATUS_NAMES: [&str; 6] = Status::NAMES;
 
 /// Poses of shape (N, 3, 4), (N, 4, 4) or planar (N, 3) `[x, y, yaw]`.
 fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
@@ -105,7 +105,7 @@ type Corrected<'py> = (
 /// Corrects a trajectory as `lanealign correct` does (see the package's docstring).
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu"))]
+#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None))]
 fn correct<'py>(
     py: Python<'py>,
     poses: PyReadonlyArrayDyn<'py, f64>,
@@ -117,6 +117,7 @@ fn correct<'py>(
     projection: Option<&str>,
     method: &str,
     frame: &str,
+    odometry_rate_hz: Option<f64>,
 ) -> PyResult<Corrected<'py>> {
     let array = poses.as_array().to_owned();
     let shape = array.shape().to_vec();
@@ -127,9 +128,10 @@ fn correct<'py>(
         ));
     }
     let input = poses_from(&array)?;
-    let config = CorrectorConfig::new(parsed::<Preset>("preset", preset)?, {
+    let mut config = CorrectorConfig::new(parsed::<Preset>("preset", preset)?, {
         parsed::<Method>("method", method)?
     });
+    config.overrides.odometry_rate_hz = odometry_rate_hz;
     let params = config.params().map_err(error)?;
     let projection = projection
         .map(|p| parsed::<Projection>("projection", p))

@@ -62,6 +62,14 @@ def test_correct_equals_the_command_line_without_data(tmp_path):
     assert np.array_equal(got.poses, read_kitti(tmp_path / "plain.txt"))
     assert got.status.shape == (200,) and got.covariance.shape == (200, 3, 3)
     assert lanealign.STATUS_NAMES[got.status[0]] == "warming_up"
+    # A source faster than the presets' 10 Hz: nine of every ten poses are carried, as on the
+    # command line.
+    cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--method", "paper",
+        "--set", "odometry_rate_hz=100", tmp_path / "in.txt", "-o", tmp_path / "fast.txt")
+    fast = lanealign.correct(poses, lanes=str(lanes), preset="kiss-icp", method="paper",
+                             odometry_rate_hz=100)
+    assert np.array_equal(fast.poses, read_kitti(tmp_path / "fast.txt"))
+    assert [lanealign.STATUS_NAMES[c] for c in fast.status[1:10]] == ["carried"] * 9
     # (N, 4, 4) and planar (N, 3) inputs give the same correction in their own shape.
     homogeneous = np.zeros((200, 4, 4))
     homogeneous[:, :3, :] = poses

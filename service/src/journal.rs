@@ -38,7 +38,10 @@ pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
 const ANSWER_LEN: usize = 272;
 const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP03";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP04";
+/// Snapshots before poses could be carried between window poses (read with none carried: every
+/// pose of their sources entered the window).
+const SNAPSHOT_MAGIC_V3: &[u8; 8] = b"LASNAP03";
 /// Snapshots before the inherited map error was kept (read with none: the published covariance
 /// lacks it until the session's next accepted step).
 const SNAPSHOT_MAGIC_V2: &[u8; 8] = b"LASNAP02";
@@ -272,6 +275,7 @@ impl Snapshot {
         for row in &c.map_error {
             e.f64s(row);
         }
+        e.u32(c.carried);
         match c.last_position_in_anchored {
             Some(p) => e.u32(1).f64s(&p),
             None => e.u32(0).f64s(&[0.0, 0.0]),
@@ -297,9 +301,10 @@ impl Snapshot {
             return None;
         }
         let magic = body.get(..8)?;
-        let has_map_error = match magic {
-            m if m == SNAPSHOT_MAGIC => true,
-            m if m == SNAPSHOT_MAGIC_V2 => false,
+        let (has_map_error, has_carried) = match magic {
+            m if m == SNAPSHOT_MAGIC => (true, true),
+            m if m == SNAPSHOT_MAGIC_V3 => (true, false),
+            m if m == SNAPSHOT_MAGIC_V2 => (false, false),
             _ => return None,
         };
         let mut d = Decoder(&body[8..]);
@@ -315,6 +320,7 @@ impl Snapshot {
         } else {
             [[0.0; 2]; 2]
         };
+        let carried = if has_carried { d.u32()? } else { 0 };
         let last_position = (d.u32()?, d.f64s::<2>()?);
         let smoothed = (d.u32()?, d.se2()?);
         let n = d.u64()?;
@@ -338,6 +344,7 @@ impl Snapshot {
                 last_position_in_anchored: flag(last_position.0)?.then_some(last_position.1),
                 covariance,
                 map_error,
+                carried,
             },
             smoothed: flag(smoothed.0)?.then_some(smoothed.1),
         };
@@ -582,20 +589,30 @@ mod tests {
                     last_position_in_anchored: Some([5.0, 6.0]),
                     covariance: [[0.5, 0.1, 1e-3], [0.1, 0.7, -2e-3], [1e-3, -2e-3, 1e-4]],
                     map_error: [[0.4, -0.1], [-0.1, 0.3]],
+                    carried: 7,
                 },
                 smoothed: None,
             },
         };
         let bytes = snap.encode();
         assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
-        // The format before: no map error (16 bytes fewer), read as none.
-        let mut v2 = SNAPSHOT_MAGIC_V2.to_vec();
+        // Where the map error starts; the count of carried poses follows it.
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
-        v2.extend_from_slice(&bytes[8..at]);
-        v2.extend_from_slice(&bytes[at + 32..bytes.len() - 8]);
-        v2.extend_from_slice(&xxh3_64(&v2).to_le_bytes());
+        let older = |magic: &[u8; 8], keep: std::ops::Range<usize>| {
+            let mut v = magic.to_vec();
+            v.extend_from_slice(&bytes[keep]);
+            v.extend_from_slice(&bytes[at + 36..bytes.len() - 8]);
+            v.extend_from_slice(&xxh3_64(&v).to_le_bytes());
+            v
+        };
+        // The format before: no carried count (4 bytes fewer), read as none carried.
         let mut old = snap.clone();
+        old.state.corrector.carried = 0;
+        let v3 = older(SNAPSHOT_MAGIC_V3, 8..at + 32);
+        assert_eq!(Snapshot::decode(&v3), Some(old.clone()));
+        // The one before that: no map error either (32 bytes fewer), read as none.
         old.state.corrector.map_error = [[0.0; 2]; 2];
+        let v2 = older(SNAPSHOT_MAGIC_V2, 8..at);
         assert_eq!(Snapshot::decode(&v2), Some(old));
         for cut in [0, 8, 100, bytes.len() - 1] {
             assert!(Snapshot::decode(&bytes[..cut]).is_none(), "cut at {cut}");

@@ -15,6 +15,7 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::ipc;
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::plausibility::{rate_warning, RateProbe};
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START};
 use lanealign_wire::service::{
@@ -104,6 +105,7 @@ pub fn wire_status(status: &Status) -> (StatusCode, ReasonCode) {
         Status::Rejected { .. } => StatusCode::Rejected,
         Status::Reset { .. } => StatusCode::Reset,
         Status::InvalidInput => StatusCode::InvalidInput,
+        Status::Carried { .. } => StatusCode::Carried,
     };
     let reason = match status.reason() {
         None => ReasonCode::None,
@@ -153,6 +155,9 @@ struct Live {
     notifier: Notifier<ipc::Service>,
     _services: SessionServices,
     last_active: Instant,
+    /// The session's first stamps, to warn once when the source is faster than its corrector
+    /// is set for.
+    rate_probe: RateProbe,
 }
 
 struct Worker {
@@ -178,6 +183,7 @@ impl Worker {
             notifier,
             _services: services,
             last_active: Instant::now(),
+            rate_probe: RateProbe::default(),
         })
     }
 
@@ -321,6 +327,12 @@ impl Worker {
             }
         };
         answer.published_mono_ns = monotonic_ns();
+        if matches!(outcome, Outcome::Corrected(_)) {
+            let rate = live.rate_probe.observe(input.stamp_ns as f64 * 1e-9);
+            if let Some(warning) = rate.and_then(|r| rate_warning(r, &setup.params)) {
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), "{warning}");
+            }
+        }
         let in_daemon_ns = answer.published_mono_ns.saturating_sub(received);
         tracing::debug!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, status = StatusCode::from_code(answer.status).map_or("", StatusCode::name), in_daemon_us = in_daemon_ns as f64 / 1e3, "pose");
         let delivered = match live.publisher.send_copy(answer) {
@@ -511,6 +523,7 @@ mod tests {
                 window_len: 149,
             },
             Status::InvalidInput,
+            Status::Carried { window_len: 150 },
         ];
         assert_eq!(statuses.len(), Status::NAMES.len());
         for s in statuses {

@@ -42,7 +42,7 @@ pub struct OdomPose {
     pub reserved: u32,
 }
 
-/// What the daemon did with a pose. The first five are the corrector's statuses, with the same
+/// What the daemon did with a pose. Codes 0-4 and 9 are the corrector's statuses, with the same
 /// names; the rest are the daemon's own.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(u32)]
@@ -67,11 +67,14 @@ pub enum StatusCode {
     /// The sequence number is beyond the next one the session expects: not used; send again
     /// from [`CorrectedPose::expected_seq`] on.
     Gap = 8,
+    /// The pose came between window poses of a source faster than its corrector's rate
+    /// (`odometry_rate_hz`): answered with the correction in force, no matching.
+    Carried = 9,
 }
 
 impl StatusCode {
     /// Every code, in numeric order.
-    pub const ALL: [StatusCode; 9] = [
+    pub const ALL: [StatusCode; 10] = [
         StatusCode::WarmingUp,
         StatusCode::Accepted,
         StatusCode::Rejected,
@@ -81,6 +84,7 @@ impl StatusCode {
         StatusCode::OutOfOrderSeq,
         StatusCode::PassThrough,
         StatusCode::Gap,
+        StatusCode::Carried,
     ];
 
     /// Decodes a status code; `None` for a code this build does not know.
@@ -88,7 +92,7 @@ impl StatusCode {
         Self::ALL.get(code as usize).copied()
     }
 
-    /// Lowercase name (the corrector's status names for the first five).
+    /// Lowercase name (the corrector's status names for its codes).
     pub fn name(self) -> &'static str {
         match self {
             StatusCode::WarmingUp => "warming_up",
@@ -100,6 +104,7 @@ impl StatusCode {
             StatusCode::OutOfOrderSeq => "out_of_order_seq",
             StatusCode::PassThrough => "pass_through",
             StatusCode::Gap => "gap",
+            StatusCode::Carried => "carried",
         }
     }
 
@@ -241,7 +246,7 @@ mod tests {
         for s in StatusCode::ALL {
             assert_eq!(StatusCode::from_code(s as u32), Some(s));
         }
-        assert_eq!(StatusCode::from_code(9), None);
+        assert_eq!(StatusCode::from_code(10), None);
         assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
         assert_eq!(ReasonCode::from_code(3), None);
     }

@@ -351,6 +351,11 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             &args.frame.to_planar(&input.poses[0]),
         ),
         plausibility::no_correction_warning(run.len(), c.accepted),
+        input
+            .stamps
+            .as_deref()
+            .and_then(plausibility::rate_from_stamps)
+            .and_then(|rate| plausibility::rate_warning(rate, &params)),
     ];
     for warning in warnings.into_iter().flatten() {
         eprintln!("WARN {warning}");
