@@ -1,24 +1,31 @@
 //! `lanealign correct` writes its outputs together or not at all, and says when a run looks set
 //! up wrongly.
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
+
+/// A lane CSV in `dir`: one lane along the x axis, `points` points 3 m apart.
+fn straight_lane(dir: &Path, points: usize) -> PathBuf {
+    let lanes = dir.join("lanes.csv");
+    let mut text = String::from("lane_id,x,y\n");
+    for i in 0..points {
+        text.push_str(&format!("1,{},0\n", i as f64 * 3.0));
+    }
+    std::fs::write(&lanes, text).unwrap();
+    lanes
+}
 
 #[test]
 fn outputs_appear_only_when_the_whole_run_succeeded() {
     let dir = tempfile::tempdir().unwrap();
-    let lanes = dir.path().join("lanes.csv");
-    let mut text = String::from("lane_id,x,y\n");
-    for i in 0..100 {
-        text.push_str(&format!("1,{},0\n", i as f64 * 3.0));
-    }
-    std::fs::write(&lanes, text).unwrap();
+    let lanes = straight_lane(dir.path(), 100);
     let poses = dir.path().join("poses.txt");
     let lines: String = (0..50)
         .map(|i| format!("1 0 0 {i} 0 1 0 500 0 0 1 0\n"))
         .collect();
     std::fs::write(&poses, lines).unwrap();
     let out = dir.path().join("out.txt");
-    let run = |status: &std::path::Path| {
+    let run = |status: &Path| {
         Command::new(env!("CARGO_BIN_EXE_lanealign"))
             .args(["correct", "--preset", "kiss-icp", "--lanes"])
             .arg(&lanes)
@@ -52,12 +59,7 @@ fn outputs_appear_only_when_the_whole_run_succeeded() {
 #[test]
 fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     let dir = tempfile::tempdir().unwrap();
-    let lanes = dir.path().join("lanes.csv");
-    let mut text = String::from("lane_id,x,y\n");
-    for i in 0..200 {
-        text.push_str(&format!("1,{},0\n", i as f64 * 3.0));
-    }
-    std::fs::write(&lanes, text).unwrap();
+    let lanes = straight_lane(dir.path(), 200);
     // 100 Hz along the lane at 10 m/s, 0.5 m beside it.
     let poses = dir.path().join("poses.tum");
     let lines: String = (0..2000)

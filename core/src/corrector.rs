@@ -253,6 +253,10 @@ impl Window {
         self.buf.len() - self.start
     }
 
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     fn push(&mut self, p: [f64; 2]) {
         if self.start > 0 && self.start >= self.len() {
             self.buf.drain(..self.start);
@@ -544,7 +548,9 @@ impl Corrector {
                 .drive(self.map_from_anchored.rotate(motion), &p);
         }
         self.last_position_in_anchored = Some(position_in_anchored);
-        if self.carried + 1 < self.window_stride && self.window.len() > 0 {
+        // A source faster than the presets' rate feeds only every `window_stride`-th pose to the
+        // window (`Params::odometry_rate_hz`); the ones between keep the correction in force.
+        if self.carried + 1 < self.window_stride && !self.window.is_empty() {
             self.carried += 1;
             return Step {
                 position_in_map: self.map_from_anchored.apply(position_in_anchored),
