@@ -35,6 +35,15 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    // The commands that only read files and print end like Unix filters when their reader goes
+    // away; the ones that talk to a daemon keep Rust's handling, so that a daemon gone mid-stream
+    // is an error they report rather than a signal.
+    if matches!(
+        cli.command,
+        Command::Correct(_) | Command::Eval(_) | Command::Params(_)
+    ) {
+        lanealign_core::report::end_quietly_on_closed_pipe();
+    }
     // iceoryx2 warns on stdout when it runs on its default configuration, which is intended here.
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     lanealign_core::report::exit_code(run(&cli))

@@ -107,3 +107,25 @@ fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     assert!(!err.contains("Hz (their stamps)"), "{err}");
     assert_eq!(carried, 1800, "nine of every ten poses");
 }
+
+/// `lanealign eval ... | head -1`: a reader that goes away ends the command as it ends Unix
+/// filters (SIGPIPE), not with a panic on stderr.
+#[test]
+fn a_closed_stdout_ends_a_command_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+        .args(["params", "--preset", "kiss-icp"])
+        .stdout(writer)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.signal(),
+        Some(rustix::process::Signal::PIPE.as_raw()),
+        "{:?}: {err}",
+        out.status
+    );
+    assert!(err.is_empty(), "{err}");
+}

@@ -28,6 +28,18 @@ pub fn backtrace_requested() -> bool {
     std::env::var("LANEALIGN_BACKTRACE").is_ok_and(|v| v == "1")
 }
 
+/// Lets a command whose output goes to a pipe end quietly when the reader goes away (`lanealign
+/// eval ... | head -1`), as Unix filters do. Rust starts programs with SIGPIPE ignored, so a
+/// write to a closed pipe fails instead, and `println!` panics on that failure. For the
+/// commands only: a daemon must outlive a closed log pipe.
+pub fn end_quietly_on_closed_pipe() {
+    // SAFETY: setting SIGPIPE back to its default action happens before any thread starts and
+    // touches no Rust state.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 /// A command's exit: success, or the error reported on stderr ([`error_chain`]) and failure.
 pub fn exit_code<E>(result: Result<(), E>) -> ExitCode
 where

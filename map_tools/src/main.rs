@@ -203,6 +203,7 @@ fn inspect_grid(path: &std::path::Path) -> anyhow::Result<()> {
 }
 
 fn main() -> std::process::ExitCode {
+    lanealign_core::report::end_quietly_on_closed_pipe();
     lanealign_core::report::exit_code(run(Cli::parse()))
 }
 
