@@ -1,8 +1,8 @@
 //! Per-pose cost of the corrector on real KITTI runs, fast vs reference matching, one table.
 //!
-//! `cargo bench -p lanealign-cli --bench corrector [-- OPTIONS]`
+//! `cargo bench -p lanealign-cli --bench corrector [-- OPTIONS]` (`-- --help` lists them)
 //!
-//! - `--sequences 00,02,08` (default), `--presets all` (default) or a comma list;
+//! - `--sequences 00,02,08` (default), `--presets` a comma list (default: all four);
 //! - `--methods paper,robust` (default: both, each on its own lane geometry);
 //! - `--reference-poses K`: run the reference mode on the first K poses only (default: all; the
 //!   reference mode needs 5-30 ms per pose); identity and speed-up are then over those K poses;
@@ -16,6 +16,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
+use clap::Parser;
 use lanealign_cli::kitti::{anchors, default_data_dir};
 use lanealign_cli::maps::MapSource;
 use lanealign_core::corrector::{Corrector, MatchMode, Status, Step};
@@ -139,36 +140,52 @@ fn long_run(data: &Path, total: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
+#[derive(Parser)]
+struct Args {
+    /// KITTI sequences, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "00,02,08")]
+    sequences: Vec<String>,
+    /// Presets, comma-separated (default: all four).
+    #[arg(long, value_delimiter = ',')]
+    presets: Vec<Preset>,
+    /// Methods, comma-separated (default: both, each on its own lane geometry).
+    #[arg(long, value_delimiter = ',')]
+    methods: Vec<Method>,
+    /// Run the reference mode on the first K poses only (default: all).
+    #[arg(long)]
+    reference_poses: Option<usize>,
+    /// Instead, correct this many poses in fast mode by looping KITTI 00 and print resident
+    /// memory every tenth of them.
+    #[arg(long)]
+    long_run: Option<usize>,
+    /// Cargo passes this to every bench.
+    #[arg(long, hide = true)]
+    bench: bool,
+}
+
 fn main() -> anyhow::Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let opt = |name: &str| {
-        args.iter()
-            .position(|a| a == name)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
+    let args = Args::parse();
     let data = default_data_dir();
     if !data.join("kitti/georef.csv").is_file() {
         println!("SKIPPED: no KITTI data at {}", data.display());
         return Ok(());
     }
-    if let Some(n) = opt("--long-run") {
-        return long_run(&data, n.parse()?);
+    if let Some(n) = args.long_run {
+        return long_run(&data, n);
     }
-    let sequences: Vec<String> = opt("--sequences")
-        .unwrap_or_else(|| "00,02,08".into())
-        .split(',')
-        .map(str::to_string)
-        .collect();
-    let presets: Vec<Preset> = match opt("--presets").as_deref() {
-        None | Some("all") => Preset::ALL.to_vec(),
-        Some(list) => list.split(',').map(str::parse).collect::<Result<_, _>>()?,
-    };
-    let methods: Vec<Method> = match opt("--methods") {
-        None => Method::ALL.to_vec(),
-        Some(list) => list.split(',').map(str::parse).collect::<Result<_, _>>()?,
-    };
-    let reference_poses: Option<usize> = opt("--reference-poses").map(|v| v.parse()).transpose()?;
+    let Args {
+        sequences,
+        mut presets,
+        mut methods,
+        reference_poses,
+        ..
+    } = args;
+    if presets.is_empty() {
+        presets = Preset::ALL.to_vec();
+    }
+    if methods.is_empty() {
+        methods = Method::ALL.to_vec();
+    }
     println!("Per-pose time of Corrector::push in microseconds, single thread, lanes from OSM.");
     println!("| odometry | seq | method | preset | poses | fast mean | fast p50 | fast p99 | fast max | fast: matching / ICP mean | ref. poses | ref. mean | ref. p99 | speed-up (mean, same poses) | identical |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");

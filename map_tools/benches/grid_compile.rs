@@ -1,8 +1,8 @@
 //! Compiling a large PBF into a grid, side by side with `osmium cat` reading the same file, in
 //! one run: wall time and peak memory of each, for inputs of growing size.
 //!
-//! `cargo bench -p lanealign-map --bench grid_compile [-- --copies 32,64,128] [-- --cell M]
-//! [-- --in-memory] [-- --check] [-- --keep DIR]`
+//! `cargo bench -p lanealign-map --bench grid_compile -- [--copies 32,64,128] [--cell M]
+//! [--in-memory] [--check] [--keep DIR]` (`-- --help` lists them)
 //!
 //! For each K in `--copies`: KITTI 00's OSM repeated K x K times (ids renumbered densely, as a
 //! renumbered extract has them; each copy shifted by its extent), written as OPL into `osmium
@@ -19,6 +19,8 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+
+use clap::Parser;
 
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm::{read_xml_file, OsmData};
@@ -148,14 +150,30 @@ fn same_files(a: &Path, b: &Path) -> anyhow::Result<bool> {
     Ok(true)
 }
 
+#[derive(Parser)]
+struct Args {
+    /// Each K: KITTI 00's OSM repeated K x K times, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "32,64,128")]
+    copies: Vec<usize>,
+    /// Cell size of the grids (metres).
+    #[arg(long, default_value_t = 1000.0)]
+    cell: f64,
+    /// Also compile in memory (the compile before the grid streamed), for comparison.
+    #[arg(long)]
+    in_memory: bool,
+    /// Check each streamed grid against the in-memory one, file for file.
+    #[arg(long)]
+    check: bool,
+    /// Keep the generated PBF files in this folder (`kitti00_xK.osm.pbf`) instead of a temporary one.
+    #[arg(long)]
+    keep: Option<PathBuf>,
+    /// Cargo passes this to every bench.
+    #[arg(long, hide = true)]
+    bench: bool,
+}
+
 fn main() -> anyhow::Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let opt = |name: &str| {
-        args.iter()
-            .position(|a| a == name)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
+    let args = Args::parse();
     let data = data_dir();
     if !data.join("osm/kitti_00.osm").is_file() {
         println!("SKIPPED: no shared data at {}", data.display());
@@ -167,21 +185,17 @@ fn main() -> anyhow::Result<()> {
             return Ok(());
         }
     }
-    let copies: Vec<usize> = opt("--copies")
-        .unwrap_or_else(|| "32,64,128".into())
-        .split(',')
-        .map(str::parse)
-        .collect::<Result<_, _>>()?;
-    let cell: f64 = opt("--cell")
-        .map(|v| v.parse())
-        .transpose()?
-        .unwrap_or(1000.0);
-    let in_memory = args.iter().any(|a| a == "--in-memory");
-    let check = args.iter().any(|a| a == "--check");
+    let Args {
+        copies,
+        cell,
+        in_memory,
+        check,
+        keep,
+        ..
+    } = args;
     let compiler = env!("CARGO_BIN_EXE_lanealign-map");
     let osm = read_xml_file(&data.join("osm/kitti_00.osm"))?;
     let dir = tempfile::tempdir()?;
-    let keep = opt("--keep").map(PathBuf::from);
     println!("Grid compile of KITTI 00's OSM repeated K x K times, {cell} m cells; one run each, this machine ({} cores)", std::thread::available_parallelism().map_or(1, |n| n.get()));
     println!("| K | PBF (MB) | nodes | ways | command | wall (s) | peak memory (MiB) | output |");
     println!("|---:|---:|---:|---:|---|---:|---:|---|");

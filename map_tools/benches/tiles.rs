@@ -1,6 +1,6 @@
 //! Tile compile and load costs on the shared maps, and PBF read throughput against osmium.
 //!
-//! `cargo bench -p lanealign-map --bench tiles [-- --loads N] [-- --pbf-copies K]`
+//! `cargo bench -p lanealign-map --bench tiles -- [--loads N] [--pbf-copies K]`
 //!
 //! Part 1, per map: compile time, tile bytes, bytes per lane-km, and load time (read + full
 //! validation + KD-tree build) over N loads (default 1000), median and p99.
@@ -13,6 +13,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Instant;
+
+use clap::Parser;
 
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions};
@@ -208,27 +210,26 @@ fn pbf_table(data: &Path, copies: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
+#[derive(Parser)]
+struct Args {
+    /// Loads of each tile, for the load time's median and p99.
+    #[arg(long, default_value_t = 1000)]
+    loads: usize,
+    /// The PBF is KITTI 00's OSM tiled this many times in each direction.
+    #[arg(long, default_value_t = 32)]
+    pbf_copies: usize,
+    /// Cargo passes this to every bench.
+    #[arg(long, hide = true)]
+    bench: bool,
+}
+
 fn main() -> anyhow::Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let opt = |name: &str| {
-        args.iter()
-            .position(|a| a == name)
-            .and_then(|i| args.get(i + 1))
-            .cloned()
-    };
+    let args = Args::parse();
     let data = data_dir();
     if !data.join("osm/kitti_00.osm").is_file() {
         println!("SKIPPED: no shared data at {}", data.display());
         return Ok(());
     }
-    let loads: usize = opt("--loads")
-        .map(|v| v.parse())
-        .transpose()?
-        .unwrap_or(1000);
-    let copies: usize = opt("--pbf-copies")
-        .map(|v| v.parse())
-        .transpose()?
-        .unwrap_or(32);
-    maps_table(&data, loads)?;
-    pbf_table(&data, copies)
+    maps_table(&data, args.loads)?;
+    pbf_table(&data, args.pbf_copies)
 }
