@@ -76,9 +76,11 @@ pub struct Alignment {
     pub information: Matrix3<f64>,
     /// The map's own error a pose aligned to the kept pairs inherits (2x2 covariance of x and
     /// y, metres, map plane): each pair's lane is off by its [`lane_sigma_m`] across its
-    /// direction, and the pose follows the lanes however often it sees them, so this does not
-    /// shrink with more observations, unlike the filter's covariance. The average over the kept
-    /// pairs of `MAP_ERROR_VAR_SCALE sigma^2 n n'` (`n` the lane's normal); `None` without pairs.
+    /// direction, and where the road curves by as much again as its segment's chord error
+    /// ([`LaneMap::chord_error_m`]); the pose follows the lanes however often it sees them, so
+    /// this does not shrink with more observations, unlike the filter's covariance. The average
+    /// over the kept pairs of `MAP_ERROR_VAR_SCALE sigma^2 n n' + chord^2 n n'` (`n` the lane's
+    /// normal); `None` without pairs.
     pub inherited_map_error: Option<[[f64; 2]; 2]>,
 }
 
@@ -122,9 +124,11 @@ pub fn alignment_information(
         }
         let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
         let normal = [-direction[1], direction[0]];
+        let chord = map.chord_error_m(pair.point);
+        let inherited_var = MAP_ERROR_VAR_SCALE * sigma * sigma + chord * chord;
         for (r, row) in inherited.iter_mut().enumerate() {
             for (c, v) in row.iter_mut().enumerate() {
-                *v += sigma * sigma * normal[r] * normal[c];
+                *v += inherited_var * normal[r] * normal[c];
             }
         }
         inherited_count += 1;
@@ -141,18 +145,18 @@ pub fn alignment_information(
     }
     Alignment {
         information: information + block.information(),
-        inherited_map_error: (inherited_count > 0).then(|| {
-            inherited.map(|row| row.map(|v| v * MAP_ERROR_VAR_SCALE / inherited_count as f64))
-        }),
+        inherited_map_error: (inherited_count > 0)
+            .then(|| inherited.map(|row| row.map(|v| v / inherited_count as f64))),
     }
 }
 
-/// How much larger than its lanes' sigmas ([`lane_sigma_m`], as variances) the map error a
+/// How much larger than its lanes' sigmas ([`lane_sigma_m`], as variances) the offset error a
 /// corrected pose inherits is taken to be. Measured on the shared KITTI runs (docs/method.md,
 /// "Confidence"): OSM lanes there are off by up to 1.5-2 m over kilometres (lidar 09), more and
-/// longer than the sigmas say; 1, 2 and 3 put 8, 10 and 11 of the 20 sequences in the 0.85-0.99
-/// coverage band, against 5 without the term.
-pub const MAP_ERROR_VAR_SCALE: f64 = 2.0;
+/// longer than the sigmas say. With the curves' chord error beside it, 1, 1.5, 2 and 3 put 10,
+/// 12, 11 and 10 of the 20 sequences in the 0.85-0.99 coverage band (without the chord error 2
+/// put 10, against 5 without either term).
+pub const MAP_ERROR_VAR_SCALE: f64 = 1.5;
 
 /// Over what stretch of road the map's offset error stays the same (metres): OSM ways are
 /// traced from the same imagery by the same mappers, so neighbouring lanes are off together.

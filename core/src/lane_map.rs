@@ -89,6 +89,9 @@ pub struct LaneMap {
     lane_info: Vec<LaneInfo>,
     /// The lane of each point (an index into the lane arrays).
     point_lane: Vec<u32>,
+    /// How far the road may lie from the segment each point owns (metres; see
+    /// [`Self::chord_error_m`]).
+    chord_error_m: Vec<f64>,
     tree: LaneTree,
     /// For a map assembled from some cells of a grid, where it answers as the whole map would.
     coverage: Option<Coverage>,
@@ -164,6 +167,25 @@ fn lane_segments(points: &[[f64; 2]]) -> impl Iterator<Item = (Option<usize>, [f
             (None, [0.0, 0.0])
         }
     })
+}
+
+/// The sagitta bound of segment `s` (points `s`, `s + 1`) of `lane` (see
+/// [`LaneMap::chord_error_m`]).
+fn chord_error(lane: &[[f64; 2]], s: usize) -> f64 {
+    let turn = |i: usize| -> f64 {
+        if i == 0 || i + 1 >= lane.len() {
+            return 0.0;
+        }
+        let (a, b, c) = (lane[i - 1], lane[i], lane[i + 1]);
+        let u = [b[0] - a[0], b[1] - a[1]];
+        let v = [c[0] - b[0], c[1] - b[1]];
+        (u[0] * v[1] - u[1] * v[0])
+            .atan2(u[0] * v[0] + u[1] * v[1])
+            .abs()
+    };
+    let (a, b) = (lane[s], lane[s + 1]);
+    let length = (b[0] - a[0]).hypot(b[1] - a[1]);
+    length * (turn(s) + turn(s + 1)) / 16.0
 }
 
 impl LaneMap {
@@ -263,6 +285,19 @@ impl LaneMap {
             .collect();
         let tree = LaneTree::new_from_slice(&points)
             .map_err(|e| LaneMapError::KdTree(format!("{e:?}")))?;
+        let chord_error_m = lane_offsets
+            .windows(2)
+            .flat_map(|w| {
+                let first = w[0] as usize;
+                let lane = &points[first..w[1] as usize];
+                segment_start[first..w[1] as usize]
+                    .iter()
+                    .map(move |&s| match s {
+                        NO_SEGMENT => 0.0,
+                        s => chord_error(lane, s as usize - first),
+                    })
+            })
+            .collect();
         Ok(LaneMap {
             points,
             segment_start,
@@ -271,6 +306,7 @@ impl LaneMap {
             lane_ids,
             lane_info,
             point_lane,
+            chord_error_m,
             tree,
             coverage: None,
             uncovered: AtomicU64::new(0),
@@ -373,6 +409,16 @@ impl LaneMap {
             self.points[s + 1],
             self.directions[j as usize],
         ))
+    }
+
+    /// How far the road may lie from the segment point `j` owns (metres): a lane is a polyline
+    /// through the mapped nodes, and a road that turns by `theta` at a node curves away from the
+    /// chords beside it; over a segment of length `L` between turns `theta_a` and `theta_b` the
+    /// arc's sagitta is about `L (theta_a + theta_b) / 16`. Zero on straight runs and for a
+    /// lane's first and last turn, which have no neighbour.
+    #[inline]
+    pub fn chord_error_m(&self, j: u32) -> f64 {
+        self.chord_error_m[j as usize]
     }
 
     /// The KD-tree over [`Self::points`]; item `j` is point `j`.

@@ -183,8 +183,10 @@ fn within_reach(p: &[f64; 2], key: CellKey, cell_size_m: f64, margin_m: f64) -> 
 
 /// The point ranges `[first, last]` of a lane of `n` points that a cell keeps: runs of its
 /// member points (ascending), each extended by the next point (whose segment the run's last
-/// point owns) or, for a run of the lane's last point alone, by the one before; overlapping or
-/// touching ranges are joined.
+/// point owns) or, for a run of the lane's last point alone, by the one before, and then by one
+/// more point at each end where the lane has one, so that every member's segment has the turns
+/// at both its ends ([`LaneMap::chord_error_m`]) as in the whole map; overlapping or touching
+/// ranges are joined. The extra points lie beyond the margin: no covered query reaches them.
 pub(super) fn pieces_of(members: &[usize], n: usize) -> Vec<[usize; 2]> {
     let mut out: Vec<[usize; 2]> = Vec::new();
     let mut k = 0;
@@ -201,7 +203,7 @@ pub(super) fn pieces_of(members: &[usize], n: usize) -> Vec<[usize; 2]> {
         } else {
             first
         };
-        let end = (last + 1).min(n - 1);
+        let (start, end) = (start.saturating_sub(1), (last + 2).min(n - 1));
         match out.last_mut() {
             Some(prev) if start <= prev[1] + 1 => prev[1] = prev[1].max(end),
             _ => out.push([start, end]),

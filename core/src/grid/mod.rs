@@ -50,7 +50,7 @@ pub use write::{
 /// The manifest's file name in a grid folder.
 pub const MANIFEST: &str = "manifest.toml";
 /// The format version of the manifest this build reads and writes.
-pub const MANIFEST_FORMAT: u32 = 1;
+pub const MANIFEST_FORMAT: u32 = 2;
 /// The largest manifest this build reads (bytes): about 300,000 cells.
 pub const MAX_MANIFEST_BYTES: u64 = 32 << 20;
 
@@ -261,7 +261,8 @@ impl Grid {
         let manifest: Manifest = toml::from_str(text).map_err(|e| bad(e.message().to_string()))?;
         if manifest.format != MANIFEST_FORMAT {
             return Err(bad(format!(
-                "manifest format {}, this build reads {MANIFEST_FORMAT}",
+                "manifest format {}, this build reads {MANIFEST_FORMAT}: compile the grid again \
+                 with this build's `lanealign-map compile --grid`",
                 manifest.format
             )));
         }
@@ -518,18 +519,22 @@ mod tests {
 
     #[test]
     fn pieces_keep_the_segment_neighbours() {
-        assert_eq!(pieces_of(&[2, 3, 4], 10), vec![[2, 5]]);
-        assert_eq!(pieces_of(&[0, 1, 5, 6], 10), vec![[0, 2], [5, 7]]);
-        assert_eq!(pieces_of(&[0, 1, 3, 4], 10), vec![[0, 5]]);
-        assert_eq!(pieces_of(&[9], 10), vec![[8, 9]]);
+        assert_eq!(pieces_of(&[2, 3, 4], 10), vec![[1, 6]]);
+        assert_eq!(pieces_of(&[0, 1, 6, 7], 10), vec![[0, 3], [5, 9]]);
+        assert_eq!(pieces_of(&[0, 1, 5, 6], 10), vec![[0, 8]]);
+        assert_eq!(pieces_of(&[9], 10), vec![[7, 9]]);
         assert_eq!(pieces_of(&[0], 1), vec![[0, 0]]);
-        assert_eq!(pieces_of(&[7, 8, 9], 10), vec![[7, 9]]);
+        assert_eq!(pieces_of(&[7, 8, 9], 10), vec![[6, 9]]);
     }
 
-    /// A town of lanes crossing many cells, with shared end points (ties) and lanes of one and
-    /// two points.
+    /// A town of lanes crossing many cells, with shared end points (ties), lanes of one and
+    /// two points, and a winding road (its segments have chord errors).
     fn town() -> LaneMap {
         let mut lanes = Vec::new();
+        let winding: Vec<[f64; 2]> = (0..90)
+            .map(|i| [i as f64 * 4.9 - 20.0, 210.0 + 25.0 * (i as f64 * 0.3).sin()])
+            .collect();
+        lanes.push(Lane::new(600, winding));
         for r in 0..12 {
             let y = r as f64 * 37.5;
             let east: Vec<[f64; 2]> = (0..90).map(|i| [i as f64 * 4.9 - 20.0, y]).collect();
@@ -628,14 +633,60 @@ mod tests {
                     };
                     assert_eq!(global(&a, &part), global(&b, &map), "query {x:?} n {n}");
                     let seg = |c: &Vec<(f64, u32)>, m: &LaneMap| -> Vec<_> {
-                        c.iter().map(|&(_, j)| m.segment_of(j)).collect()
+                        c.iter()
+                            .map(|&(_, j)| (m.segment_of(j), m.chord_error_m(j).to_bits()))
+                            .collect()
                     };
-                    assert_eq!(seg(&a, &part), seg(&b, &map));
+                    assert_eq!(seg(&a, &part), seg(&b, &map), "query {x:?} n {n}");
                 }
             }
         }
         assert!(vouched > checked / 2, "{vouched} of {checked} vouched for");
         assert!(vouched < checked, "no query went past the loaded cells");
+    }
+
+    /// Every point a loaded cell holds as its own (within the margin of its square) has the
+    /// chord error it has in the whole map: its pieces carry the neighbours of its segment's turns.
+    #[test]
+    fn held_points_have_the_whole_maps_chord_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let margin = 10.0;
+        let grid = grid_of(&town(), dir.path(), 60.0, margin);
+        let all = grid.map_of(grid.cells()).unwrap();
+        let (mut checked, mut curved) = (0, 0);
+        for x in [0.0, 55.0, 130.0, 200.0, 310.0, 390.0] {
+            let part = around(&grid, [x, 210.0], 40.0).unwrap();
+            let loaded: Vec<[f64; 4]> = part
+                .coverage()
+                .unwrap()
+                .loaded()
+                .iter()
+                .map(|&key| grid.square(key))
+                .collect();
+            for j in 0..part.len() as u32 {
+                let p = part.points()[j as usize];
+                let held = loaded.iter().any(|q| {
+                    p[0] >= q[0] - margin
+                        && p[0] <= q[2] + margin
+                        && p[1] >= q[1] - margin
+                        && p[1] <= q[3] + margin
+                });
+                if held {
+                    let k = renumber(&part, &all, j).unwrap();
+                    assert_eq!(
+                        part.chord_error_m(j).to_bits(),
+                        all.chord_error_m(k).to_bits(),
+                        "point {p:?}"
+                    );
+                    checked += 1;
+                    curved += usize::from(all.chord_error_m(k) > 0.0);
+                }
+            }
+        }
+        assert!(
+            checked > 500 && curved > 30,
+            "{checked} checked, {curved} curved"
+        );
     }
 
     /// A point renumbered from one partial map into another is the same point of the same lane,
@@ -790,7 +841,7 @@ mod tests {
         let good = std::fs::read_to_string(&path).unwrap();
         for (from, to, what) in [
             ("cell_size_m = 50.0", "cell_size_m = 0.0", "cell size"),
-            ("format = 1", "format = 7", "format 7"),
+            ("format = 2", "format = 7", "format 7"),
             ("traffic = \"right\"", "traffic = \"up\"", "traffic"),
             (
                 "margin_m = 10.0",
