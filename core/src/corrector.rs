@@ -391,8 +391,6 @@ pub struct Corrector {
     map_error: [[f64; 2]; 2],
     /// Poses carried since the last one that entered the window.
     carried: u32,
-    /// Every how many poses one enters the window ([`Params::window_stride`]).
-    window_stride: u32,
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -421,7 +419,6 @@ impl Corrector {
             uncertainty: PoseUncertainty::new(&params),
             map_error: [[0.0; 2]; 2],
             carried: 0,
-            window_stride: u32::try_from(params.window_stride()).unwrap_or(u32::MAX),
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -550,7 +547,7 @@ impl Corrector {
         self.last_position_in_anchored = Some(position_in_anchored);
         // A source faster than the presets' rate feeds only every `window_stride`-th pose to the
         // window (`Params::odometry_rate_hz`); the ones between keep the correction in force.
-        if self.carried + 1 < self.window_stride && !self.window.is_empty() {
+        if (self.carried as usize) + 1 < p.window_stride() && !self.window.is_empty() {
             self.carried += 1;
             return Step {
                 position_in_map: self.map_from_anchored.apply(position_in_anchored),

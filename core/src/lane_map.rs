@@ -183,9 +183,7 @@ fn chord_error(lane: &[[f64; 2]], s: usize) -> f64 {
             .atan2(u[0] * v[0] + u[1] * v[1])
             .abs()
     };
-    let (a, b) = (lane[s], lane[s + 1]);
-    let length = (b[0] - a[0]).hypot(b[1] - a[1]);
-    length * (turn(s) + turn(s + 1)) / 16.0
+    distance(lane[s], lane[s + 1]) * (turn(s) + turn(s + 1)) / 16.0
 }
 
 impl LaneMap {

@@ -106,8 +106,8 @@ pub const MAX_RATE_RATIO: f64 = 1.5;
 const MIN_PLAUSIBLE_INTERVAL_S: f64 = 1e-5;
 
 /// The rate (Hz) consecutive stamps (seconds, in arrival order) say the source runs at: the
-/// median interval's; `None` without at least two plausible intervals (positive and at least
-/// 10 us; a source whose stamps are counters or constant says nothing).
+/// median interval's; `None` unless at least two intervals, and half of them, are plausible
+/// (at least 10 us; a source whose stamps are counters or constant says nothing).
 pub fn rate_from_stamps(stamps_s: &[f64]) -> Option<f64> {
     let mut intervals: Vec<f64> = stamps_s
         .windows(2)
@@ -136,12 +136,20 @@ pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
     })
 }
 
-/// Gathers a session's first stamps to tell its rate once (see [`rate_from_stamps`]), without
-/// allocating per pose.
-#[derive(Clone, Debug, Default)]
+/// Gathers a session's first stamps to tell its rate once (see [`rate_from_stamps`]).
+#[derive(Clone, Debug)]
 pub struct RateProbe {
-    stamps_s: Vec<f64>,
-    done: bool,
+    stamps_s: [f64; RateProbe::STAMPS],
+    seen: usize,
+}
+
+impl Default for RateProbe {
+    fn default() -> Self {
+        RateProbe {
+            stamps_s: [0.0; RateProbe::STAMPS],
+            seen: 0,
+        }
+    }
 }
 
 impl RateProbe {
@@ -151,20 +159,13 @@ impl RateProbe {
     /// Takes the next stamp (seconds); returns the rate once, when enough stamps are in (and
     /// `None` for good after, or when the stamps tell no rate).
     pub fn observe(&mut self, stamp_s: f64) -> Option<f64> {
-        if self.done {
+        let slot = self.stamps_s.get_mut(self.seen)?;
+        *slot = stamp_s;
+        self.seen += 1;
+        if self.seen < Self::STAMPS {
             return None;
         }
-        if self.stamps_s.capacity() == 0 {
-            self.stamps_s.reserve_exact(Self::STAMPS);
-        }
-        self.stamps_s.push(stamp_s);
-        if self.stamps_s.len() < Self::STAMPS {
-            return None;
-        }
-        self.done = true;
-        let rate = rate_from_stamps(&self.stamps_s);
-        self.stamps_s = Vec::new();
-        rate
+        rate_from_stamps(&self.stamps_s)
     }
 }
 
