@@ -12,6 +12,12 @@
 //! itself as odometry, which shows the error the map alone induces (a perfect corrector leaves
 //! it untouched).
 //!
+//! `--jitter N` also corrects N copies of every run whose translations are moved by a seeded
+//! uniform amount of at most [`JITTER_M`] (1 micrometre, far below any odometry's precision), and
+//! adds to the summary the range of each figure over the copies. The runs are chaotic across the
+//! step's thresholds (docs/method.md, "Caveats"): a difference between variants inside that range
+//! is noise.
+//!
 //! It keeps the tables (markdown and CSV) and, per pair, a plot of each variant's mean APE-2D per
 //! sequence in `results/ablation/<UTC time>/` (`--results DIR` for another parent), `latest`
 //! pointing at it.
@@ -24,6 +30,7 @@ use anyhow::Context;
 use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::report::{self, Table};
+use lanealign_cli::synthetic::Lcg;
 use lanealign_cli::{plots, results};
 use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::MatchMode;
@@ -50,6 +57,25 @@ const PAIRS: [(&str, Preset); 8] = [
     ("lidar", Preset::Basalt),
     ("stereo_vo", Preset::Liodom),
 ];
+
+/// How far `--jitter` moves each coordinate of an odometry position at most (metres).
+const JITTER_M: f64 = 1e-6;
+
+/// `odom` with every translation coordinate moved by a uniform amount in `[-JITTER_M, JITTER_M)`,
+/// the same on every machine for one `seed`; copy 0 is `odom` itself.
+fn jittered(odom: &[Pose3], seed: u64) -> Vec<Pose3> {
+    let mut poses = odom.to_vec();
+    if seed == 0 {
+        return poses;
+    }
+    let mut rng = Lcg(seed);
+    for pose in &mut poses {
+        for v in pose.translation.iter_mut() {
+            *v += (2.0 * rng.uniform() - 1.0) * JITTER_M;
+        }
+    }
+    poses
+}
 
 #[derive(Clone)]
 struct Variant {
@@ -111,7 +137,8 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
 
 struct Sequence {
     gt: Vec<Pose3>,
-    odom: Vec<Pose3>,
+    /// The odometry run, then its jittered copies (`--jitter`).
+    odom: Vec<Vec<Pose3>>,
 }
 
 struct Map {
@@ -129,7 +156,12 @@ struct Outcome {
     calibration: Calibration,
 }
 
-fn load(data: &std::path::Path, odometry: &str, seq: &str) -> anyhow::Result<Sequence> {
+fn load(
+    data: &std::path::Path,
+    odometry: &str,
+    seq: &str,
+    jitter: u64,
+) -> anyhow::Result<Sequence> {
     let gt = read(&data.join(format!("kitti/poses/{seq}.txt")), Format::Kitti)?;
     let odom = match odometry {
         "gt" => gt.clone(),
@@ -138,9 +170,16 @@ fn load(data: &std::path::Path, odometry: &str, seq: &str) -> anyhow::Result<Seq
             Format::Kitti,
         )?,
     };
+    // One seed per copy, run and sequence, so that no two runs are moved alike.
+    let seed = |copy: u64| {
+        let name: u64 = odometry.bytes().fold(0, |h, b| h * 31 + u64::from(b));
+        copy * 1_000_003 + name * 101 + seq.parse::<u64>().unwrap_or(0)
+    };
     Ok(Sequence {
         gt: gt.poses,
-        odom: odom.poses,
+        odom: (0..=jitter)
+            .map(|copy| jittered(&odom.poses, if copy == 0 { 0 } else { seed(copy) }))
+            .collect(),
     })
 }
 
@@ -163,7 +202,13 @@ fn load_map(data: &std::path::Path, seq: &str, unmarked: f64) -> anyhow::Result<
     })
 }
 
-fn run(s: &Sequence, map: &Map, preset: Preset, v: &Variant) -> anyhow::Result<Outcome> {
+fn run(
+    s: &Sequence,
+    copy: usize,
+    map: &Map,
+    preset: Preset,
+    v: &Variant,
+) -> anyhow::Result<Outcome> {
     let cam = AxisConvention::KittiCamera;
     let params = CorrectorConfig {
         overrides: v.overrides,
@@ -180,11 +225,11 @@ fn run(s: &Sequence, map: &Map, preset: Preset, v: &Variant) -> anyhow::Result<O
         params,
         MatchMode::Fast,
         placement,
-        &s.odom,
+        &s.odom[copy],
     );
     let planar = |p: &[Pose3]| -> Vec<Pose3> { p.iter().map(|p| cam.to_planar(p)).collect() };
     let gt = planar(&s.gt);
-    let raw = planar(&s.odom);
+    let raw = planar(&s.odom[copy]);
     let est: Vec<Pose3> = out.iter().map(|c| cam.to_planar(&c.pose)).collect();
     let raw_ape = ape_2d(&gt, &raw)?;
     let ape = ape_2d(&gt, &est)?;
@@ -209,6 +254,15 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let data = data_dir_from_args(&args)?;
     let per_sequence = args.iter().any(|a| a == "--per-sequence");
+    let jitter: u64 = match args.iter().position(|a| a == "--jitter") {
+        Some(i) => args
+            .get(i + 1)
+            .context("--jitter takes a number of copies")?
+            .parse()
+            .context("--jitter takes a number of copies")?,
+        None => 0,
+    };
+    let copies = jitter as usize + 1;
     let custom: Vec<Variant> = args
         .windows(2)
         .filter(|w| w[0] == "--variant")
@@ -239,7 +293,7 @@ fn main() -> anyhow::Result<()> {
     let mut loaded = HashMap::new();
     for &odometry in &odometries {
         for seq in SEQUENCES {
-            loaded.insert((odometry, seq), load(&data, odometry, seq)?);
+            loaded.insert((odometry, seq), load(&data, odometry, seq, jitter)?);
         }
     }
     let mut maps = HashMap::new();
@@ -252,8 +306,9 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
-    let jobs: Vec<(usize, usize, &str)> = (0..pairs.len())
+    let jobs: Vec<(usize, usize, &str, usize)> = (0..pairs.len())
         .flat_map(|p| (0..variants.len()).flat_map(move |v| SEQUENCES.map(|s| (p, v, s))))
+        .flat_map(|(p, v, s)| (0..copies).map(move |c| (p, v, s, c)))
         .collect();
     let next = AtomicUsize::new(0);
     let results = Mutex::new(HashMap::new());
@@ -262,17 +317,17 @@ fn main() -> anyhow::Result<()> {
         for _ in 0..2 {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&(p, v, seq)) = jobs.get(i) else {
+                let Some(&(p, v, seq, copy)) = jobs.get(i) else {
                     break;
                 };
                 let (odometry, preset) = (pairs[p].0.as_str(), pairs[p].1);
                 let variant = &variants[v];
                 let map = &maps[&(seq, variant.unmarked.to_bits())];
-                let outcome = run(&loaded[&(odometry, seq)], map, preset, variant);
+                let outcome = run(&loaded[&(odometry, seq)], copy, map, preset, variant);
                 results
                     .lock()
                     .expect("no worker panics")
-                    .insert((p, v, seq), outcome);
+                    .insert((p, v, seq, copy), outcome);
                 progress.inc(1);
             });
         }
@@ -280,10 +335,22 @@ fn main() -> anyhow::Result<()> {
     progress.finish_and_clear();
     let dir = results::create(&results::parent_from_args(&args, "results/ablation"))?;
     let results = results.into_inner().expect("no worker panics");
-    let get = |p: usize, v: usize, seq: &'static str| -> anyhow::Result<&Outcome> {
-        results[&(p, v, seq)]
-            .as_ref()
-            .map_err(|e| anyhow::anyhow!("{} {seq}: {e:#}", pairs[p].0))
+    let get_copy =
+        |p: usize, v: usize, seq: &'static str, copy: usize| -> anyhow::Result<&Outcome> {
+            results[&(p, v, seq, copy)]
+                .as_ref()
+                .map_err(|e| anyhow::anyhow!("{} {seq}: {e:#}", pairs[p].0))
+        };
+    let get = |p: usize, v: usize, seq: &'static str| get_copy(p, v, seq, 0);
+    // The mean over the sequences and the worst (corrected - raw) mean of one, for one copy.
+    let figures = |p: usize, v: usize, copy: usize| -> anyhow::Result<(f64, f64)> {
+        let (mut mean, mut excess) = (0.0, f64::MIN);
+        for seq in SEQUENCES {
+            let o = get_copy(p, v, seq, copy)?;
+            mean += o.mean / SEQUENCES.len() as f64;
+            excess = excess.max(o.mean - o.raw_mean);
+        }
+        Ok((mean, excess))
     };
     let names = |first: &[&str]| -> Vec<String> {
         first
@@ -292,19 +359,24 @@ fn main() -> anyhow::Result<()> {
             .chain(variants.iter().map(|v| v.name.clone()))
             .collect()
     };
+    let mut columns: Vec<String> = [
+        "odometry",
+        "preset",
+        "variant",
+        "mean APE-2D",
+        "worst excess",
+        "worst max excess",
+        "jumps (m / deg)",
+    ]
+    .map(String::from)
+    .to_vec();
+    if jitter > 0 {
+        columns.push(format!("mean, {jitter} jittered copies"));
+        columns.push(format!("worst excess, {jitter} jittered copies"));
+    }
     let mut summary = Table::new(
-        "Mean APE-2D over the ten sequences (metres); worst excess: the largest (corrected - raw) mean APE of a sequence; worst max excess: the largest (corrected - raw) maximum error; jumps: the largest frame-to-frame change beyond the odometry's motion.",
-        [
-            "odometry",
-            "preset",
-            "variant",
-            "mean APE-2D",
-            "worst excess",
-            "worst max excess",
-            "jumps (m / deg)",
-        ]
-        .map(String::from)
-        .to_vec(),
+        "Mean APE-2D over the ten sequences (metres); worst excess: the largest (corrected - raw) mean APE of a sequence; worst max excess: the largest (corrected - raw) maximum error; jumps: the largest frame-to-frame change beyond the odometry's motion; with --jitter, the range (min - max) of the first two over copies of the runs moved by at most 1 micrometre.",
+        columns,
     );
     for (p, (odometry, preset)) in pairs.iter().enumerate() {
         let raw: f64 = SEQUENCES
@@ -312,14 +384,19 @@ fn main() -> anyhow::Result<()> {
             .map(|&s| get(p, 0, s).map(|o| o.raw_mean))
             .sum::<anyhow::Result<f64>>()?
             / SEQUENCES.len() as f64;
-        let row = |cells: [&str; 5]| {
+        let row = |cells: &[&str]| {
             [odometry.as_str(), preset.name()]
                 .into_iter()
-                .chain(cells)
+                .chain(cells.iter().copied())
                 .map(String::from)
                 .collect()
         };
-        summary.push(row(["raw", &format!("{raw:.3}"), "", "", ""]));
+        let raw_text = format!("{raw:.3}");
+        let mut raw_cells = vec!["raw", raw_text.as_str(), "", "", ""];
+        if jitter > 0 {
+            raw_cells.extend(["", ""]);
+        }
+        summary.push(row(&raw_cells));
         for (v, variant) in variants.iter().enumerate() {
             let (mut mean, mut excess, mut max_excess, mut jm, mut jd) =
                 (0.0, f64::MIN, f64::MIN, 0.0f64, 0.0f64);
@@ -331,13 +408,30 @@ fn main() -> anyhow::Result<()> {
                 jm = jm.max(o.jump_m);
                 jd = jd.max(o.jump_deg);
             }
-            summary.push(row([
-                &variant.name,
-                &format!("{mean:.3}"),
-                &format!("{excess:+.3}"),
-                &format!("{max_excess:+.2}"),
-                &format!("{jm:.3} / {jd:.3}"),
-            ]));
+            let mut cells = vec![
+                variant.name.clone(),
+                format!("{mean:.3}"),
+                format!("{excess:+.3}"),
+                format!("{max_excess:+.2}"),
+                format!("{jm:.3} / {jd:.3}"),
+            ];
+            if jitter > 0 {
+                let copies: Vec<(f64, f64)> = (1..copies)
+                    .map(|c| figures(p, v, c))
+                    .collect::<anyhow::Result<_>>()?;
+                let range = |f: fn(&(f64, f64)) -> f64, signed: bool| {
+                    let lo = copies.iter().map(f).fold(f64::INFINITY, f64::min);
+                    let hi = copies.iter().map(f).fold(f64::NEG_INFINITY, f64::max);
+                    if signed {
+                        format!("{lo:+.3} - {hi:+.3}")
+                    } else {
+                        format!("{lo:.3} - {hi:.3}")
+                    }
+                };
+                cells.push(range(|c| c.0, false));
+                cells.push(range(|c| c.1, true));
+            }
+            summary.push(row(&cells.iter().map(String::as_str).collect::<Vec<_>>()));
         }
         let seqs: Vec<f64> = SEQUENCES
             .iter()
