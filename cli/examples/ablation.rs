@@ -128,6 +128,7 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
         "robust, no lane tolerance:lane_tolerance_m=0",
         "robust, no match gate:max_match_distance_m=inf",
         "robust, no window path limit:max_window_path_m=inf",
+        "robust, newest matches trimmed:untrimmed_newest=0",
         "robust, smooth:+smooth",
     ]
     .into_iter()

@@ -615,6 +615,7 @@ impl Corrector {
                     max_iterations: p.icp_max_iterations,
                     tolerance_m: p.icp_tolerance_m,
                     tolerance_band_m: p.lane_tolerance_m,
+                    untrimmed_newest: p.untrimmed_newest,
                 };
                 let icp_start = Instant::now();
                 let fit = trimmed_icp(&self.correspondences, &icp_params, &mut self.icp);

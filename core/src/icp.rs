@@ -4,7 +4,8 @@
 //! transformed sources, fits a rigid transform to them and applies it to every source. Without a
 //! tolerance band the fit is the closed-form 2D Kabsch, exactly the paper's. With a band the
 //! objective (squared distance to the band's edge) has no closed form: each iteration takes a
-//! damped Newton step on it, halved until the trimmed objective does not grow.
+//! damped Newton step on it, halved until the trimmed objective does not grow, and the trim ranks
+//! the newest pairs as fitting ([`IcpParams::untrimmed_newest`]).
 
 use crate::matching::Correspondence;
 use crate::se2::Se2;
@@ -22,6 +23,10 @@ pub struct IcpParams {
     /// zero residual, one farther away is pulled only onto the band's edge. 0 is the paper's
     /// point-to-point ICP.
     pub tolerance_band_m: f64,
+    /// With a band: how many of the last pairs (the newest matched poses) rank as fitting (zero
+    /// residual) in the trim, whatever their residuals (see
+    /// [`crate::params::Params::untrimmed_newest`]). Without a band the trim is the paper's.
+    pub untrimmed_newest: usize,
 }
 
 /// The outcome of one trimmed ICP run.
@@ -114,26 +119,40 @@ fn band_residual(source: [f64; 2], target: [f64; 2], band: f64) -> f64 {
 }
 
 /// The indices of the `k` smallest residuals, in index order, ties at the cut going to the lowest
-/// indices: the set a stable sort by residual would keep. Linear time.
-fn keep_smallest(residuals: &[f64], k: usize, sorted: &mut Vec<f64>, kept: &mut Vec<u32>) {
+/// indices: the set a stable sort by residual would keep. Residuals from index `fitting_from` on
+/// rank as zero. Linear time.
+fn keep_smallest(
+    residuals: &[f64],
+    k: usize,
+    fitting_from: usize,
+    sorted: &mut Vec<f64>,
+    kept: &mut Vec<u32>,
+) {
     kept.clear();
-    if k >= residuals.len() {
-        kept.extend(0..residuals.len() as u32);
+    let n = residuals.len();
+    if k >= n {
+        kept.extend(0..n as u32);
         return;
     }
+    let from = fitting_from.min(n);
+    let ranked = &residuals[..from];
     // Residuals are never negative, and with a tolerance band most are zero (poses inside it):
     // the cut is looked for among the others only.
-    let zeros = residuals.iter().filter(|&&r| r == 0.0).count();
+    let zeros = ranked.iter().filter(|&&r| r == 0.0).count() + (n - from);
     let (cut, below) = if zeros >= k {
         (0.0, 0)
     } else {
         sorted.clear();
-        sorted.extend(residuals.iter().copied().filter(|&r| r != 0.0));
+        sorted.extend(ranked.iter().copied().filter(|&r| r != 0.0));
         let (left, &mut cut, _) = sorted.select_nth_unstable_by(k - zeros - 1, f64::total_cmp);
         (cut, zeros + left.iter().filter(|&&r| r < cut).count())
     };
     let mut ties_kept = k - below;
-    for (i, &r) in residuals.iter().enumerate() {
+    let rank = ranked
+        .iter()
+        .copied()
+        .chain(std::iter::repeat_n(0.0, n - from));
+    for (i, r) in rank.enumerate() {
         if r < cut {
             kept.push(i as u32);
         } else if r == cut && ties_kept > 0 {
@@ -173,7 +192,12 @@ pub fn trimmed_icp(
         &mut scratch.residuals,
     );
     if band > 0.0 {
-        banded_icp(n, params, scratch)
+        banded_icp(
+            n,
+            params,
+            n.saturating_sub(params.untrimmed_newest),
+            scratch,
+        )
     } else {
         paper_icp(n, params, scratch)
     }
@@ -196,7 +220,7 @@ fn paper_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResul
     let mut iterations = 0;
     while iterations < params.max_iterations {
         iterations += 1;
-        keep_smallest(residuals, k, sorted, kept);
+        keep_smallest(residuals, k, usize::MAX, sorted, kept);
         let step = fit_rigid(sources, targets, kept);
         for (s, (r, &q)) in sources
             .iter_mut()
@@ -225,7 +249,12 @@ const MAX_HALVINGS: u32 = 12;
 /// The banded iteration: trim, a Newton step on the kept pairs outside the band, halved until the
 /// trimmed sum of squares does not grow, apply to every source. Stops when the mean kept residual
 /// changes by less than the tolerance or no step reduces the objective.
-fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResult {
+fn banded_icp(
+    n: usize,
+    params: &IcpParams,
+    fitting_from: usize,
+    scratch: &mut IcpScratch,
+) -> IcpResult {
     let k = kept_count(n, params.trim_ratio);
     let band = params.tolerance_band_m;
     let IcpScratch {
@@ -239,7 +268,7 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
         trial_kept,
         ..
     } = scratch;
-    keep_smallest(residuals, k, sorted, kept);
+    keep_smallest(residuals, k, fitting_from, sorted, kept);
     let mut cost = sum_of_squares(residuals, kept);
     let mut residual_m = mean_kept(residuals, kept, k);
     let mut transform = Se2::IDENTITY;
@@ -256,7 +285,7 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
             trial_sources.clear();
             trial_sources.extend(sources.iter().map(|&s| step.apply(s)));
             fill_band_residuals(trial_sources, targets, band, trial_residuals);
-            keep_smallest(trial_residuals, k, sorted, trial_kept);
+            keep_smallest(trial_residuals, k, fitting_from, sorted, trial_kept);
             let trial_cost = sum_of_squares(trial_residuals, trial_kept);
             if trial_cost <= cost {
                 accepted = Some((step, trial_cost));
@@ -451,6 +480,7 @@ mod tests {
             max_iterations: 50,
             tolerance_m: 1e-8,
             tolerance_band_m: 0.0,
+            untrimmed_newest: 0,
         };
         let r = trimmed_icp(&pairs, &params, &mut IcpScratch::default());
         assert!(r.residual_m < 1e-9, "residual {}", r.residual_m);
@@ -480,6 +510,7 @@ mod tests {
             max_iterations: 50,
             tolerance_m: 1e-12,
             tolerance_band_m: band,
+            untrimmed_newest: 0,
         };
         let paper = trimmed_icp(&pairs, &params(0.0), &mut IcpScratch::default());
         assert!(
@@ -543,17 +574,92 @@ mod tests {
         keep_smallest(
             &[3.0, 1.0, 2.0, 1.0, 2.0, 2.0, 0.5],
             4,
+            usize::MAX,
             &mut sorted,
             &mut kept,
         );
         assert_eq!(kept, vec![1, 2, 3, 6]);
-        keep_smallest(&[1.0, 1.0, 1.0], 2, &mut sorted, &mut kept);
+        keep_smallest(&[1.0, 1.0, 1.0], 2, usize::MAX, &mut sorted, &mut kept);
         assert_eq!(kept, vec![0, 1]);
         // Zeros (inside a tolerance band) decide alone, or with the smallest of the rest.
-        keep_smallest(&[0.0, 2.0, 0.0, 1.0, 0.0], 2, &mut sorted, &mut kept);
+        keep_smallest(
+            &[0.0, 2.0, 0.0, 1.0, 0.0],
+            2,
+            usize::MAX,
+            &mut sorted,
+            &mut kept,
+        );
         assert_eq!(kept, vec![0, 2]);
-        keep_smallest(&[0.0, 2.0, 0.0, 1.0, 1.0], 3, &mut sorted, &mut kept);
+        keep_smallest(
+            &[0.0, 2.0, 0.0, 1.0, 1.0],
+            3,
+            usize::MAX,
+            &mut sorted,
+            &mut kept,
+        );
         assert_eq!(kept, vec![0, 2, 3]);
+    }
+
+    #[test]
+    fn the_newest_rank_as_fitting() {
+        let (mut sorted, mut kept) = (Vec::new(), Vec::new());
+        // The two largest residuals are the newest: ranked as zero, they are kept and the cut
+        // falls among the others.
+        let residuals = [0.0, 0.5, 0.0, 0.3, 0.0, 2.0, 3.0];
+        keep_smallest(&residuals, 6, usize::MAX, &mut sorted, &mut kept);
+        assert_eq!(kept, vec![0, 1, 2, 3, 4, 5]);
+        keep_smallest(&residuals, 6, 5, &mut sorted, &mut kept);
+        assert_eq!(kept, vec![0, 2, 3, 4, 5, 6]);
+        // Where the others fit, the newest do not make the fit run: ties at zero go to the lowest
+        // indices, so the kept set is the older zeros.
+        let residuals = [0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 3.0];
+        keep_smallest(&residuals, 5, 5, &mut sorted, &mut kept);
+        assert_eq!(kept, vec![0, 1, 2, 3, 4]);
+    }
+
+    /// A straight lane along x; the older 40 poses of 50 lie inside the band, 6 beyond it by a
+    /// drift of `0.5 m` and the newest 4 by twice that. With a 10 % trim the newest are the
+    /// outliers the paper's trim drops; ranked as fitting they pull the fit with the others.
+    #[test]
+    fn untrimmed_newest_matches_pull_the_fit() {
+        let pairs: Vec<Correspondence> = (0..50)
+            .map(|i| {
+                let lateral = match i {
+                    0..40 => 0.5,
+                    40..46 => 1.5,
+                    _ => 2.0,
+                };
+                let x = i as f64;
+                Correspondence {
+                    index: i,
+                    source: [x, lateral],
+                    target: [x, 0.0],
+                    point: 0,
+                }
+            })
+            .collect();
+        let fit = |untrimmed_newest| {
+            let params = IcpParams {
+                trim_ratio: 0.1,
+                max_iterations: 50,
+                tolerance_m: 1e-12,
+                tolerance_band_m: 1.0,
+                untrimmed_newest,
+            };
+            trimmed_icp(&pairs, &params, &mut IcpScratch::default())
+        };
+        let trimmed = fit(0);
+        let kept = fit(4);
+        // Where the newest pose ends up across the lane (metres). Trimmed: the fit pulls the 6
+        // onto the band's edge and leaves the newest 1 m beyond it; kept, they pull too and the
+        // newest ends up nearer the lane.
+        let newest = |r: &IcpResult| r.transform.apply(pairs[49].source)[1];
+        assert!(
+            (newest(&trimmed) - 1.5).abs() < 1e-6,
+            "{}",
+            newest(&trimmed)
+        );
+        assert!(newest(&kept) < 1.4, "{}", newest(&kept));
     }
 
     #[test]

@@ -41,6 +41,13 @@ pub struct Params {
     /// lane match counts as on the lane; ICP pulls farther ones only onto the band's edge. 0 =
     /// paper.
     pub lane_tolerance_m: f64,
+    /// Beyond the paper: how many of the window's newest matched poses the trim ranks as fitting
+    /// the lanes, whatever their residuals. No alignment has seen them yet, so their residuals
+    /// carry the drift since the last step and, with the band, they were the first the trim
+    /// dropped as outliers: the fit then never saw the new drift. Ranked as fitting, they are
+    /// never trimmed while the fit runs, and they do not by themselves make it run (the gate
+    /// still drops a match too far off). 0 = paper.
+    pub untrimmed_newest: usize,
     /// Beyond the paper: largest distance between a pose and its lane match (metres) right after
     /// an accepted step; it widens by `drift_per_m` per metre travelled since. Infinite = paper.
     pub max_match_distance_m: f64,
@@ -67,6 +74,11 @@ pub struct Params {
     /// ([`crate::corrector::Status::Carried`]), so that its window spans the same stretch of road.
     pub odometry_rate_hz: f64,
 }
+
+/// How many newest window poses the robust method's trim ranks as fitting
+/// ([`Params::untrimmed_newest`]): the two whose matches rest on the newest position (a pose's
+/// direction is taken towards the next one, the newest's from the one before).
+pub const UNTRIMMED_NEWEST: usize = 2;
 
 /// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
 pub const PRESET_RATE_HZ: f64 = 10.0;
@@ -196,6 +208,7 @@ impl Preset {
             icp_tolerance_m: 1e-8,
             max_window_path_m: f64::INFINITY,
             lane_tolerance_m: 0.0,
+            untrimmed_newest: 0,
             max_match_distance_m: f64::INFINITY,
             drift_per_m: 0.0,
             drift_var_per_m,
@@ -234,6 +247,7 @@ impl Preset {
         Params {
             max_window_path_m,
             lane_tolerance_m: 1.0,
+            untrimmed_newest: UNTRIMMED_NEWEST,
             max_match_distance_m: 3.0,
             drift_per_m,
             min_evidence_ratio,
@@ -298,6 +312,13 @@ impl Params {
             return Err(invalid(
                 "max_window",
                 self.max_window,
+                "must be at most 1e6",
+            ));
+        }
+        if self.untrimmed_newest > 1_000_000 {
+            return Err(invalid(
+                "untrimmed_newest",
+                self.untrimmed_newest,
                 "must be at most 1e6",
             ));
         }
@@ -450,6 +471,9 @@ pub struct Overrides {
     /// See [`Params::odometry_rate_hz`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub odometry_rate_hz: Option<f64>,
+    /// See [`Params::untrimmed_newest`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub untrimmed_newest: Option<usize>,
 }
 
 impl Overrides {
@@ -481,6 +505,7 @@ impl Overrides {
                 .unwrap_or(base.initial_sigma_yaw_deg),
             min_evidence_ratio: self.min_evidence_ratio.unwrap_or(base.min_evidence_ratio),
             odometry_rate_hz: self.odometry_rate_hz.unwrap_or(base.odometry_rate_hz),
+            untrimmed_newest: self.untrimmed_newest.unwrap_or(base.untrimmed_newest),
         }
     }
 }
