@@ -62,12 +62,9 @@ const PAIRS: [(&str, Preset); 8] = [
 const JITTER_M: f64 = 1e-6;
 
 /// `odom` with every translation coordinate moved by a uniform amount in `[-JITTER_M, JITTER_M)`,
-/// the same on every machine for one `seed`; copy 0 is `odom` itself.
+/// the same on every machine for one `seed`.
 fn jittered(odom: &[Pose3], seed: u64) -> Vec<Pose3> {
     let mut poses = odom.to_vec();
-    if seed == 0 {
-        return poses;
-    }
     let mut rng = Lcg(seed);
     for pose in &mut poses {
         for v in pose.translation.iter_mut() {
@@ -172,15 +169,20 @@ fn load(
         )?,
     };
     // One seed per copy, run and sequence, so that no two runs are moved alike.
+    let name = odometry
+        .bytes()
+        .fold(0u64, |h, b| h.wrapping_mul(31).wrapping_add(u64::from(b)));
     let seed = |copy: u64| {
-        let name: u64 = odometry.bytes().fold(0, |h, b| h * 31 + u64::from(b));
-        copy * 1_000_003 + name * 101 + seq.parse::<u64>().unwrap_or(0)
+        copy.wrapping_mul(1_000_003)
+            .wrapping_add(name.wrapping_mul(101))
+            .wrapping_add(seq.parse::<u64>().unwrap_or(0))
     };
+    let copies: Vec<Vec<Pose3>> = (1..=jitter)
+        .map(|copy| jittered(&odom.poses, seed(copy)))
+        .collect();
     Ok(Sequence {
         gt: gt.poses,
-        odom: (0..=jitter)
-            .map(|copy| jittered(&odom.poses, if copy == 0 { 0 } else { seed(copy) }))
-            .collect(),
+        odom: std::iter::once(odom.poses).chain(copies).collect(),
     })
 }
 
