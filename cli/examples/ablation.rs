@@ -401,12 +401,10 @@ fn main() -> anyhow::Result<()> {
         }
         summary.push(row(&raw_cells));
         for (v, variant) in variants.iter().enumerate() {
-            let (mut mean, mut excess, mut max_excess, mut jm, mut jd) =
-                (0.0, f64::MIN, f64::MIN, 0.0f64, 0.0f64);
+            let (mean, excess) = figures(p, v, 0)?;
+            let (mut max_excess, mut jm, mut jd) = (f64::MIN, 0.0f64, 0.0f64);
             for seq in SEQUENCES {
                 let o = get(p, v, seq)?;
-                mean += o.mean / SEQUENCES.len() as f64;
-                excess = excess.max(o.mean - o.raw_mean);
                 max_excess = max_excess.max(o.max - o.raw_max);
                 jm = jm.max(o.jump_m);
                 jd = jd.max(o.jump_deg);

@@ -551,12 +551,9 @@ impl Corrector {
             self.carried += 1;
             return Step {
                 position_in_map: self.map_from_anchored.apply(position_in_anchored),
-                map_from_anchored: self.map_from_anchored,
-                covariance: self.covariance(),
-                status: Status::Carried {
+                ..self.step(Status::Carried {
                     window_len: self.window.len(),
-                },
-                timing: StepTiming::default(),
+                })
             };
         }
         self.carried = 0;

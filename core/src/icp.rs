@@ -192,12 +192,7 @@ pub fn trimmed_icp(
         &mut scratch.residuals,
     );
     if band > 0.0 {
-        banded_icp(
-            n,
-            params,
-            n.saturating_sub(params.untrimmed_newest),
-            scratch,
-        )
+        banded_icp(n, params, scratch)
     } else {
         paper_icp(n, params, scratch)
     }
@@ -249,13 +244,9 @@ const MAX_HALVINGS: u32 = 12;
 /// The banded iteration: trim, a Newton step on the kept pairs outside the band, halved until the
 /// trimmed sum of squares does not grow, apply to every source. Stops when the mean kept residual
 /// changes by less than the tolerance or no step reduces the objective.
-fn banded_icp(
-    n: usize,
-    params: &IcpParams,
-    fitting_from: usize,
-    scratch: &mut IcpScratch,
-) -> IcpResult {
+fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResult {
     let k = kept_count(n, params.trim_ratio);
+    let fitting_from = n.saturating_sub(params.untrimmed_newest);
     let band = params.tolerance_band_m;
     let IcpScratch {
         sources,

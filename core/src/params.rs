@@ -75,11 +75,6 @@ pub struct Params {
     pub odometry_rate_hz: f64,
 }
 
-/// How many newest window poses the robust method's trim ranks as fitting
-/// ([`Params::untrimmed_newest`]): the two whose matches rest on the newest position (a pose's
-/// direction is taken towards the next one, the newest's from the one before).
-pub const UNTRIMMED_NEWEST: usize = 2;
-
 /// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
 pub const PRESET_RATE_HZ: f64 = 10.0;
 
@@ -244,10 +239,13 @@ impl Preset {
             Preset::Liodom | Preset::KissIcp => 0.02,
             Preset::Basalt | Preset::OrbSlam3 => 0.2,
         };
+        // The trim ranks the two newest matched poses as fitting: the matches of both rest on the
+        // newest position (a pose's direction is taken towards the next one, the newest's from
+        // the one before), which no alignment has seen yet.
         Params {
             max_window_path_m,
             lane_tolerance_m: 1.0,
-            untrimmed_newest: UNTRIMMED_NEWEST,
+            untrimmed_newest: 2,
             max_match_distance_m: 3.0,
             drift_per_m,
             min_evidence_ratio,
