@@ -391,26 +391,36 @@ fn prove(
         }
         Some(best) => {
             let mut partner = None;
+            // The others that could get ahead of `best`, and their least room.
+            let (mut margin, mut others_ahead) = (f64::INFINITY, 0);
             for &k in keys
                 .iter()
                 .filter(|k| k.1 != best.1 && could_lead(**k, best))
             {
-                if fails_within(k.1) <= MIN_MARGIN {
+                let room = fails_within(k.1);
+                if room <= MIN_MARGIN {
                     if partner.is_some() {
                         return None;
                     }
                     partner = Some(k);
+                } else {
+                    margin = margin.min(room);
+                    others_ahead += 1;
                 }
             }
-            // Whichever of the two ranks later decides who could get ahead of the chosen one.
-            let last = partner.filter(|&p| key_less(best, p)).unwrap_or(best);
-            let mut margin = f64::INFINITY;
-            let mut can_get_ahead = usize::from(partner.is_some());
-            let others = |k: &&Key| k.1 != best.1 && Some(k.1) != partner.map(|p| p.1);
-            for &k in keys.iter().filter(others).filter(|k| could_lead(**k, last)) {
-                margin = margin.min(fails_within(k.1));
-                can_get_ahead += 1;
+            // Whichever of the two ranks later decides who could get ahead of the chosen one:
+            // when that is the partner, count again against it.
+            if let Some(p) = partner.filter(|&p| key_less(best, p)) {
+                (margin, others_ahead) = (f64::INFINITY, 0);
+                for &k in keys
+                    .iter()
+                    .filter(|k| k.1 != best.1 && k.1 != p.1 && could_lead(**k, p))
+                {
+                    margin = margin.min(fails_within(k.1));
+                    others_ahead += 1;
+                }
             }
+            let can_get_ahead = usize::from(partner.is_some()) + others_ahead;
             if can_get_ahead >= params.neighbours {
                 return None;
             }
