@@ -312,6 +312,18 @@ fn match_one(
     let mut radius = FIRST_RADIUS;
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
+            // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
+            // within the deciding distance plus twice the contender margin (a partner may lie
+            // up to one margin beyond the answer, and its contenders one more).
+            let wanted = (reach.sqrt() + 2.0 * CONTENDER_MARGIN) * (1.0 - RADIUS_MARGIN);
+            // A set built where the pose was before it was corrected by metres still decides,
+            // but may be too narrow here for a proof, and the pose would then be decided anew
+            // on every step: build it here (and decide again, the same answer) instead.
+            if wanted > reliable_radius(map, &cache.wide, x) && cache.wide.anchor != x {
+                radius = radius.max(2.0 * wanted);
+                rebuild(map, &mut cache.wide, tree_scratch, x, radius);
+                continue;
+            }
             // The answer rests on every point within the deciding distance (and the proof
             // below on two contender margins more); with fewer than N points in the whole
             // map and none passing, on all of them.
@@ -323,10 +335,6 @@ fn match_one(
                 };
                 map.note_query(x, needed);
             }
-            // `keys` holds the wide set's reliable candidates at `x`; a proof needs every point
-            // within the deciding distance plus twice the contender margin (a partner may lie
-            // up to one margin beyond the answer, and its contenders one more).
-            let wanted = (reach.sqrt() + 2.0 * CONTENDER_MARGIN) * (1.0 - RADIUS_MARGIN);
             cache.proof = None;
             if wanted <= reliable_radius(map, &cache.wide, x) {
                 let w2 = wanted * wanted;
