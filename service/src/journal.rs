@@ -219,7 +219,8 @@ pub struct Record {
 impl Record {
     /// The record's bytes, checksum last.
     pub fn encode(&self) -> [u8; RECORD_LEN] {
-        let mut e = Encoder::default();
+        // Sized once: a record is encoded on every pose.
+        let mut e = Encoder(Vec::with_capacity(RECORD_LEN));
         encode_odom(&mut e, &self.input);
         encode_answer(&mut e, &self.answer);
         let sum = xxh3_64(&e.0);
