@@ -110,11 +110,16 @@ pub fn alignment_information(
     let mut last_index = None;
     for &k in kept {
         let pair = &pairs[k as usize];
-        let Some((_, _, direction)) = map.segment_of(pair.point) else {
+        let Some(direction) = map.direction_of(pair.point) else {
             continue;
         };
         if let Some(last) = last_index {
-            along += spacing_m[last..pair.index].iter().sum::<f64>();
+            // Kept pairs are mostly neighbours: one spacing, which its sum equals exactly.
+            along += if pair.index == last + 1 {
+                spacing_m[last]
+            } else {
+                spacing_m[last..pair.index].iter().sum::<f64>()
+            };
         }
         last_index = Some(pair.index);
         if along - block_start >= MAP_CORRELATION_M {
@@ -174,7 +179,13 @@ struct Block {
 
 impl Block {
     fn add(&mut self, j: RowVector3<f64>, inv_a: f64, b: f64) {
-        self.sum_jj += j.transpose() * j * inv_a;
+        // `j' j inv_a`, element by element as the matrix product forms it, its upper triangle
+        // only: the pairs of a window are summed on every accepted step.
+        for r in 0..3 {
+            for c in r..3 {
+                self.sum_jj[(r, c)] += j[r] * j[c] * inv_a;
+            }
+        }
         self.sum_j += j * inv_a;
         self.sum_inv_a += inv_a;
         self.sum_b += b;
@@ -186,7 +197,13 @@ impl Block {
             return Matrix3::zeros();
         }
         let b = self.sum_b / self.count as f64;
-        self.sum_jj - self.sum_j.transpose() * self.sum_j * (b / (1.0 + b * self.sum_inv_a))
+        let mut sum_jj = self.sum_jj;
+        for r in 0..3 {
+            for c in 0..r {
+                sum_jj[(r, c)] = sum_jj[(c, r)];
+            }
+        }
+        sum_jj - self.sum_j.transpose() * self.sum_j * (b / (1.0 + b * self.sum_inv_a))
     }
 }
 

@@ -409,6 +409,13 @@ impl LaneMap {
         ))
     }
 
+    /// The unit direction of the candidate segment of point `j` (map plane), or `None` when the
+    /// point owns no segment: [`Self::segment_of`]'s third value alone.
+    #[inline]
+    pub fn direction_of(&self, j: u32) -> Option<[f64; 2]> {
+        (self.segment_start[j as usize] != NO_SEGMENT).then(|| self.directions[j as usize])
+    }
+
     /// How far the road may lie from the segment point `j` owns (metres): a lane is a polyline
     /// through the mapped nodes, and a road that turns by `theta` at a node curves away from the
     /// chords beside it; over a segment of length `L` between turns `theta_a` and `theta_b` the
