@@ -46,7 +46,7 @@ pub struct IcpScratch {
     sources: Vec<[f64; 2]>,
     targets: Vec<[f64; 2]>,
     residuals: Vec<f64>,
-    sorted: Vec<f64>,
+    sorted: Vec<u64>,
     kept: Vec<u32>,
     trial_sources: Vec<[f64; 2]>,
     trial_residuals: Vec<f64>,
@@ -118,14 +118,14 @@ fn band_residual(source: [f64; 2], target: [f64; 2], band: f64) -> f64 {
     (residual(source, target) - band).max(0.0)
 }
 
-/// The indices of the `k` smallest residuals, in index order, ties at the cut going to the lowest
-/// indices: the set a stable sort by residual would keep. Residuals from index `fitting_from` on
-/// rank as zero. Linear time.
+/// The indices of the `k` smallest residuals (finite, never negative), in index order, ties at
+/// the cut going to the lowest indices: the set a stable sort by residual would keep. Residuals
+/// from index `fitting_from` on rank as zero. Linear time.
 fn keep_smallest(
     residuals: &[f64],
     k: usize,
     fitting_from: usize,
-    sorted: &mut Vec<f64>,
+    sorted: &mut Vec<u64>,
     kept: &mut Vec<u32>,
 ) {
     kept.clear();
@@ -142,10 +142,14 @@ fn keep_smallest(
     let (cut, below) = if zeros >= k {
         (0.0, 0)
     } else {
+        // Positive floats order as their bits do: the selection compares integers.
         sorted.clear();
-        sorted.extend(ranked.iter().copied().filter(|&r| r != 0.0));
-        let (left, &mut cut, _) = sorted.select_nth_unstable_by(k - zeros - 1, f64::total_cmp);
-        (cut, zeros + left.iter().filter(|&&r| r < cut).count())
+        sorted.extend(ranked.iter().filter(|&&r| r != 0.0).map(|r| r.to_bits()));
+        let (left, &mut cut, _) = sorted.select_nth_unstable(k - zeros - 1);
+        (
+            f64::from_bits(cut),
+            zeros + left.iter().filter(|&&r| r < cut).count(),
+        )
     };
     let mut ties_kept = k - below;
     let rank = ranked
