@@ -4,7 +4,8 @@
 //! moves little (an accepted correction shifts it by centimetres) and, after a rejected step, not
 //! at all. Each window pose therefore keeps:
 //!
-//! - its last query and answer, reused outright when neither position nor direction changed;
+//! - where it was last matched and the answer, reused outright when that pose and the one after
+//!   it (which gives its direction) have not moved since the last step's matching;
 //! - a proof (`Proof`) that its answer is one of two known candidates while it moves less than
 //!   `PROOF_MOVE` (0.25 m) and its direction turns by less than a margin (the second one covers
 //!   a pose near the joint of two segments): checked with one distance and, for a match, one or
@@ -74,11 +75,10 @@ struct Proof {
 /// A proof with less room than this (a direction change) is no proof: rounding could undo it.
 const MIN_MARGIN: f64 = 1e-9;
 
-/// A query (position, direction) and its answer.
+/// Where a pose was last matched and its answer.
 #[derive(Clone, Copy, Debug)]
 struct LastMatch {
     position: [f64; 2],
-    direction: [f64; 2],
     answer: Option<([f64; 2], u32)>,
 }
 
@@ -216,25 +216,15 @@ impl MatchCache {
             let dir = trajectory_direction(window, i);
             let cache = &mut self.poses[i];
             let target = if dir == [0.0, 0.0] {
-                cache.last = Some(LastMatch {
-                    position: x,
-                    direction: dir,
-                    answer: None,
-                });
                 None
-            } else if let Some(last) = cache.last.filter(|l| l.position == x && l.direction == dir)
-            {
-                last.answer
             } else {
                 let scratch = (&mut self.keys, &mut self.tree_scratch);
-                let answer = match_one(map, cache, scratch, x, dir, params);
-                cache.last = Some(LastMatch {
-                    position: x,
-                    direction: dir,
-                    answer,
-                });
-                answer
+                match_one(map, cache, scratch, x, dir, params)
             };
+            cache.last = Some(LastMatch {
+                position: x,
+                answer: target,
+            });
             if let Some((target, point)) = target {
                 out.push(Correspondence {
                     index: i,
@@ -253,9 +243,13 @@ impl MatchCache {
     /// left to match: the first unsettled one, or 0 when a position differs.
     fn reuse_settled(&self, window: &[[f64; 2]], out: &mut Vec<Correspondence>) -> usize {
         let settled = self.settled;
-        let stayed = |i: usize| self.poses[i].last.is_some_and(|l| l.position == window[i]);
         // The first unsettled pose gives the last settled one its direction.
-        if settled == 0 || settled >= window.len() || !stayed(settled) {
+        if settled == 0
+            || settled >= window.len()
+            || !self.poses[settled]
+                .last
+                .is_some_and(|l| l.position == window[settled])
+        {
             return 0;
         }
         for (i, cache) in self.poses.iter().take(settled).enumerate() {
