@@ -6,10 +6,11 @@
 //!
 //! - where it was last matched and the answer, reused outright when that pose and the one after
 //!   it (which gives its direction) have not moved since the last step's matching;
-//! - a proof (`Proof`) that its answer is one of two known candidates while it moves less than
-//!   `PROOF_MOVE` (0.25 m) and its direction turns by less than a margin (the second one covers
-//!   a pose near the joint of two segments): checked with one distance and, for a match, one or
-//!   two segment tests that also recompute the matched point;
+//! - a proof (`Proof`) that its answer is one of a few known candidates while it moves less than
+//!   `PROOF_MOVE` (0.25 m) and its direction turns by less than a margin (the others, up to
+//!   three partners, cover a pose near the joint of two segments, near-coincident lanes, or a
+//!   lane's end just passed): checked with one distance and a segment test per candidate that
+//!   also recomputes the matched point;
 //! - a wide candidate set, complete within an exclusive radius around where it was built. After a
 //!   move by `delta`, every lane point closer than `radius - delta` is in it, so the reference
 //!   answer (the first passing candidate in (distance, index) order among the `N` nearest) is
@@ -50,12 +51,13 @@ struct CandidateSet {
     points: Vec<u32>,
 }
 
-/// Proof that a pose's answer is its `answer` or its `partner` while it moves less than
+/// Proof that a pose's answer is its `answer` or one of its `partners` while it moves less than
 /// [`PROOF_MOVE`] from `anchor` and its unit direction changes by less than `direction_margin`:
-/// at `anchor`, every other lane point that could then rank ahead of either (or among the `N`
-/// nearest, when there is no answer) failed a test by more than such a change can undo, and
-/// fewer than `N` points can get ahead. The check tests the two exactly and falls back to
-/// deciding from the candidate set when neither passes.
+/// at `anchor`, every other lane point that could then rank ahead of any of them (or among the
+/// `N` nearest, when there is no answer) failed a test by more than such a change can undo, and
+/// fewer than `N` points can get ahead. The check tests the answer and the partners exactly and
+/// takes the first that passes in the reference order; it falls back to deciding from the
+/// candidate set when none passes (with an answer) or when a partner passes (without one).
 ///
 /// With `n` normal to the direction `d`, the normal shot's `t` is `((x - a) . d) / ((b - a) . d)`,
 /// so both tests are signs of dot products: a change of `d` by `e` moves `u . d` by at most
@@ -66,11 +68,15 @@ struct Proof {
     direction: [f64; 2],
     direction_margin: f64,
     answer: Option<u32>,
-    /// A second candidate tested with the answer (see [`prove`]).
-    partner: Option<u32>,
+    /// Candidates too close to a test's boundary to be ruled out, tested with the answer on
+    /// every check (see [`prove`]); the first `None` ends the list.
+    partners: [Option<u32>; MAX_PARTNERS],
     /// The proof rests on every lane point within this distance of `anchor` (metres).
     rests_on_m: f64,
 }
+
+/// The most candidates a proof tests exactly besides its answer.
+const MAX_PARTNERS: usize = 3;
 
 /// A proof with less room than this (a direction change) is no proof: rounding could undo it.
 const MIN_MARGIN: f64 = 1e-9;
@@ -170,9 +176,13 @@ impl MatchCache {
                     None => Some(None),
                     Some(j) => crate::grid::renumber(old, new, j).map(Some),
                 };
+                let mut partners = [None; MAX_PARTNERS];
+                for (to, &from) in partners.iter_mut().zip(&p.partners) {
+                    *to = renumber(from)?;
+                }
                 Some(Proof {
                     answer: renumber(p.answer)?,
-                    partner: renumber(p.partner)?,
+                    partners,
                     ..p
                 })
             });
@@ -288,18 +298,21 @@ fn match_one(
         if (dx * dx + dy * dy).sqrt() < PROOF_MOVE
             && (ex * ex + ey * ey).sqrt() < proof.direction_margin
         {
-            let j = proof.answer?;
-            let tried = |k: u32| {
-                try_candidate(map, k, x, dir, params.min_direction_cos)
-                    .map(|q| ((map.squared_distance(x, k), k), q))
-            };
-            // Of the answer and its partner, the first in the reference order that passes.
-            let first = match (tried(j), proof.partner.and_then(tried)) {
-                (Some(a), Some(b)) => Some(if key_less(b.0, a.0) { b } else { a }),
-                (a, b) => a.or(b),
-            };
-            if let Some(((_, k), q)) = first {
-                return Some((q, k));
+            // Of the answer and its partners, the first in the reference order that passes.
+            let mut first = None;
+            for k in [proof.answer].iter().chain(&proof.partners).flatten() {
+                if let Some(q) = try_candidate(map, *k, x, dir, params.min_direction_cos) {
+                    let key = (map.squared_distance(x, *k), *k);
+                    if first.is_none_or(|(lead, _)| key_less(key, lead)) {
+                        first = Some((key, q));
+                    }
+                }
+            }
+            match (proof.answer, first) {
+                (Some(_), Some(((_, k), q))) => return Some((q, k)),
+                (None, None) => return None,
+                // No answer but a partner passes, or an answer and none passes: decide.
+                _ => {}
             }
         }
     }
@@ -347,11 +360,11 @@ fn match_one(
 /// from `keys`: every lane point within the deciding distance plus twice [`CONTENDER_MARGIN`]
 /// (the proof then rests on every point within `rests_on_m` metres of `x`).
 /// Every point that could rank ahead of the answer must fail a test by more than the proof's
-/// bounds can undo, except at most one, the partner (typically the neighbouring segment of the
-/// same lane, where the pose is near their joint, or the lane's last point, which shares its
-/// segment): the check tests the answer and the partner exactly and takes the first that
-/// passes in the reference order. `None` when more than one candidate is too close to a test's
-/// boundary, or too many could rank ahead.
+/// bounds can undo, except at most [`MAX_PARTNERS`], the partners (typically the neighbouring
+/// segments of the same lane, where the pose is near their joint, a lane's last point, which
+/// shares its segment, or, without an answer, a lane the pose has just passed the end of): the
+/// check tests them exactly. `None` when more candidates are too close to a test's boundary, or
+/// too many could rank ahead.
 #[allow(clippy::too_many_arguments)]
 fn prove(
     map: &LaneMap,
@@ -381,52 +394,60 @@ fn prove(
     // Could `k` rank ahead of `lead` once the pose has moved less than `PROOF_MOVE`?
     let could_lead =
         |k: Key, lead: Key| key_less(k, lead) || k.0.sqrt() - lead.0.sqrt() <= 2.0 * PROOF_MOVE;
-    let (partner, margin) = match best {
-        None => {
-            let limit = reach.sqrt() + CONTENDER_MARGIN;
-            let margin = keys
-                .iter()
-                .filter(|k| k.0.sqrt() < limit)
-                .map(|k| fails_within(k.1))
-                .fold(f64::INFINITY, f64::min);
-            (None, margin)
-        }
-        Some(best) => {
-            let mut partner = None;
-            // The others that could get ahead of `best`, and their least room.
-            let (mut margin, mut others_ahead) = (f64::INFINITY, 0);
-            for &k in keys
-                .iter()
-                .filter(|k| k.1 != best.1 && could_lead(**k, best))
-            {
-                let room = fails_within(k.1);
-                if room <= MIN_MARGIN {
-                    if partner.is_some() {
-                        return None;
-                    }
-                    partner = Some(k);
-                } else {
-                    margin = margin.min(room);
-                    others_ahead += 1;
-                }
-            }
-            // Whichever of the two ranks later decides who could get ahead of the chosen one:
-            // when that is the partner, count again against it.
-            if let Some(p) = partner.filter(|&p| key_less(best, p)) {
-                (margin, others_ahead) = (f64::INFINITY, 0);
-                for &k in keys
-                    .iter()
-                    .filter(|k| k.1 != best.1 && k.1 != p.1 && could_lead(**k, p))
-                {
-                    margin = margin.min(fails_within(k.1));
-                    others_ahead += 1;
-                }
-            }
-            let can_get_ahead = usize::from(partner.is_some()) + others_ahead;
-            if can_get_ahead >= params.neighbours {
+    // Sorts the contenders into partners and others: the partners, how many, the others' least
+    // room and their count.
+    let sort = |contenders: &mut dyn Iterator<Item = Key>| {
+        let mut partners = [None; MAX_PARTNERS];
+        let (mut count, mut margin, mut others) = (0, f64::INFINITY, 0);
+        for k in contenders {
+            let room = fails_within(k.1);
+            if room > MIN_MARGIN {
+                margin = margin.min(room);
+                others += 1;
+            } else if count < MAX_PARTNERS {
+                partners[count] = Some(k);
+                count += 1;
+            } else {
                 return None;
             }
-            (partner.map(|p| p.1), margin)
+        }
+        Some((partners, count, margin, others))
+    };
+    let (partners, margin) = match best {
+        None => {
+            // Every point among the `N` nearest after a move lies within this distance now.
+            let limit = reach.sqrt() + CONTENDER_MARGIN;
+            let (partners, _, margin, _) =
+                sort(&mut keys.iter().copied().filter(|k| k.0.sqrt() < limit))?;
+            (partners, margin)
+        }
+        Some(best) => {
+            // The chosen one may be any of the answer and the partners: whichever of them ranks
+            // last decides who could get ahead of it. Each pass may find partners that rank
+            // later still; the contenders only grow, so this ends within MAX_PARTNERS passes.
+            let mut lead = best;
+            loop {
+                let (partners, count, margin, others) = sort(
+                    &mut keys
+                        .iter()
+                        .copied()
+                        .filter(|k| k.1 != best.1 && could_lead(*k, lead)),
+                )?;
+                let last = partners[..count].iter().flatten().fold(best, |a, &p| {
+                    if key_less(a, p) {
+                        p
+                    } else {
+                        a
+                    }
+                });
+                if last == lead {
+                    if count + others >= params.neighbours {
+                        return None;
+                    }
+                    break (partners, margin);
+                }
+                lead = last;
+            }
         }
     };
     // Keep clear of rounding: a proof with almost no room is no proof.
@@ -435,7 +456,7 @@ fn prove(
         direction: dir,
         direction_margin: margin * (1.0 - 1e-6),
         answer: best.map(|k| k.1),
-        partner,
+        partners: partners.map(|p| p.map(|k| k.1)),
         rests_on_m,
     })
 }
@@ -609,6 +630,51 @@ mod tests {
                 if drop == 0 && window.len() > 3 {
                     window.remove(0);
                     cache.drop_oldest(1);
+                }
+                match_window(&map, &window, &params, &mut scratch, &mut want);
+                cache.match_window(&map, &window, &params, &mut got);
+                prop_assert_eq!(&got, &want);
+            }
+        }
+
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 2000, rng_seed: proptest::test_runner::RngSeed::Fixed(12), ..ProptestConfig::default() })]
+        /// A bundle of nearly coincident lanes, their nodes at nearly the same places and some
+        /// turned to about the direction test's limit, so that several candidates sit at a
+        /// test's boundary at once (proofs with partners, ranked either side of the answer), and a
+        /// window moved by small steps: the reference correspondences at every step.
+        #[test]
+        fn a_bundle_of_near_ties_needs_every_partner(
+            lanes in prop::collection::vec((-0.4f64..0.4, -0.6f64..0.6, -0.33f64..0.33), 2..7),
+            steps in prop::collection::vec((-0.2f64..0.2, -0.2f64..0.2, -0.004f64..0.004), 1..30),
+            n in 1usize..12,
+        ) {
+            let lanes: Vec<Lane> = lanes
+                .iter()
+                .enumerate()
+                .map(|(id, &(offset, shift, turn))| {
+                    let (s, c) = turn.sin_cos();
+                    let points = (0..12)
+                        .map(|i| {
+                            let along = i as f64 * 2.0 + shift;
+                            [c * along, s * along + offset]
+                        })
+                        .collect();
+                    Lane::new(id as u64, points)
+                })
+                .collect();
+            let map = LaneMap::new(&lanes).unwrap();
+            let params = MatchParams { neighbours: n, min_direction_cos: 0.95 };
+            let mut window: Vec<[f64; 2]> = (0..10).map(|i| [1.0 + i as f64 * 1.9, 0.1]).collect();
+            let mut cache = MatchCache::default();
+            for _ in 0..window.len() { cache.push(); }
+            let (mut want, mut got, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+            for (dx, dy, dth) in steps {
+                let (s, c) = dth.sin_cos();
+                for p in window.iter_mut() {
+                    *p = [c * p[0] - s * p[1] + dx, s * p[0] + c * p[1] + dy];
                 }
                 match_window(&map, &window, &params, &mut scratch, &mut want);
                 cache.match_window(&map, &window, &params, &mut got);
