@@ -300,13 +300,11 @@ fn match_one(
         {
             // Of the answer and its partners, the first in the reference order that passes.
             let mut first = None;
-            for k in [proof.answer].iter().chain(&proof.partners).flatten() {
-                if let Some(q) = try_candidate(map, *k, x, dir, params.min_direction_cos) {
-                    let key = (map.squared_distance(x, *k), *k);
-                    if first.is_none_or(|(lead, _)| key_less(key, lead)) {
-                        first = Some((key, q));
-                    }
-                }
+            if let Some(j) = proof.answer {
+                test_candidate(map, j, x, dir, params, &mut first);
+            }
+            for &p in proof.partners.iter().map_while(Option::as_ref) {
+                test_candidate(map, p, x, dir, params, &mut first);
             }
             match (proof.answer, first) {
                 (Some(_), Some(((_, k), q))) => return Some((q, k)),
@@ -356,6 +354,25 @@ fn match_one(
     }
 }
 
+/// Tests candidate `k` at `x` moving along `dir`, and keeps it in `first` when it passes and
+/// ranks ahead of what `first` holds (the reference order).
+#[inline(always)]
+fn test_candidate(
+    map: &LaneMap,
+    k: u32,
+    x: [f64; 2],
+    dir: [f64; 2],
+    params: &MatchParams,
+    first: &mut Option<(Key, [f64; 2])>,
+) {
+    if let Some(q) = try_candidate(map, k, x, dir, params.min_direction_cos) {
+        let key = (map.squared_distance(x, k), k);
+        if first.is_none_or(|(lead, _)| key_less(key, lead)) {
+            *first = Some((key, q));
+        }
+    }
+}
+
 /// Builds a [`Proof`] for the answer `best` at `x`, decided within squared distance `reach`,
 /// from `keys`: every lane point within the deciding distance plus twice [`CONTENDER_MARGIN`]
 /// (the proof then rests on every point within `rests_on_m` metres of `x`).
@@ -395,8 +412,11 @@ fn prove(
     let could_lead =
         |k: Key, lead: Key| key_less(k, lead) || k.0.sqrt() - lead.0.sqrt() <= 2.0 * PROOF_MOVE;
     // Sorts the contenders into partners and others: the partners, how many, the others' least
-    // room and their count.
-    let sort = |contenders: &mut dyn Iterator<Item = Key>| {
+    // room and their count; `None` when more than MAX_PARTNERS have no room.
+    fn sort(
+        contenders: impl Iterator<Item = Key>,
+        fails_within: impl Fn(u32) -> f64,
+    ) -> Option<([Option<Key>; MAX_PARTNERS], usize, f64, usize)> {
         let mut partners = [None; MAX_PARTNERS];
         let (mut count, mut margin, mut others) = (0, f64::INFINITY, 0);
         for k in contenders {
@@ -412,13 +432,15 @@ fn prove(
             }
         }
         Some((partners, count, margin, others))
-    };
+    }
     let (partners, margin) = match best {
         None => {
             // Every point among the `N` nearest after a move lies within this distance now.
             let limit = reach.sqrt() + CONTENDER_MARGIN;
-            let (partners, _, margin, _) =
-                sort(&mut keys.iter().copied().filter(|k| k.0.sqrt() < limit))?;
+            let (partners, _, margin, _) = sort(
+                keys.iter().copied().filter(|k| k.0.sqrt() < limit),
+                fails_within,
+            )?;
             (partners, margin)
         }
         Some(best) => {
@@ -428,10 +450,10 @@ fn prove(
             let mut lead = best;
             loop {
                 let (partners, count, margin, others) = sort(
-                    &mut keys
-                        .iter()
+                    keys.iter()
                         .copied()
                         .filter(|k| k.1 != best.1 && could_lead(*k, lead)),
+                    fails_within,
                 )?;
                 let last = partners[..count].iter().flatten().fold(best, |a, &p| {
                     if key_less(a, p) {
@@ -440,6 +462,11 @@ fn prove(
                         a
                     }
                 });
+                // The keys reach two contender margins beyond the answer: enough for the
+                // contenders of a lead one margin beyond it, and no farther.
+                if !could_lead(last, best) {
+                    return None;
+                }
                 if last == lead {
                     if count + others >= params.neighbours {
                         return None;
