@@ -7,7 +7,7 @@
 //! - where it was last matched and the answer, reused outright when that pose and the one after
 //!   it (which gives its direction) have not moved since the last step's matching;
 //! - a proof (`Proof`) that its answer is one of a few known candidates while it moves less than
-//!   `PROOF_MOVE` (0.25 m) and its direction turns by less than a margin (the others, up to
+//!   `PROOF_MOVE` (0.5 m) and its direction turns by less than a margin (the others, up to
 //!   three partners, cover a pose near the joint of two segments, near-coincident lanes, or a
 //!   lane's end just passed): checked with one distance and a segment test per candidate that
 //!   also recomputes the matched point;
@@ -32,7 +32,7 @@ use crate::matching::{trajectory_direction, try_candidate, Correspondence, Match
 const FIRST_RADIUS: f64 = 8.0;
 
 /// How far beyond the deciding distance a proof checks candidates (metres).
-const CONTENDER_MARGIN: f64 = 0.5;
+const CONTENDER_MARGIN: f64 = 1.0;
 
 /// How far (metres) a pose may move under a [`Proof`]: half the contender margin, so that no
 /// point beyond the checked ones can come closer than any checked one that matters.
