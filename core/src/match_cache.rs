@@ -575,9 +575,45 @@ fn decide(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::lane_map::Lane;
+    use crate::lane_map::{Candidate, Lane};
     use crate::matching::match_window;
     use proptest::prelude::*;
+
+    /// The cached matcher beside the reference one, on one window.
+    struct SideBySide {
+        cache: MatchCache,
+        want: Vec<Correspondence>,
+        got: Vec<Correspondence>,
+        scratch: Vec<Candidate>,
+    }
+
+    impl SideBySide {
+        /// For a window of `len` poses.
+        fn new(len: usize) -> Self {
+            let mut cache = MatchCache::default();
+            for _ in 0..len {
+                cache.push();
+            }
+            SideBySide {
+                cache,
+                want: Vec::new(),
+                got: Vec::new(),
+                scratch: Vec::new(),
+            }
+        }
+
+        /// `window` matched by the cache and by the reference matcher.
+        fn matched(
+            &mut self,
+            map: &LaneMap,
+            window: &[[f64; 2]],
+            params: &MatchParams,
+        ) -> (&[Correspondence], &[Correspondence]) {
+            match_window(map, window, params, &mut self.scratch, &mut self.want);
+            self.cache.match_window(map, window, params, &mut self.got);
+            (&self.got, &self.want)
+        }
+    }
 
     proptest! {
         #![proptest_config(ProptestConfig { cases: 96, rng_seed: proptest::test_runner::RngSeed::Fixed(11), ..ProptestConfig::default() })]
@@ -605,9 +641,7 @@ mod tests {
             let map = LaneMap::new(&lanes).unwrap();
             let params = MatchParams { neighbours: n, min_direction_cos: 0.95 };
             let mut window: Vec<[f64; 2]> = (0..30).map(|i| [1.0 + i as f64 * 1.7, 5.0 + (i as f64 * 0.3).sin()]).collect();
-            let mut cache = MatchCache::default();
-            for _ in 0..window.len() { cache.push(); }
-            let (mut want, mut got, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+            let mut both = SideBySide::new(window.len());
             for (dx, dy, dth, jump) in steps {
                 // One step in ten jumps by up to 3 m, far beyond every proof's bound.
                 let scale = if jump == 0 { 10.0 } else { 1.0 };
@@ -615,9 +649,8 @@ mod tests {
                 for p in window.iter_mut() {
                     *p = [c * p[0] - s * p[1] + dx * scale, s * p[0] + c * p[1] + dy * scale];
                 }
-                match_window(&map, &window, &params, &mut scratch, &mut want);
-                cache.match_window(&map, &window, &params, &mut got);
-                prop_assert_eq!(&got, &want);
+                let (got, want) = both.matched(&map, &window, &params);
+                prop_assert_eq!(got, want);
             }
         }
 
@@ -637,9 +670,7 @@ mod tests {
             let map = LaneMap::new(&lanes).unwrap();
             let params = MatchParams { neighbours: n, min_direction_cos: 0.9 };
             let mut window: Vec<[f64; 2]> = (0..12).map(|i| [1.0 + i as f64 * 1.3, 4.0]).collect();
-            let mut cache = MatchCache::default();
-            for _ in 0..window.len() { cache.push(); }
-            let (mut want, mut got, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+            let mut both = SideBySide::new(window.len());
             for (moved, shift, drop, stand) in steps {
                 match moved {
                     0 => window.iter_mut().for_each(|p| *p = [p[0] + shift * 0.1, p[1] + shift]),
@@ -653,14 +684,13 @@ mod tests {
                 let last = window[window.len() - 1];
                 let next = if stand == 0 { last } else { [last[0] + 1.3, last[1] + shift * 0.2] };
                 window.push(next);
-                cache.push();
+                both.cache.push();
                 if drop == 0 && window.len() > 3 {
                     window.remove(0);
-                    cache.drop_oldest(1);
+                    both.cache.drop_oldest(1);
                 }
-                match_window(&map, &window, &params, &mut scratch, &mut want);
-                cache.match_window(&map, &window, &params, &mut got);
-                prop_assert_eq!(&got, &want);
+                let (got, want) = both.matched(&map, &window, &params);
+                prop_assert_eq!(got, want);
             }
         }
 
@@ -695,17 +725,14 @@ mod tests {
             let map = LaneMap::new(&lanes).unwrap();
             let params = MatchParams { neighbours: n, min_direction_cos: 0.95 };
             let mut window: Vec<[f64; 2]> = (0..10).map(|i| [1.0 + i as f64 * 1.9, 0.1]).collect();
-            let mut cache = MatchCache::default();
-            for _ in 0..window.len() { cache.push(); }
-            let (mut want, mut got, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+            let mut both = SideBySide::new(window.len());
             for (dx, dy, dth) in steps {
                 let (s, c) = dth.sin_cos();
                 for p in window.iter_mut() {
                     *p = [c * p[0] - s * p[1] + dx, s * p[0] + c * p[1] + dy];
                 }
-                match_window(&map, &window, &params, &mut scratch, &mut want);
-                cache.match_window(&map, &window, &params, &mut got);
-                prop_assert_eq!(&got, &want);
+                let (got, want) = both.matched(&map, &window, &params);
+                prop_assert_eq!(got, want);
             }
         }
     }
