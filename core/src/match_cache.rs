@@ -228,8 +228,17 @@ impl MatchCache {
             let target = if dir == [0.0, 0.0] {
                 None
             } else {
-                let scratch = (&mut self.keys, &mut self.tree_scratch);
-                match_one(map, cache, scratch, x, dir, params)
+                match cache
+                    .proof
+                    .as_ref()
+                    .and_then(|p| proven(map, p, x, dir, params))
+                {
+                    Some(answer) => answer,
+                    None => {
+                        let scratch = (&mut self.keys, &mut self.tree_scratch);
+                        match_anew(map, cache, scratch, x, dir, params)
+                    }
+                }
             };
             cache.last = Some(LastMatch {
                 position: x,
@@ -284,7 +293,52 @@ impl MatchCache {
     }
 }
 
-fn match_one(
+/// The answer `proof` gives at `x` moving along `dir`, when it still holds there and decides:
+/// most poses on most steps (the rest are decided anew by [`match_anew`]).
+#[inline]
+fn proven(
+    map: &LaneMap,
+    proof: &Proof,
+    x: [f64; 2],
+    dir: [f64; 2],
+    params: &MatchParams,
+) -> Option<Option<([f64; 2], u32)>> {
+    let (dx, dy) = (x[0] - proof.anchor[0], x[1] - proof.anchor[1]);
+    let (ex, ey) = (dir[0] - proof.direction[0], dir[1] - proof.direction[1]);
+    if (dx * dx + dy * dy).sqrt() >= PROOF_MOVE
+        || (ex * ex + ey * ey).sqrt() >= proof.direction_margin
+    {
+        return None;
+    }
+    if proof.partners[0].is_none() {
+        // The answer alone (most proofs): it passes, or the pose is decided anew.
+        return match proof.answer {
+            None => Some(None),
+            Some(j) => {
+                try_candidate(map, j, x, dir, params.min_direction_cos).map(|q| Some((q, j)))
+            }
+        };
+    }
+    // Of the answer and its partners, the first in the reference order that passes.
+    let mut first = None;
+    if let Some(j) = proof.answer {
+        test_candidate(map, j, x, dir, params, &mut first);
+    }
+    for &p in proof.partners.iter().map_while(Option::as_ref) {
+        test_candidate(map, p, x, dir, params, &mut first);
+    }
+    match (proof.answer, first) {
+        (Some(_), Some(((_, k), q))) => Some(Some((q, k))),
+        (None, None) => Some(None),
+        // No answer but a partner passes, or an answer and none passes: decide anew.
+        _ => None,
+    }
+}
+
+/// Decides the pose at `x` moving along `dir` from its candidate set (built again where it is
+/// when too narrow), and proves the answer for the steps to come.
+#[inline(never)]
+fn match_anew(
     map: &LaneMap,
     cache: &mut PoseCache,
     (keys, tree_scratch): (&mut Vec<Key>, &mut TreeScratch),
@@ -292,28 +346,6 @@ fn match_one(
     dir: [f64; 2],
     params: &MatchParams,
 ) -> Option<([f64; 2], u32)> {
-    if let Some(proof) = cache.proof {
-        let (dx, dy) = (x[0] - proof.anchor[0], x[1] - proof.anchor[1]);
-        let (ex, ey) = (dir[0] - proof.direction[0], dir[1] - proof.direction[1]);
-        if (dx * dx + dy * dy).sqrt() < PROOF_MOVE
-            && (ex * ex + ey * ey).sqrt() < proof.direction_margin
-        {
-            // Of the answer and its partners, the first in the reference order that passes.
-            let mut first = None;
-            if let Some(j) = proof.answer {
-                test_candidate(map, j, x, dir, params, &mut first);
-            }
-            for &p in proof.partners.iter().map_while(Option::as_ref) {
-                test_candidate(map, p, x, dir, params, &mut first);
-            }
-            match (proof.answer, first) {
-                (Some(_), Some(((_, k), q))) => return Some((q, k)),
-                (None, None) => return None,
-                // No answer but a partner passes, or an answer and none passes: decide.
-                _ => {}
-            }
-        }
-    }
     let mut radius = FIRST_RADIUS;
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
