@@ -597,8 +597,9 @@ fn decide(
     let reach = if keys.len() <= n {
         keys.iter().map(|k| k.0).fold(0.0, f64::max)
     } else {
-        let (_, nth, _) =
-            keys.select_nth_unstable_by(n - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        // Only the N-th distance is wanted, which ties between indices do not change; squared
+        // distances are finite and never negative, so they order as their bits do.
+        let (_, nth, _) = keys.select_nth_unstable_by_key(n - 1, |k| k.0.to_bits());
         nth.0
     };
     Decision::Decided(None, reach)
