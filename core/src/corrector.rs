@@ -292,6 +292,13 @@ impl Window {
         self.len() == 0
     }
 
+    /// Readies the buffers for the next [`Window::push`] ([`crate::headroom::make_room`]).
+    fn make_room(&mut self) {
+        let next = self.buf.len() + 1;
+        crate::headroom::make_room(&mut self.buf, next);
+        crate::headroom::make_room(&mut self.spacings, next);
+    }
+
     fn push(&mut self, p: [f64; 2]) {
         if self.start > 0 && self.start >= self.len() {
             self.buf.drain(..self.start);
@@ -544,6 +551,20 @@ impl Corrector {
     /// The current correction (the paper's `T_acc`).
     pub fn map_from_anchored(&self) -> Se2 {
         self.map_from_anchored
+    }
+
+    /// Readies the memory the next [`Corrector::push`] may need, so that a caller waiting
+    /// between poses (the daemon, after publishing an answer) takes its page faults there and
+    /// not while an answer is awaited. Optional: `push` does the same work when this was not
+    /// called, and the results are the same either way.
+    pub fn prepare(&mut self) {
+        let poses = self.window.len() + 1;
+        self.window.make_room();
+        crate::headroom::make_room(&mut self.correspondences, poses);
+        self.icp.make_room(poses);
+        if let Matcher::Fast(cache) = &mut self.matcher {
+            cache.make_room(poses);
+        }
     }
 
     /// Processes the next position of the source as its anchor places it in the map plane
@@ -946,6 +967,40 @@ mod tests {
                 let after = run(&mut restored, cut);
                 assert_eq!(after, uninterrupted[cut..], "{mode:?}, cut at {cut}");
             }
+        }
+    }
+
+    #[test]
+    fn prepared_memory_changes_no_answer() {
+        // A drive with a rejected stretch and a reset (a jump off the lanes), so that the window
+        // grows, shrinks and grows again, with `prepare` between the poses of one run only.
+        let mut drive = l_drive([0.3, 1.0]);
+        for p in &mut drive[200..230] {
+            p[0] += 40.0;
+        }
+        for mode in [MatchMode::Fast, MatchMode::Reference] {
+            let run = |prepared: bool| -> Vec<Step> {
+                let mut c = Corrector::with_mode(l_shaped_map(), small_params(), mode);
+                let steps: Vec<Step> = drive
+                    .iter()
+                    .map(|&p| {
+                        let mut s = c.push(p);
+                        s.timing = StepTiming::default();
+                        if prepared {
+                            c.prepare();
+                        }
+                        if let Matcher::Fast(cache) = &c.matcher {
+                            assert_eq!(cache.len(), c.window.len(), "a cache per window pose");
+                        }
+                        s
+                    })
+                    .collect();
+                assert!(steps
+                    .iter()
+                    .any(|s| matches!(s.status, Status::Reset { .. })));
+                steps
+            };
+            assert_eq!(run(true), run(false), "{mode:?}");
         }
     }
 

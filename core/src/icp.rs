@@ -63,6 +63,19 @@ impl IcpScratch {
     pub fn fitted_sources(&self) -> &[[f64; 2]] {
         &self.sources
     }
+
+    /// Readies the buffers for a run on up to `pairs` pairs ([`crate::headroom::make_room`]).
+    pub(crate) fn make_room(&mut self, pairs: usize) {
+        use crate::headroom::make_room;
+        make_room(&mut self.sources, pairs);
+        make_room(&mut self.targets, pairs);
+        make_room(&mut self.residuals, pairs);
+        make_room(&mut self.sorted, pairs);
+        make_room(&mut self.kept, pairs);
+        make_room(&mut self.trial_sources, pairs);
+        make_room(&mut self.trial_residuals, pairs);
+        make_room(&mut self.trial_kept, pairs);
+    }
 }
 
 /// How many pairs trimmed ICP keeps out of `pairs`.

@@ -32,6 +32,7 @@ pub mod confidence;
 pub mod corrector;
 pub mod geo;
 pub mod grid;
+mod headroom;
 pub mod icp;
 pub mod input;
 pub mod lane_csv;

@@ -189,6 +189,24 @@ impl MatchCache {
         }
     }
 
+    /// Readies the memory a window of `poses` poses needs ([`crate::headroom`]): room for
+    /// their caches, and the candidate buffer the next pose to join takes when no pose left the
+    /// window to free one.
+    pub fn make_room(&mut self, poses: usize) {
+        crate::headroom::make_room_in_deque(&mut self.poses, poses);
+        if self.spare.is_empty() {
+            let mut c = PoseCache::default();
+            crate::headroom::make_room(&mut c.wide.points, RESERVED_POINTS);
+            self.spare.push(c);
+        }
+    }
+
+    /// How many window poses the cache holds.
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> usize {
+        self.poses.len()
+    }
+
     /// A new pose was appended to the window.
     pub fn push(&mut self) {
         let mut c = self.spare.pop().unwrap_or_default();

@@ -15,7 +15,7 @@ pub struct MatchParams {
 }
 
 /// One correspondence: window pose `index`, its position, and the matched point on the lane.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Correspondence {
     /// Index of the pose in the window (0 = oldest).
     pub index: usize,

@@ -148,6 +148,12 @@ impl SourceCorrector {
         }
     }
 
+    /// Readies the memory the next [`SourceCorrector::correct`] may need, off the latency
+    /// path ([`Corrector::prepare`]).
+    pub fn prepare(&mut self) {
+        self.corrector.prepare();
+    }
+
     /// Corrects the next pose (`world_from_body` in the source's convention); returns the
     /// step's timing too. A pose that is no pose ([`Pose3::problem`]: a non-finite number, an
     /// absurd coordinate, a rotation that is not one) is answered as invalid input and changes

@@ -335,6 +335,12 @@ impl Session {
         result.map_err(JournalFailure)
     }
 
+    /// Readies the memory the session's next pose may need; call it after publishing an
+    /// answer ([`lanealign_core::corrector::Corrector::prepare`]).
+    pub fn prepare(&mut self) {
+        self.corrector.prepare();
+    }
+
     /// Poses in the corrector's window.
     pub fn window_len(&self) -> usize {
         self.corrector.window_len()

@@ -354,6 +354,10 @@ impl Worker {
             self.summary.undelivered += 1;
             self.metrics.undelivered += 1;
         }
+        // Off the latency path: the memory the session's next pose may need.
+        if let Some(session) = &mut live.session {
+            session.prepare();
+        }
         self.journal_failed(failure);
         self.metrics.record(
             &outcome,
