@@ -7,19 +7,24 @@
 //! - `--reference-poses K`: run the reference mode on the first K poses only (default: all; the
 //!   reference mode needs 5-30 ms per pose); identity and speed-up are then over those K poses;
 //! - `--long-run N`: instead, correct N poses in fast mode by looping KITTI 00 (lidar, kiss-icp)
-//!   and print resident memory every N/10 poses, to show it stays flat.
+//!   and print resident memory every N/10 poses, to show it stays flat;
+//! - `--paced MS`: instead, correct the first 3000 poses of KITTI 00 (lidar, kiss-icp, OSM lanes)
+//!   back to back, then with a sleep of MS milliseconds before each pose (the daemon's worker at
+//!   1000/MS Hz, idle between poses), then so and with `Corrector::prepare` after each pose (as
+//!   the daemon calls it after publishing), and print the step's parts as the daemon's latency
+//!   event splits them, side by side, with how many steps took a page fault.
 //!
 //! Single thread. Times are wall-clock per `Corrector::push`, in microseconds.
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Parser;
 use lanealign_cli::kitti::{anchors, default_data_dir};
 use lanealign_cli::maps::MapSource;
-use lanealign_core::corrector::{Corrector, MatchMode, Status, Step};
+use lanealign_core::corrector::{Corrector, MatchMode, Status, Step, StepTiming};
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{Method, Params, Preset};
@@ -140,6 +145,81 @@ fn long_run(data: &Path, total: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The quantiles of one part of the step over `steps` (microseconds).
+fn part(steps: &[Step], f: impl Fn(StepTiming) -> Duration) -> Stats {
+    stats(
+        steps
+            .iter()
+            .map(|s| f(s.timing).as_secs_f64() * 1e6)
+            .collect(),
+    )
+}
+
+/// Minor page faults of the calling thread so far (0 where /proc does not tell).
+fn minor_faults() -> u64 {
+    std::fs::read_to_string("/proc/thread-self/stat")
+        .ok()
+        .and_then(|s| {
+            // The fields after the command's closing parenthesis; minflt is the 10th of all.
+            let after = s.rsplit_once(')')?.1;
+            after.split_whitespace().nth(7)?.parse().ok()
+        })
+        .unwrap_or(0)
+}
+
+fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
+    let (map, mut positions) = load(data, "lidar", "00", LaneOptions::for_method(Method::Robust))?;
+    positions.truncate(3000);
+    let pause = Duration::from_millis(pause_ms);
+    println!(
+        "KITTI 00 lidar, kiss-icp, fast mode, {} poses; per step p50 / p99 (us), as the daemon's latency event splits it",
+        positions.len()
+    );
+    println!("| run | step | matching | ICP | confidence | bookkeeping | bookkeeping, first 1200 poses | steps with a page fault |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let runs = [
+        ("back to back", None, false),
+        ("paced", Some(pause), false),
+        ("paced, prepared between poses", Some(pause), true),
+    ];
+    for (name, pause, prepared) in runs {
+        let mut c = Corrector::new(map.clone(), Preset::KissIcp.params());
+        let mut steps = Vec::with_capacity(positions.len());
+        let mut faulting = 0;
+        for &p in &positions {
+            if let Some(pause) = pause {
+                std::thread::sleep(pause);
+            }
+            let before = minor_faults();
+            let step = c.push(p);
+            faulting += usize::from(minor_faults() > before);
+            steps.push(step);
+            if prepared {
+                c.prepare();
+            }
+        }
+        let bookkeeping = |t: StepTiming| t.total.saturating_sub(t.matching + t.icp + t.confidence);
+        let parts = [
+            part(&steps, |t| t.total),
+            part(&steps, |t| t.matching),
+            part(&steps, |t| t.icp),
+            part(&steps, |t| t.confidence),
+            part(&steps, bookkeeping),
+            part(&steps[..1200.min(steps.len())], bookkeeping),
+        ];
+        let cells: Vec<String> = parts
+            .iter()
+            .map(|q| format!("{:.1} / {:.1}", q.p50, q.p99))
+            .collect();
+        let name = match pause {
+            Some(_) => name.replace("paced", &format!("{pause_ms} ms apart")),
+            None => name.to_string(),
+        };
+        println!("| {name} | {} | {faulting} |", cells.join(" | "));
+    }
+    Ok(())
+}
+
 #[derive(Parser)]
 struct Args {
     /// KITTI sequences, comma-separated.
@@ -158,6 +238,10 @@ struct Args {
     /// memory every tenth of them.
     #[arg(long)]
     long_run: Option<usize>,
+    /// Instead, correct KITTI 00's first 3000 poses back to back and this many milliseconds
+    /// apart, and print the step's parts side by side.
+    #[arg(long)]
+    paced: Option<u64>,
     /// Cargo passes this to every bench.
     #[arg(long, hide = true)]
     bench: bool,
@@ -172,6 +256,9 @@ fn main() -> anyhow::Result<()> {
     }
     if let Some(n) = args.long_run {
         return long_run(&data, n);
+    }
+    if let Some(ms) = args.paced {
+        return paced(&data, ms);
     }
     let Args {
         sequences,
