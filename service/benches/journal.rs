@@ -6,7 +6,7 @@
 //!
 //! KITTI 00 (real LiDAR odometry, lanes from its OSM, the robust kiss-icp and liodom presets)
 //! when `../shared/data` is present. The append: `SegmentWriter::append` of each pose's record
-//! (one `write` of 360 bytes), and at each full segment the snapshot's encoding. The step:
+//! (a copy of 416 bytes into the mapped segment), and at each full segment the snapshot's encoding. The step:
 //! `Session::handle` (correction, protocol, journal) with and without a journal, over the same
 //! poses in alternating rounds (default 3), in one run. Restore: `session::restore` of a journal
 //! (snapshot plus the tail after it) of the paper method's liodom session (its window reaches
@@ -141,7 +141,7 @@ fn main() -> anyhow::Result<()> {
         let mut segment = SegmentWriter::create(&folder, 0)?;
         for (i, r) in records.iter().enumerate() {
             let t = Instant::now();
-            segment.append(r)?;
+            segment.append(r);
             if segment.is_full() {
                 let bytes = Snapshot {
                     last_seq: i as u64,

@@ -275,6 +275,9 @@ impl Session {
                 view.request_if_needed(self.corrector.window(), next);
             }
         }
+        // A segment filled by the last pose starts its successor now, before this pose moves
+        // the corrector on (the daemon does it between poses, in `prepare`).
+        let failure = self.roll_journal(setup).err();
         let uncovered_before = self.corrector.map().uncovered_queries();
         let (record, timing) = self.corrector.correct(&pose);
         let uncovered_queries = self.corrector.map().uncovered_queries() - uncovered_before;
@@ -303,7 +306,9 @@ impl Session {
             self.recent.pop_front();
         }
         self.recent.push_back(entry);
-        let failure = self.journal_append(&entry, setup).err();
+        if let Some(journal) = &mut self.journal {
+            journal.segment.append(&entry);
+        }
         let outcome = match record.status {
             Status::InvalidInput => Outcome::Flagged,
             status => Outcome::Corrected(status),
@@ -320,25 +325,35 @@ impl Session {
         )
     }
 
-    fn journal_append(
-        &mut self,
-        record: &Record,
-        setup: &SessionSetup,
-    ) -> Result<(), JournalFailure> {
+    /// When the journal's segment is full: hands a snapshot of the state after its last record
+    /// to the persistence thread and starts the next segment. A journal that fails is dropped
+    /// (the session goes on without crash recovery).
+    fn roll_journal(&mut self, setup: &SessionSetup) -> Result<(), JournalFailure> {
         let Some(journal) = &mut self.journal else {
             return Ok(());
         };
-        let result = append_and_roll(journal, record, &self.corrector, setup);
+        if !journal.segment.is_full() {
+            return Ok(());
+        }
+        let last_seq = self.expected_seq - 1;
+        let result = roll(journal, last_seq, &self.corrector, setup);
         if result.is_err() {
             self.journal = None;
         }
         result.map_err(JournalFailure)
     }
 
-    /// Readies the memory the session's next pose may need; call it after publishing an
-    /// answer ([`lanealign_core::corrector::Corrector::prepare`]).
-    pub fn prepare(&mut self) {
+    /// Readies what the session's next pose needs, off the latency path: call it after
+    /// publishing an answer. Starts the journal's next segment when this one is full, faults in
+    /// the journal page the next record goes to, and grows the corrector's buffers
+    /// ([`lanealign_core::corrector::Corrector::prepare`]).
+    pub fn prepare(&mut self, setup: &SessionSetup) -> Option<JournalFailure> {
+        let failure = self.roll_journal(setup).err();
+        if let Some(journal) = &mut self.journal {
+            journal.segment.prefault_next();
+        }
         self.corrector.prepare();
+        failure
     }
 
     /// Poses in the corrector's window.
@@ -393,32 +408,29 @@ fn track(setup: &SessionSetup, dir: &Path, segment: &SegmentWriter) -> Result<()
     Ok(())
 }
 
-/// Appends a record; when the segment is full, hands a snapshot of the state after it to the
-/// persistence thread and starts the next segment.
-fn append_and_roll(
+/// Starts the segment after the journal's full one, and hands a snapshot of `corrector`'s
+/// state after the full one's last record (`last_seq`) to the persistence thread.
+fn roll(
     journal: &mut Journal,
-    record: &Record,
+    last_seq: u64,
     corrector: &SourceCorrector,
     setup: &SessionSetup,
 ) -> Result<(), JournalError> {
-    journal.segment.append(record)?;
-    if journal.segment.is_full() {
-        let next = journal.segment.number + 1;
-        let snapshot = Snapshot {
-            last_seq: record.input.seq,
-            next_segment: next,
-            state: corrector.state(),
-        };
-        journal.segment = SegmentWriter::create(&journal.dir, next)?;
-        track(setup, &journal.dir, &journal.segment)?;
-        if let Some(p) = &setup.persistence {
-            // The last full segment stays for answers to send again.
-            let _ = p.send(PersistJob::Snapshot {
-                dir: journal.dir.clone(),
-                bytes: snapshot.encode(),
-                keep_from: next - 1,
-            });
-        }
+    let next = journal.segment.number + 1;
+    let snapshot = Snapshot {
+        last_seq,
+        next_segment: next,
+        state: corrector.state(),
+    };
+    journal.segment = SegmentWriter::create(&journal.dir, next)?;
+    track(setup, &journal.dir, &journal.segment)?;
+    if let Some(p) = &setup.persistence {
+        // The last full segment stays for answers to send again.
+        let _ = p.send(PersistJob::Snapshot {
+            dir: journal.dir.clone(),
+            bytes: snapshot.encode(),
+            keep_from: next - 1,
+        });
     }
     Ok(())
 }

@@ -354,11 +354,10 @@ impl Worker {
             self.summary.undelivered += 1;
             self.metrics.undelivered += 1;
         }
-        // Off the latency path: the memory the session's next pose may need.
-        if let Some(session) = &mut live.session {
-            session.prepare();
-        }
+        // Off the latency path: what the session's next pose needs.
+        let prepare_failure = live.session.as_mut().and_then(|s| s.prepare(setup));
         self.journal_failed(failure);
+        self.journal_failed(prepare_failure);
         self.metrics.record(
             &outcome,
             answer.published_mono_ns.saturating_sub(input.sent_mono_ns),
