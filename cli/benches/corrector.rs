@@ -183,7 +183,7 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
         ("paced, prepared between poses", Some(pause), true),
     ];
     for (name, pause, prepared) in runs {
-        let mut c = Corrector::new(map.clone(), Preset::KissIcp.params());
+        let mut c = Corrector::new(map.clone(), Method::Robust.params(Preset::KissIcp));
         let mut steps = Vec::with_capacity(positions.len());
         let mut faulting = 0;
         for &p in &positions {
