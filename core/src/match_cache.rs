@@ -84,15 +84,29 @@ const MIN_MARGIN: f64 = 1e-9;
 /// Where a pose was last matched and its answer.
 #[derive(Clone, Copy, Debug)]
 struct LastMatch {
+    /// NaN before the pose's first match: equal to no position.
     position: [f64; 2],
     answer: Option<([f64; 2], u32)>,
+}
+
+impl LastMatch {
+    /// A pose not matched yet.
+    const NEVER: LastMatch = LastMatch {
+        position: [f64::NAN; 2],
+        answer: None,
+    };
+}
+
+impl Default for LastMatch {
+    fn default() -> Self {
+        LastMatch::NEVER
+    }
 }
 
 #[derive(Clone, Debug, Default)]
 struct PoseCache {
     wide: CandidateSet,
     proof: Option<Proof>,
-    last: Option<LastMatch>,
 }
 
 /// Candidate squared distance and index, the reference order key.
@@ -115,6 +129,11 @@ type TreeScratch = QueryScratch<Eytzinger, f64, 2>;
 #[derive(Default)]
 pub struct MatchCache {
     poses: VecDeque<PoseCache>,
+    /// Beside `poses`, each pose's last match, apart from the rest of its cache: a step that
+    /// finds the window where it was (a quarter of the steps) reads 48 bytes a pose. Read from
+    /// inside the whole caches, they were about 60 % of matching's cache misses after an idle
+    /// core (docs/performance.md, "Between poses").
+    lasts: VecDeque<LastMatch>,
     spare: Vec<PoseCache>,
     keys: Vec<Key>,
     tree_scratch: TreeScratch,
@@ -164,10 +183,10 @@ impl MatchCache {
             both.is_some_and(|(a, b)| a.covers(x, r) && b.covers(x, r))
         };
         self.settled = 0;
+        self.lasts.iter_mut().for_each(|l| *l = LastMatch::NEVER);
         for c in &mut self.poses {
             c.wide.points.clear();
             c.wide.radius = f64::NEG_INFINITY;
-            c.last = None;
             c.proof = c.proof.and_then(|p| {
                 if !covered(p.anchor, p.rests_on_m) {
                     return None;
@@ -194,6 +213,7 @@ impl MatchCache {
     /// window to free one.
     pub fn make_room(&mut self, poses: usize) {
         crate::headroom::make_room_in_deque(&mut self.poses, poses);
+        crate::headroom::make_room_in_deque(&mut self.lasts, poses);
         if self.spare.is_empty() {
             let mut c = PoseCache::default();
             crate::headroom::make_room(&mut c.wide.points, RESERVED_POINTS);
@@ -204,6 +224,7 @@ impl MatchCache {
     /// How many window poses the cache holds.
     #[cfg(test)]
     pub(crate) fn len(&self) -> usize {
+        assert_eq!(self.poses.len(), self.lasts.len(), "a last match per pose");
         self.poses.len()
     }
 
@@ -215,8 +236,8 @@ impl MatchCache {
         c.wide.points.reserve(RESERVED_POINTS);
         c.wide.radius = f64::NEG_INFINITY;
         c.proof = None;
-        c.last = None;
         self.poses.push_back(c);
+        self.lasts.push_back(LastMatch::NEVER);
     }
 
     /// The `count` oldest window poses were dropped.
@@ -226,6 +247,7 @@ impl MatchCache {
             if let Some(c) = self.poses.pop_front() {
                 self.spare.push(c);
             }
+            self.lasts.pop_front();
         }
     }
 
@@ -238,6 +260,7 @@ impl MatchCache {
         out: &mut Vec<Correspondence>,
     ) {
         debug_assert_eq!(window.len(), self.poses.len());
+        debug_assert_eq!(window.len(), self.lasts.len());
         out.clear();
         let from = self.reuse_settled(window, out);
         for (i, &x) in window.iter().enumerate().skip(from) {
@@ -258,10 +281,10 @@ impl MatchCache {
                     }
                 }
             };
-            cache.last = Some(LastMatch {
+            self.lasts[i] = LastMatch {
                 position: x,
                 answer: target,
-            });
+            };
             if let Some((target, point)) = target {
                 out.push(Correspondence {
                     index: i,
@@ -283,28 +306,22 @@ impl MatchCache {
         // The first unsettled pose gives the last settled one its direction.
         if settled == 0
             || settled >= window.len()
-            || !self.poses[settled]
-                .last
-                .is_some_and(|l| l.position == window[settled])
+            || self.lasts[settled].position != window[settled]
         {
             return 0;
         }
-        for (i, cache) in self.poses.iter().take(settled).enumerate() {
-            match cache.last {
-                Some(last) if last.position == window[i] => {
-                    if let Some((target, point)) = last.answer {
-                        out.push(Correspondence {
-                            index: i,
-                            source: window[i],
-                            target,
-                            point,
-                        });
-                    }
-                }
-                _ => {
-                    out.clear();
-                    return 0;
-                }
+        for (i, last) in self.lasts.iter().take(settled).enumerate() {
+            if last.position != window[i] {
+                out.clear();
+                return 0;
+            }
+            if let Some((target, point)) = last.answer {
+                out.push(Correspondence {
+                    index: i,
+                    source: window[i],
+                    target,
+                    point,
+                });
             }
         }
         settled
