@@ -12,7 +12,9 @@
 //!   back to back, then with a sleep of MS milliseconds before each pose (the daemon's worker at
 //!   1000/MS Hz, idle between poses), then so and with `Corrector::prepare` after each pose (as
 //!   the daemon calls it after publishing), and print the step's parts as the daemon's latency
-//!   event splits them, side by side, with how many steps took a page fault.
+//!   event splits them, side by side, with how many steps took a page fault; then the step's
+//!   p50 / p99 per block of 500 poses, the daemon's 5 s metrics intervals at 100 Hz (its latency
+//!   bars are per interval, and the drive's middle blocks cost the most).
 //!
 //! Single thread. Times are wall-clock per `Corrector::push`, in microseconds.
 
@@ -182,6 +184,7 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
         ("paced", Some(pause), false),
         ("paced, prepared between poses", Some(pause), true),
     ];
+    let mut blocks = Vec::new();
     for (name, pause, prepared) in runs {
         let mut c = Corrector::new(map.clone(), Method::Robust.params(Preset::KissIcp));
         let mut steps = Vec::with_capacity(positions.len());
@@ -216,9 +219,38 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
             None => name.to_string(),
         };
         println!("| {name} | {} | {faulting} |", cells.join(" | "));
+        let per_block: Vec<String> = steps
+            .chunks(INTERVAL_POSES)
+            .map(|block| {
+                let q = part(block, |t| t.total);
+                format!("{:.1} / {:.1}", q.p50, q.p99)
+            })
+            .collect();
+        blocks.push(format!("| {name} | {} |", per_block.join(" | ")));
+    }
+    let count = positions.len().div_ceil(INTERVAL_POSES);
+    println!();
+    println!("Step p50 / p99 (us) per {INTERVAL_POSES} poses (the daemon's 5 s metrics intervals at 100 Hz)");
+    let header: Vec<String> = (0..count)
+        .map(|b| {
+            format!(
+                "{}-{}",
+                b * INTERVAL_POSES,
+                ((b + 1) * INTERVAL_POSES).min(positions.len()) - 1
+            )
+        })
+        .collect();
+    println!("| run | {} |", header.join(" | "));
+    println!("|---|{}", "---|".repeat(count));
+    for row in blocks {
+        println!("{row}");
     }
     Ok(())
 }
+
+/// Poses per block of the paced run's second table: the daemon's metrics interval (5 s by
+/// default) at 100 Hz.
+const INTERVAL_POSES: usize = 500;
 
 #[derive(Parser)]
 struct Args {
