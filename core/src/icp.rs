@@ -131,21 +131,42 @@ fn band_residual(source: [f64; 2], target: [f64; 2], band: f64) -> f64 {
     (residual(source, target) - band).max(0.0)
 }
 
+/// Sums over a trim's kept pairs, in the order the kept set lists them (ascending index): of
+/// their residuals (metres; over `k`, the mean the iterations stop on) and of the residuals'
+/// squares (m^2, the trimmed objective). Summed while the set is built, so that the iterations
+/// do not walk it again.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct KeptSums {
+    residuals: f64,
+    squares: f64,
+}
+
+impl KeptSums {
+    #[inline]
+    fn add(&mut self, r: f64) {
+        self.residuals += r;
+        self.squares += r.powi(2);
+    }
+}
+
 /// The indices of the `k` smallest residuals (finite, never negative), in index order, ties at
 /// the cut going to the lowest indices: the set a stable sort by residual would keep. Residuals
-/// from index `fitting_from` on rank as zero. Linear time.
+/// from index `fitting_from` on rank as zero (their sums are of their own residuals). Linear
+/// time.
 fn keep_smallest(
     residuals: &[f64],
     k: usize,
     fitting_from: usize,
     sorted: &mut Vec<u64>,
     kept: &mut Vec<u32>,
-) {
+) -> KeptSums {
     kept.clear();
+    let mut sums = KeptSums::default();
     let n = residuals.len();
     if k >= n {
         kept.extend(0..n as u32);
-        return;
+        residuals.iter().for_each(|&r| sums.add(r));
+        return sums;
     }
     let from = fitting_from.min(n);
     let ranked = &residuals[..from];
@@ -165,18 +186,25 @@ fn keep_smallest(
         )
     };
     let mut ties_kept = k - below;
-    let rank = ranked
-        .iter()
-        .copied()
-        .chain(std::iter::repeat_n(0.0, n - from));
-    for (i, r) in rank.enumerate() {
+    for (i, &r) in ranked.iter().enumerate() {
         if r < cut {
             kept.push(i as u32);
+            sums.add(r);
         } else if r == cut && ties_kept > 0 {
             kept.push(i as u32);
+            sums.add(r);
             ties_kept -= 1;
         }
     }
+    // The fitting tail ranks as zero: below a positive cut, a tie at a zero one.
+    for (i, &r) in residuals.iter().enumerate().skip(from) {
+        if cut > 0.0 || ties_kept > 0 {
+            kept.push(i as u32);
+            sums.add(r);
+            ties_kept -= usize::from(cut == 0.0);
+        }
+    }
+    sums
 }
 
 /// Runs trimmed ICP on fixed pairs. Needs at least two pairs (the caller checks the match ratio
@@ -276,9 +304,9 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
         trial_kept,
         ..
     } = scratch;
-    keep_smallest(residuals, k, fitting_from, sorted, kept);
-    let mut cost = sum_of_squares(residuals, kept);
-    let mut residual_m = mean_kept(residuals, kept, k);
+    let sums = keep_smallest(residuals, k, fitting_from, sorted, kept);
+    let mut cost = sums.squares;
+    let mut residual_m = sums.residuals / k as f64;
     let mut transform = Se2::IDENTITY;
     let mut iterations = 0;
     while iterations < params.max_iterations && cost > 0.0 {
@@ -290,27 +318,31 @@ fn banded_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResu
         let mut scale = 1.0;
         for _ in 0..=MAX_HALVINGS {
             let step = full.scaled(scale).transform();
-            trial_sources.clear();
-            trial_sources.extend(sources.iter().map(|&s| step.apply(s)));
-            fill_band_residuals(trial_sources, targets, band, trial_residuals);
-            keep_smallest(trial_residuals, k, fitting_from, sorted, trial_kept);
-            let trial_cost = sum_of_squares(trial_residuals, trial_kept);
-            if trial_cost <= cost {
-                accepted = Some((step, trial_cost));
+            move_sources(
+                &step,
+                sources,
+                targets,
+                band,
+                trial_sources,
+                trial_residuals,
+            );
+            let sums = keep_smallest(trial_residuals, k, fitting_from, sorted, trial_kept);
+            if sums.squares <= cost {
+                accepted = Some((step, sums));
                 break;
             }
             scale *= 0.5;
         }
-        let Some((step, trial_cost)) = accepted else {
+        let Some((step, sums)) = accepted else {
             break;
         };
         std::mem::swap(sources, trial_sources);
         std::mem::swap(residuals, trial_residuals);
         std::mem::swap(kept, trial_kept);
         transform = step * transform;
-        cost = trial_cost;
+        cost = sums.squares;
         let previous = residual_m;
-        residual_m = mean_kept(residuals, kept, k);
+        residual_m = sums.residuals / k as f64;
         if (previous - residual_m).abs() < params.tolerance_m {
             break;
         }
@@ -333,13 +365,32 @@ fn fill_band_residuals(sources: &[[f64; 2]], targets: &[[f64; 2]], band: f64, ou
     );
 }
 
+/// `moved[i]` = `sources[i]` moved by `step`, and `residuals[i]` its band residual against
+/// `targets[i]` (metres), in one pass.
+fn move_sources(
+    step: &Se2,
+    sources: &[[f64; 2]],
+    targets: &[[f64; 2]],
+    band: f64,
+    moved: &mut Vec<[f64; 2]>,
+    residuals: &mut Vec<f64>,
+) {
+    let n = sources.len();
+    moved.resize(n, [0.0; 2]);
+    residuals.resize(n, 0.0);
+    for ((m, r), (&s, &q)) in moved
+        .iter_mut()
+        .zip(residuals.iter_mut())
+        .zip(sources.iter().zip(targets))
+    {
+        *m = step.apply(s);
+        *r = band_residual(*m, q, band);
+    }
+}
+
 /// The mean residual of the `k` kept pairs (metres).
 fn mean_kept(residuals: &[f64], kept: &[u32], k: usize) -> f64 {
     kept.iter().map(|&i| residuals[i as usize]).sum::<f64>() / k as f64
-}
-
-fn sum_of_squares(residuals: &[f64], kept: &[u32]) -> f64 {
-    kept.iter().map(|&i| residuals[i as usize].powi(2)).sum()
 }
 
 /// A small rigid motion: rotation by `yaw` (radians) about `center` (metres, map plane), then a
@@ -616,13 +667,44 @@ mod tests {
         let residuals = [0.0, 0.5, 0.0, 0.3, 0.0, 2.0, 3.0];
         keep_smallest(&residuals, 6, usize::MAX, &mut sorted, &mut kept);
         assert_eq!(kept, vec![0, 1, 2, 3, 4, 5]);
-        keep_smallest(&residuals, 6, 5, &mut sorted, &mut kept);
+        let sums = keep_smallest(&residuals, 6, 5, &mut sorted, &mut kept);
         assert_eq!(kept, vec![0, 2, 3, 4, 5, 6]);
+        // The sums are of the kept pairs' own residuals, the newest ones' too.
+        assert_eq!(sums.residuals, 0.3 + 2.0 + 3.0);
+        assert_eq!(sums.squares, 0.3f64.powi(2) + 4.0 + 9.0);
         // Where the others fit, the newest do not make the fit run: ties at zero go to the lowest
         // indices, so the kept set is the older zeros.
         let residuals = [0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 3.0];
         keep_smallest(&residuals, 5, 5, &mut sorted, &mut kept);
         assert_eq!(kept, vec![0, 1, 2, 3, 4]);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 256, rng_seed: proptest::test_runner::RngSeed::Fixed(5), ..Default::default() })]
+        /// Residuals on a coarse grid (many ties and zeros), any `k` and fitting tail: the kept
+        /// set is what a stable sort by rank keeps, and the sums are of the kept residuals.
+        #[test]
+        fn the_trim_keeps_what_a_stable_sort_keeps(
+            steps in proptest::collection::vec(0u8..8, 1..80),
+            k_frac in 0.0f64..1.0,
+            tail in 0usize..5,
+        ) {
+            let residuals: Vec<f64> = steps.iter().map(|&s| f64::from(s) * 0.25).collect();
+            let n = residuals.len();
+            let k = 1 + (k_frac * n as f64) as usize % n;
+            let fitting_from = n.saturating_sub(tail);
+            let (mut sorted, mut kept) = (Vec::new(), Vec::new());
+            let sums = keep_smallest(&residuals, k, fitting_from, &mut sorted, &mut kept);
+            let rank = |i: usize| if i >= fitting_from { 0.0 } else { residuals[i] };
+            let mut want: Vec<u32> = (0..n as u32).collect();
+            want.sort_by(|&a, &b| rank(a as usize).total_cmp(&rank(b as usize)));
+            want.truncate(k);
+            want.sort_unstable();
+            proptest::prop_assert_eq!(&kept, &want);
+            let kept_residuals = || want.iter().map(|&i| residuals[i as usize]);
+            proptest::prop_assert_eq!(sums.residuals, kept_residuals().sum::<f64>());
+            proptest::prop_assert_eq!(sums.squares, kept_residuals().map(|r| r.powi(2)).sum::<f64>());
+        }
     }
 
     /// A straight lane along x; the older 40 poses of 50 lie inside the band, 6 beyond it by a
