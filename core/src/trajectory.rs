@@ -210,8 +210,11 @@ pub fn format_text(
     match format {
         Format::Kitti => {
             for p in &traj.poses {
-                let row: Vec<String> = p.to_row_major().iter().map(|v| format!("{v}")).collect();
-                let _ = writeln!(s, "{}", row.join(" "));
+                for (i, v) in p.to_row_major().iter().enumerate() {
+                    let separator = if i == 0 { "" } else { " " };
+                    let _ = write!(s, "{separator}{v}");
+                }
+                s.push('\n');
             }
         }
         Format::Tum => {
