@@ -213,21 +213,6 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
-/// `distance(a, b) <= r` (metres), the same answer for less: the squared distance decides
-/// where it is clear of the boundary by far more than rounding, `distance` itself where not.
-#[inline]
-fn within(a: [f64; 2], b: [f64; 2], r: f64) -> bool {
-    let d2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
-    let r2 = r * r;
-    if d2 < r2 * (1.0 - 1e-9) {
-        true
-    } else if d2 > r2 * (1.0 + 1e-9) {
-        false
-    } else {
-        distance(a, b) <= r
-    }
-}
-
 /// The window of corrected positions, oldest first, kept contiguous for matching.
 /// Dropping from the front moves a start offset; the buffer is compacted when the dead prefix
 /// outgrows the live part, so every operation is amortised O(1).
@@ -632,6 +617,11 @@ impl Corrector {
         let match_params = MatchParams {
             neighbours: p.neighbours,
             min_direction_cos: p.min_direction_cos,
+            max_distance_m: if p.max_match_distance_m.is_finite() {
+                self.widened(p.max_match_distance_m)
+            } else {
+                f64::INFINITY
+            },
         };
         let matching_start = Instant::now();
         match &mut self.matcher {
@@ -650,11 +640,6 @@ impl Corrector {
             ),
         }
         timing.matching = matching_start.elapsed();
-        if p.max_match_distance_m.is_finite() {
-            let gate = self.widened(p.max_match_distance_m);
-            self.correspondences
-                .retain(|c| within(c.source, c.target, gate));
-        }
         let matched = self.correspondences.len();
         let match_ratio = matched as f64 / window_len as f64;
         let (reason, residual_m) =

@@ -25,7 +25,7 @@ use std::collections::VecDeque;
 use kiddo::{Eytzinger, QueryScratch, SquaredEuclidean};
 
 use crate::lane_map::LaneMap;
-use crate::matching::{trajectory_direction, try_candidate, Correspondence, MatchParams};
+use crate::matching::{trajectory_direction, try_candidate, within, Correspondence, MatchParams};
 
 /// Radius of a new wide set (metres); doubled while the set cannot decide. Lane points are a few
 /// metres apart, so this usually holds a handful of lanes.
@@ -262,7 +262,7 @@ impl MatchCache {
         debug_assert_eq!(window.len(), self.poses.len());
         debug_assert_eq!(window.len(), self.lasts.len());
         out.clear();
-        let from = self.reuse_settled(window, out);
+        let from = self.reuse_settled(window, params.max_distance_m, out);
         for (i, &x) in window.iter().enumerate().skip(from) {
             let dir = trajectory_direction(window, i);
             let cache = &mut self.poses[i];
@@ -285,7 +285,8 @@ impl MatchCache {
                 position: x,
                 answer: target,
             };
-            if let Some((target, point)) = target {
+            if let Some((target, point)) = target.filter(|m| within(x, m.0, params.max_distance_m))
+            {
                 out.push(Correspondence {
                     index: i,
                     source: x,
@@ -301,7 +302,12 @@ impl MatchCache {
     /// KITTI 00, LiDAR, kiss-icp), their directions are those of their last match too, and so
     /// are their answers: those go to `out` without computing either. Returns the first pose
     /// left to match: the first unsettled one, or 0 when a position differs.
-    fn reuse_settled(&self, window: &[[f64; 2]], out: &mut Vec<Correspondence>) -> usize {
+    fn reuse_settled(
+        &self,
+        window: &[[f64; 2]],
+        max_distance_m: f64,
+        out: &mut Vec<Correspondence>,
+    ) -> usize {
         let settled = self.settled;
         // The first unsettled pose gives the last settled one its direction.
         if settled == 0
@@ -315,7 +321,9 @@ impl MatchCache {
                 out.clear();
                 return 0;
             }
-            if let Some((target, point)) = last.answer {
+            let answer = last.answer;
+            if let Some((target, point)) = answer.filter(|m| within(window[i], m.0, max_distance_m))
+            {
                 out.push(Correspondence {
                     index: i,
                     source: window[i],
@@ -700,6 +708,7 @@ mod tests {
         fn cached_matching_equals_reference(
             steps in prop::collection::vec((-0.3f64..0.3, -0.3f64..0.3, -0.01f64..0.01, 0u8..10), 1..40),
             n in 1usize..40,
+            gate in prop_oneof![Just(f64::INFINITY), 0.2f64..3.0],
         ) {
             let mut lanes = Vec::new();
             for r in 0..6 {
@@ -715,7 +724,7 @@ mod tests {
                 lanes.push(Lane::new(200 + r, diagonal));
             }
             let map = LaneMap::new(&lanes).unwrap();
-            let params = MatchParams { neighbours: n, min_direction_cos: 0.95 };
+            let params = MatchParams { neighbours: n, min_direction_cos: 0.95, max_distance_m: gate };
             let mut window: Vec<[f64; 2]> = (0..30).map(|i| [1.0 + i as f64 * 1.7, 5.0 + (i as f64 * 0.3).sin()]).collect();
             let mut both = SideBySide::new(window.len());
             for (dx, dy, dth, jump) in steps {
@@ -739,12 +748,13 @@ mod tests {
         fn a_sliding_window_reuses_only_what_did_not_move(
             steps in prop::collection::vec((0u8..3, -0.4f64..0.4, 0u8..3, 0u8..4), 1..60),
             n in 1usize..20,
+            gate in prop_oneof![Just(f64::INFINITY), 0.2f64..3.0],
         ) {
             let lanes: Vec<Lane> = (0..4)
                 .map(|r| Lane::new(r, (0..40).map(|i| [i as f64 * 2.5, r as f64 * 3.5 + (i as f64 * 0.2).sin()]).collect()))
                 .collect();
             let map = LaneMap::new(&lanes).unwrap();
-            let params = MatchParams { neighbours: n, min_direction_cos: 0.9 };
+            let params = MatchParams { neighbours: n, min_direction_cos: 0.9, max_distance_m: gate };
             let mut window: Vec<[f64; 2]> = (0..12).map(|i| [1.0 + i as f64 * 1.3, 4.0]).collect();
             let mut both = SideBySide::new(window.len());
             for (moved, shift, drop, stand) in steps {
@@ -799,7 +809,7 @@ mod tests {
                 })
                 .collect();
             let map = LaneMap::new(&lanes).unwrap();
-            let params = MatchParams { neighbours: n, min_direction_cos: 0.95 };
+            let params = MatchParams { neighbours: n, min_direction_cos: 0.95, max_distance_m: f64::INFINITY };
             let mut window: Vec<[f64; 2]> = (0..10).map(|i| [1.0 + i as f64 * 1.9, 0.1]).collect();
             let mut both = SideBySide::new(window.len());
             for (dx, dy, dth) in steps {

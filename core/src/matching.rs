@@ -12,6 +12,25 @@ pub struct MatchParams {
     pub neighbours: usize,
     /// Minimum cosine between the trajectory and lane directions (tau).
     pub min_direction_cos: f64,
+    /// A pose matched farther than this from its matched point is left out of the output
+    /// (metres; infinite leaves none out): the robust method's gate, applied as each pair is
+    /// found instead of in a pass of its own. It changes no pose's match.
+    pub max_distance_m: f64,
+}
+
+/// `|a - b| <= r` (metres), as `hypot` computes the distance, for less: the squared distance
+/// decides where it is clear of the boundary by far more than rounding, `hypot` where not.
+#[inline]
+pub fn within(a: [f64; 2], b: [f64; 2], r: f64) -> bool {
+    let d2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2);
+    let r2 = r * r;
+    if d2 < r2 * (1.0 - 1e-9) {
+        true
+    } else if d2 > r2 * (1.0 + 1e-9) {
+        false
+    } else {
+        (a[0] - b[0]).hypot(a[1] - b[1]) <= r
+    }
 }
 
 /// One correspondence: window pose `index`, its position, and the matched point on the lane.
@@ -112,7 +131,8 @@ pub fn match_window(
     out.clear();
     for (i, &x) in window.iter().enumerate() {
         let dir = trajectory_direction(window, i);
-        if let Some((target, point)) = match_pose(map, x, dir, params, scratch) {
+        let matched = match_pose(map, x, dir, params, scratch);
+        if let Some((target, point)) = matched.filter(|m| within(x, m.0, params.max_distance_m)) {
             out.push(Correspondence {
                 index: i,
                 source: x,
@@ -132,7 +152,39 @@ mod tests {
         MatchParams {
             neighbours: 10,
             min_direction_cos: 0.95,
+            max_distance_m: f64::INFINITY,
         }
+    }
+
+    #[test]
+    fn the_gate_leaves_out_only_far_matches() {
+        let lanes = [
+            Lane::new(1, vec![[0.0, 0.0], [50.0, 0.0]]),
+            Lane::new(2, vec![[0.0, 6.0], [50.0, 6.0]]),
+        ];
+        let map = LaneMap::new(&lanes).unwrap();
+        // Poses 0.5 m, then 2.5 m beside the first lane.
+        let window: Vec<[f64; 2]> = (0..20)
+            .map(|i| [i as f64 * 2.0, if i < 10 { 0.5 } else { 2.5 }])
+            .collect();
+        let (mut scratch, mut all, mut gated) = (Vec::new(), Vec::new(), Vec::new());
+        match_window(&map, &window, &params(), &mut scratch, &mut all);
+        let near = MatchParams {
+            max_distance_m: 1.0,
+            ..params()
+        };
+        match_window(&map, &window, &near, &mut scratch, &mut gated);
+        let matched = all.len();
+        let kept: Vec<Correspondence> = all
+            .into_iter()
+            .filter(|c| within(c.source, c.target, 1.0))
+            .collect();
+        assert!(
+            kept.len() >= 9 && kept.len() < matched,
+            "{} of {matched}",
+            kept.len()
+        );
+        assert_eq!(gated, kept);
     }
 
     fn straight(id: u64, y: f64, forward: bool) -> Lane {
