@@ -181,7 +181,7 @@ impl Status {
 /// Where the time of one step went (monotonic clock).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct StepTiming {
-    /// Lane matching of the window.
+    /// Lane matching of the window, the robust method's distance gate included.
     pub matching: Duration,
     /// Trimmed ICP.
     pub icp: Duration,
