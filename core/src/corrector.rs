@@ -617,11 +617,7 @@ impl Corrector {
         let match_params = MatchParams {
             neighbours: p.neighbours,
             min_direction_cos: p.min_direction_cos,
-            max_distance_m: if p.max_match_distance_m.is_finite() {
-                self.widened(p.max_match_distance_m)
-            } else {
-                f64::INFINITY
-            },
+            max_distance_m: self.widened(p.max_match_distance_m),
         };
         let matching_start = Instant::now();
         match &mut self.matcher {

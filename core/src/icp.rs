@@ -196,13 +196,12 @@ fn keep_smallest(
             ties_kept -= 1;
         }
     }
-    // The fitting tail ranks as zero: below a positive cut, a tie at a zero one.
-    for (i, &r) in residuals.iter().enumerate().skip(from) {
-        if cut > 0.0 || ties_kept > 0 {
-            kept.push(i as u32);
-            sums.add(r);
-            ties_kept -= usize::from(cut == 0.0);
-        }
+    // The fitting tail ranks as zero: all of it lies below a positive cut; at a zero cut it
+    // ties, and the ties left go to its lowest indices.
+    let tail_kept = if cut > 0.0 { n - from } else { ties_kept };
+    for (i, &r) in residuals.iter().enumerate().skip(from).take(tail_kept) {
+        kept.push(i as u32);
+        sums.add(r);
     }
     sums
 }

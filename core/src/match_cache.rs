@@ -321,8 +321,9 @@ impl MatchCache {
                 out.clear();
                 return 0;
             }
-            let answer = last.answer;
-            if let Some((target, point)) = answer.filter(|m| within(window[i], m.0, max_distance_m))
+            if let Some((target, point)) = last
+                .answer
+                .filter(|m| within(window[i], m.0, max_distance_m))
             {
                 out.push(Correspondence {
                     index: i,
