@@ -538,17 +538,38 @@ impl Corrector {
         self.map_from_anchored
     }
 
-    /// Readies the memory the next [`Corrector::push`] may need, so that a caller waiting
-    /// between poses (the daemon, after publishing an answer) takes its page faults there and
-    /// not while an answer is awaited. Optional: `push` does the same work when this was not
-    /// called, and the results are the same either way.
+    /// Does ahead what the next [`Corrector::push`] can do before its pose arrives, so that a
+    /// caller waiting between poses (the daemon, after publishing an answer) does it there and
+    /// not while an answer is awaited: readies the memory the step may need (its page faults),
+    /// and in the fast match mode matches the window where it now is. The step then finds the
+    /// answers of every window pose but the newest (whose direction the next pose changes) ready
+    /// and matches only that one and the next pose. Optional: `push` does the same work when
+    /// this was not called, and the results are the same either way.
     pub fn prepare(&mut self) {
         let poses = self.window.len() + 1;
         self.window.make_room();
         crate::headroom::make_room(&mut self.correspondences, poses);
         self.icp.make_room(poses);
+        let match_params = self.match_params();
         if let Matcher::Fast(cache) = &mut self.matcher {
             cache.make_room(poses);
+            // The correspondences are the step's scratch; the next step matches anew into them.
+            cache.match_window(
+                &self.map,
+                self.window.as_slice(),
+                &match_params,
+                &mut self.correspondences,
+            );
+        }
+    }
+
+    /// The matching parameters of the next step: the preset's, with the distance gate widened
+    /// by the drift since the last accepted step.
+    fn match_params(&self) -> MatchParams {
+        MatchParams {
+            neighbours: self.params.neighbours,
+            min_direction_cos: self.params.min_direction_cos,
+            max_distance_m: self.widened(self.params.max_match_distance_m),
         }
     }
 
@@ -614,11 +635,7 @@ impl Corrector {
         if window_len < p.min_window || !self.window.path_at_least(p.min_path_length_m) {
             return self.step(Status::WarmingUp { window_len });
         }
-        let match_params = MatchParams {
-            neighbours: p.neighbours,
-            min_direction_cos: p.min_direction_cos,
-            max_distance_m: self.widened(p.max_match_distance_m),
-        };
+        let match_params = self.match_params();
         let matching_start = Instant::now();
         match &mut self.matcher {
             Matcher::Reference(candidates) => match_window(

@@ -148,8 +148,8 @@ impl SourceCorrector {
         }
     }
 
-    /// Readies the memory the next [`SourceCorrector::correct`] may need, off the latency
-    /// path ([`Corrector::prepare`]).
+    /// Does off the latency path what the next [`SourceCorrector::correct`] can do before its
+    /// pose arrives: its memory, and the matching of the window ([`Corrector::prepare`]).
     pub fn prepare(&mut self) {
         self.corrector.prepare();
     }

@@ -345,8 +345,8 @@ impl Session {
 
     /// Readies what the session's next pose needs, off the latency path: call it after
     /// publishing an answer. Starts the journal's next segment when this one is full, faults in
-    /// the journal page the next record goes to, and grows the corrector's buffers
-    /// ([`lanealign_core::corrector::Corrector::prepare`]).
+    /// the journal page the next record goes to, grows the corrector's buffers and matches its
+    /// window where it now is ([`lanealign_core::corrector::Corrector::prepare`]).
     pub fn prepare(&mut self, setup: &SessionSetup) -> Option<JournalFailure> {
         let failure = self.roll_journal(setup).err();
         if let Some(journal) = &mut self.journal {

@@ -9,7 +9,9 @@ use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::se2::{wrap_angle, Se2};
-use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::source_corrector::{
+    correct_trajectory, CorrectedPose, Placement, SourceCorrector,
+};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 
@@ -74,4 +76,54 @@ fn fast_and_reference_modes_agree_on_real_sequences() {
             }
         }
     }
+}
+
+/// The daemon matches the window ahead between poses (`Corrector::prepare`); the answers are
+/// those of a corrector that does not, bit for bit, on real sequences whose windows move on
+/// most steps.
+#[test]
+fn matching_ahead_between_poses_changes_no_answer_on_real_sequences() {
+    let Some(data) = shared_data() else { return };
+    let placement = Placement {
+        convention: AxisConvention::KittiCamera,
+        anchored_from_odom: Se2::IDENTITY,
+        smoothing: None,
+    };
+    let (mut moved_poses, mut poses) = (0, 0);
+    for seq in ["00", "06", "07"] {
+        let lanes = lane_csv::read(&data.join(format!("reference/lanes/lanes_{seq}.csv"))).unwrap();
+        let map = Arc::new(LaneMap::new(&lanes).unwrap());
+        for (odometry, preset) in [("lidar", Preset::KissIcp), ("stereo_vo", Preset::Basalt)] {
+            let odom = read(
+                &data.join(format!("odometry/{odometry}/{seq}.txt")),
+                Format::Kitti,
+            )
+            .unwrap();
+            let params = Method::Robust.params(preset);
+            let unprepared =
+                correct_trajectory(map.clone(), params, MatchMode::Fast, placement, &odom.poses);
+            let mut corrector =
+                SourceCorrector::new(map.clone(), params, MatchMode::Fast, placement);
+            let prepared: Vec<CorrectedPose> = odom
+                .poses
+                .iter()
+                .map(|pose| {
+                    let (answer, _) = corrector.correct(pose);
+                    corrector.prepare();
+                    answer
+                })
+                .collect();
+            let moved = unprepared
+                .windows(2)
+                .filter(|w| w[0].map_from_odom != w[1].map_from_odom)
+                .count();
+            assert_eq!(prepared, unprepared, "{odometry} {seq}");
+            moved_poses += moved;
+            poses += odom.poses.len();
+        }
+    }
+    assert!(
+        moved_poses * 4 > poses,
+        "the comparison must exercise moving windows: {moved_poses} of {poses} poses moved"
+    );
 }
