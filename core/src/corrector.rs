@@ -255,6 +255,13 @@ impl Window {
     /// positions arrive and again only after they moved, so that a step that changed nothing
     /// costs nothing here.
     fn spacings(&mut self) -> &[f64] {
+        self.refresh_spacings();
+        &self.spacings[self.start..]
+    }
+
+    /// Computes the spacings again when the positions moved since they were computed; a push
+    /// keeps fresh spacings fresh (it computes the new one the same way).
+    fn refresh_spacings(&mut self) {
         if !self.spacings_fresh {
             let w = &self.buf[self.start..];
             let spacings = &mut self.spacings[self.start..];
@@ -266,7 +273,6 @@ impl Window {
             }
             self.spacings_fresh = true;
         }
-        &self.spacings[self.start..]
     }
 
     fn len(&self) -> usize {
@@ -541,13 +547,15 @@ impl Corrector {
     /// Does ahead what the next [`Corrector::push`] can do before its pose arrives, so that a
     /// caller waiting between poses (the daemon, after publishing an answer) does it there and
     /// not while an answer is awaited: readies the memory the step may need (its page faults),
-    /// and in the fast match mode matches the window where it now is. The step then finds the
-    /// answers of every window pose but the newest (whose direction the next pose changes) ready
-    /// and matches only that one and the next pose. Optional: `push` does the same work when
-    /// this was not called, and the results are the same either way.
+    /// measures the window's spacings again after a correction moved it (the covariance reads
+    /// them), and in the fast match mode matches the window where it now is. The step then
+    /// finds the answers of every window pose but the newest (whose direction the next pose
+    /// changes) ready and matches only that one and the next pose. Optional: `push` does the
+    /// same work when this was not called, and the results are the same either way.
     pub fn prepare(&mut self) {
         let poses = self.window.len() + 1;
         self.window.make_room();
+        self.window.refresh_spacings();
         crate::headroom::make_room(&mut self.correspondences, poses);
         self.icp.make_room(poses);
         let match_params = self.match_params();
