@@ -10,8 +10,8 @@
 //!   and print resident memory every N/10 poses, to show it stays flat;
 //! - `--paced MS`: instead, correct the first 3000 poses of KITTI 00 (lidar, kiss-icp, OSM lanes)
 //!   back to back, then with a sleep of MS milliseconds before each pose (the daemon's worker at
-//!   1000/MS Hz, idle between poses), then so and with `Corrector::prepare` after each pose (as
-//!   the daemon calls it after publishing), and print the step's parts as the daemon's latency
+//!   1000/MS Hz, idle between poses), then so and with `Corrector::prepare` and
+//!   `Corrector::work_ahead` after each pose (as the daemon calls them after publishing), and print the step's parts as the daemon's latency
 //!   event splits them, side by side, with how many steps took a page fault; then the step's
 //!   p50 / p99 per block of 500 poses, the daemon's 5 s metrics intervals at 100 Hz (its latency
 //!   bars are per interval, and the drive's middle blocks cost the most).
@@ -199,6 +199,7 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
             steps.push(step);
             if prepared {
                 c.prepare();
+                c.work_ahead();
             }
         }
         let bookkeeping = |t: StepTiming| t.total.saturating_sub(t.matching + t.icp + t.confidence);

@@ -544,23 +544,32 @@ impl Corrector {
         self.map_from_anchored
     }
 
-    /// Does ahead what the next [`Corrector::push`] can do before its pose arrives, so that a
-    /// caller waiting between poses (the daemon, after publishing an answer) does it there and
-    /// not while an answer is awaited: readies the memory the step may need (its page faults),
-    /// measures the window's spacings again after a correction moved it (the covariance reads
-    /// them), and in the fast match mode matches the window where it now is. The step then
-    /// finds the answers of every window pose but the newest (whose direction the next pose
-    /// changes) ready and matches only that one and the next pose. Optional: `push` does the
-    /// same work when this was not called, and the results are the same either way.
+    /// Readies the memory the next [`Corrector::push`] may need, so that a caller waiting
+    /// between poses (the daemon, after publishing an answer) takes its page faults there and
+    /// not while an answer is awaited. Optional: `push` does the same work when this was not
+    /// called, and the results are the same either way.
     pub fn prepare(&mut self) {
         let poses = self.window.len() + 1;
         self.window.make_room();
-        self.window.refresh_spacings();
         crate::headroom::make_room(&mut self.correspondences, poses);
         self.icp.make_room(poses);
-        let match_params = self.match_params();
         if let Matcher::Fast(cache) = &mut self.matcher {
             cache.make_room(poses);
+        }
+    }
+
+    /// Does the part of the next [`Corrector::push`] that needs no pose, for a caller that has
+    /// time between poses (the daemon, when no other pose waits): measures the window's
+    /// spacings again after a correction moved it (the covariance reads them), and in the fast
+    /// match mode matches the window where it now is, so that the step finds the answers of
+    /// every window pose but the newest (whose direction the next pose changes) ready and
+    /// matches only that one and the next pose. Optional: `push` does the same work when this
+    /// was not called, and the results are the same either way; calling it while poses queue
+    /// costs their throughput a little (the step reads the answers out again).
+    pub fn work_ahead(&mut self) {
+        self.window.refresh_spacings();
+        let match_params = self.match_params();
+        if let Matcher::Fast(cache) = &mut self.matcher {
             // The correspondences are the step's scratch; the next step matches anew into them.
             cache.match_window(
                 &self.map,
@@ -977,9 +986,10 @@ mod tests {
     }
 
     #[test]
-    fn prepared_memory_changes_no_answer() {
+    fn work_between_poses_changes_no_answer() {
         // A drive with a rejected stretch and a reset (a jump off the lanes), so that the window
-        // grows, shrinks and grows again, with `prepare` between the poses of one run only.
+        // grows, shrinks and grows again, with `prepare` and `work_ahead` between the poses of
+        // one run only.
         let mut drive = l_drive([0.3, 1.0]);
         for p in &mut drive[200..230] {
             p[0] += 40.0;
@@ -994,6 +1004,7 @@ mod tests {
                         s.timing = StepTiming::default();
                         if prepared {
                             c.prepare();
+                            c.work_ahead();
                         }
                         if let Matcher::Fast(cache) = &c.matcher {
                             assert_eq!(cache.len(), c.window.len(), "a cache per window pose");

@@ -148,10 +148,16 @@ impl SourceCorrector {
         }
     }
 
-    /// Does off the latency path what the next [`SourceCorrector::correct`] can do before its
-    /// pose arrives: its memory, and the matching of the window ([`Corrector::prepare`]).
+    /// Readies the memory the next [`SourceCorrector::correct`] may need, off the latency
+    /// path ([`Corrector::prepare`]).
     pub fn prepare(&mut self) {
         self.corrector.prepare();
+    }
+
+    /// Does the part of the next [`SourceCorrector::correct`] that needs no pose, off the
+    /// latency path ([`Corrector::work_ahead`]).
+    pub fn work_ahead(&mut self) {
+        self.corrector.work_ahead();
     }
 
     /// Corrects the next pose (`world_from_body` in the source's convention); returns the

@@ -302,7 +302,9 @@ impl Worker {
         }
     }
 
-    fn serve(&mut self, input: OdomPose, received: u64) {
+    /// Answers one pose; then readies its session for the next, and does the session's work
+    /// ahead when `queued` (asked after publishing) says no pose waits.
+    fn serve(&mut self, input: OdomPose, received: u64, queued: impl Fn() -> bool) {
         self.summary.received += 1;
         if !self.ensure_live(&input) {
             return;
@@ -354,8 +356,10 @@ impl Worker {
             self.summary.undelivered += 1;
             self.metrics.undelivered += 1;
         }
-        // Off the latency path: what the session's next pose needs.
-        let prepare_failure = live.session.as_mut().and_then(|s| s.prepare(setup));
+        // Off the latency path: what the session's next pose needs. Work ahead only when no
+        // pose waits: while poses queue it would delay them.
+        let ahead = !queued();
+        let prepare_failure = live.session.as_mut().and_then(|s| s.prepare(setup, ahead));
         self.journal_failed(failure);
         self.journal_failed(prepare_failure);
         self.metrics.record(
@@ -476,7 +480,9 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
             let received = monotonic_ns();
             let input = *sample;
             drop(sample);
-            worker.serve(input, received);
+            worker.serve(input, received, || {
+                subscriber.has_samples().unwrap_or(false)
+            });
         }
         if wait.spins() {
             // Notifications this loop did not sleep on: drop them before they pile up.

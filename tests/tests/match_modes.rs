@@ -78,7 +78,7 @@ fn fast_and_reference_modes_agree_on_real_sequences() {
     }
 }
 
-/// The daemon matches the window ahead between poses (`Corrector::prepare`); the answers are
+/// The daemon matches the window ahead between poses (`Corrector::work_ahead`); the answers are
 /// those of a corrector that does not, bit for bit, on real sequences whose windows move on
 /// most steps.
 #[test]
@@ -110,6 +110,7 @@ fn matching_ahead_between_poses_changes_no_answer_on_real_sequences() {
                 .map(|pose| {
                     let (answer, _) = corrector.correct(pose);
                     corrector.prepare();
+                    corrector.work_ahead();
                     answer
                 })
                 .collect();
