@@ -11,8 +11,9 @@
 //! - `--paced MS`: instead, correct the first 3000 poses of KITTI 00 (lidar, kiss-icp, OSM lanes)
 //!   back to back, then with a sleep of MS milliseconds before each pose (the daemon's worker at
 //!   1000/MS Hz, idle between poses), then so and with `Corrector::prepare` and
-//!   `Corrector::work_ahead` after each pose (as the daemon calls them after publishing), and print the step's parts as the daemon's latency
-//!   event splits them, side by side, with how many steps took a page fault; then the step's
+//!   `Corrector::work_ahead` after each pose (as the daemon calls them after publishing), and
+//!   print the step's parts as the daemon's latency event splits them, side by side, with how
+//!   many steps took a page fault; then the step's
 //!   p50 / p99 per block of 500 poses, the daemon's 5 s metrics intervals at 100 Hz (its latency
 //!   bars are per interval, and the drive's middle blocks cost the most).
 //!

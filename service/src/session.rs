@@ -345,20 +345,21 @@ impl Session {
 
     /// Readies what the session's next pose needs, off the latency path: call it after
     /// publishing an answer. Starts the journal's next segment when this one is full, faults in
-    /// the journal page the next record goes to and grows the corrector's buffers
-    /// ([`lanealign_core::corrector::Corrector::prepare`]); with `ahead` (when no pose waits to
-    /// be answered) also does the corrector's work that needs no pose
-    /// ([`lanealign_core::corrector::Corrector::work_ahead`]).
-    pub fn prepare(&mut self, setup: &SessionSetup, ahead: bool) -> Option<JournalFailure> {
+    /// the journal page the next record goes to, and grows the corrector's buffers
+    /// ([`lanealign_core::corrector::Corrector::prepare`]).
+    pub fn prepare(&mut self, setup: &SessionSetup) -> Option<JournalFailure> {
         let failure = self.roll_journal(setup).err();
         if let Some(journal) = &mut self.journal {
             journal.segment.prefault_next();
         }
         self.corrector.prepare();
-        if ahead {
-            self.corrector.work_ahead();
-        }
         failure
+    }
+
+    /// Does the corrector's work that needs no pose, off the latency path: call it when no pose
+    /// waits to be answered ([`lanealign_core::corrector::Corrector::work_ahead`]).
+    pub fn work_ahead(&mut self) {
+        self.corrector.work_ahead();
     }
 
     /// Poses in the corrector's window.

@@ -356,10 +356,15 @@ impl Worker {
             self.summary.undelivered += 1;
             self.metrics.undelivered += 1;
         }
-        // Off the latency path: what the session's next pose needs. Work ahead only when no
-        // pose waits: while poses queue it would delay them.
-        let ahead = !queued();
-        let prepare_failure = live.session.as_mut().and_then(|s| s.prepare(setup, ahead));
+        // Off the latency path: what the session's next pose needs, and its work ahead only
+        // when no pose waits (while poses queue it would delay them).
+        let prepare_failure = live.session.as_mut().and_then(|s| {
+            let failure = s.prepare(setup);
+            if !queued() {
+                s.work_ahead();
+            }
+            failure
+        });
         self.journal_failed(failure);
         self.journal_failed(prepare_failure);
         self.metrics.record(
