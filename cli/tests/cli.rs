@@ -266,7 +266,7 @@ fn correct_writes_every_pose_and_a_status_row_each() {
 }
 
 /// `correct --status` publishes a covariance per pose and `eval --status` measures it: on
-/// `stereo_vo` 09 (orb-slam3 preset) 88 % of the true errors lie inside the 95 % ellipses
+/// `stereo_vo` 09 (orb-slam3 preset) 94 % of the true errors lie inside the 95 % ellipses
 /// (docs/method.md, "Confidence").
 #[test]
 fn eval_reports_how_well_the_covariance_describes_the_errors() {

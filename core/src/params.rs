@@ -225,13 +225,11 @@ impl Preset {
             Preset::Basalt | Preset::OrbSlam3 => 300.0,
         };
         // A direction the lanes say next to nothing about (along a straight road) is never applied
-        // whole. Visual odometry drifts faster than the map errs: whole wherever the lanes know
-        // more than the odometry. For LiDAR odometry a stricter ratio (10) keeps every shared
-        // sequence within 5 cm of raw but lags behind real drift (docs/method.md, "Confidence").
-        let min_evidence_ratio = match self {
-            Preset::Liodom | Preset::KissIcp => 0.1,
-            Preset::Basalt | Preset::OrbSlam3 => 1.0,
-        };
+        // whole; every other direction is. One ratio for every preset: visual odometry gained
+        // from 1 to 0.1 once the newest matches were no longer trimmed, and for LiDAR odometry
+        // a stricter ratio (10) keeps every shared sequence within 5 cm of raw but lags behind
+        // real drift (docs/method.md, "Confidence").
+        let min_evidence_ratio = 0.1;
         // The correspondence gate opens at a few times the worst drift rate of the odometry kind
         // the preset is for (LiDAR 0.1-0.7 % of the distance, visual 1-15 %,
         // ../shared/data/README.md), as the covariance's drift model does.
