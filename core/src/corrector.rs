@@ -85,9 +85,10 @@ pub enum Status {
     },
     /// The input pose was not finite: it was not added and nothing changed.
     InvalidInput,
-    /// The pose came between window poses of a source faster than the presets' rate
-    /// ([`Params::odometry_rate_hz`]): it did not enter the window and is answered with the
-    /// correction in force; no matching ran.
+    /// The pose is answered with the correction in force and no alignment ran: it came between
+    /// window poses of a source faster than the presets' rate ([`Params::odometry_rate_hz`]) and
+    /// did not enter the window, or it entered the window less than
+    /// [`Params::alignment_spacing_m`] of road after the last accepted alignment.
     Carried {
         /// Poses in the window.
         window_len: usize,
@@ -652,6 +653,9 @@ impl Corrector {
         if window_len < p.min_window || !self.window.path_at_least(p.min_path_length_m) {
             return self.step(Status::WarmingUp { window_len });
         }
+        if self.travelled_m < p.alignment_spacing_m {
+            return self.step(Status::Carried { window_len });
+        }
         let match_params = self.match_params();
         let matching_start = Instant::now();
         match &mut self.matcher {
@@ -844,6 +848,74 @@ mod tests {
         assert!(matches!(last.status, Status::Accepted { .. }));
         let [x, y] = last.map_from_anchored.translation();
         assert!(x.abs() < 1e-6 && (y + 1.0).abs() < 1e-6, "{x} {y}");
+    }
+
+    #[test]
+    fn alignments_follow_the_road_covered_not_the_pose_rate() {
+        // The L-shaped drive with a pose every 0.5 m, an alignment at most every 1.2 m.
+        let drive: Vec<[f64; 2]> = l_drive([0.0, 1.0])
+            .windows(2)
+            .flat_map(|w| {
+                (0..4).map(move |j| {
+                    let f = j as f64 / 4.0;
+                    [
+                        w[0][0] + f * (w[1][0] - w[0][0]),
+                        w[0][1] + f * (w[1][1] - w[0][1]),
+                    ]
+                })
+            })
+            .collect();
+        let mut params = small_params();
+        params.alignment_spacing_m = 1.2;
+        let mut c = Corrector::new(l_shaped_map(), params);
+        let steps: Vec<Step> = drive.iter().map(|&p| c.push(p)).collect();
+        let mut since_accepted = f64::INFINITY;
+        let (mut attempts, mut carried) = (0, 0);
+        for (i, step) in steps.iter().enumerate() {
+            if i > 0 {
+                since_accepted += distance(drive[i - 1], drive[i]);
+            }
+            match step.status {
+                Status::WarmingUp { .. } => {}
+                Status::Carried { window_len } => {
+                    // Sooner than the spacing: into the window, the correction in force.
+                    carried += 1;
+                    assert!(since_accepted < 1.2, "pose {i}");
+                    let grown = (steps[i - 1].status.window_len() + 1).min(params.max_window);
+                    assert_eq!(window_len, grown, "pose {i}");
+                    assert_eq!(step.map_from_anchored, steps[i - 1].map_from_anchored);
+                }
+                Status::Accepted { .. } => {
+                    attempts += 1;
+                    assert!(since_accepted >= 1.2, "pose {i}: {since_accepted}");
+                    since_accepted = 0.0;
+                }
+                other => panic!("pose {i}: {other:?}"),
+            }
+        }
+        // Two of every three poses wait (0.5 m apart, 1.2 m between alignments; fewer at the
+        // corner, where they are 0.71 m apart), and the offset is removed as with an alignment on
+        // every pose.
+        assert!(
+            carried <= 2 * attempts && 10 * carried >= 19 * attempts,
+            "{carried} carried, {attempts} alignments"
+        );
+        let [x, y] = steps.last().unwrap().map_from_anchored.translation();
+        assert!(x.abs() < 1e-6 && (y + 1.0).abs() < 1e-6, "{x} {y}");
+        // A corrector restored between alignments continues where it was.
+        for cut in [30, 91, 500] {
+            let mut first = Corrector::new(l_shaped_map(), params);
+            drive[..cut].iter().for_each(|&p| {
+                first.push(p);
+            });
+            let mut restored =
+                Corrector::restore(l_shaped_map(), params, MatchMode::Fast, first.state());
+            for (i, &p) in drive.iter().enumerate().skip(cut) {
+                let mut got = restored.push(p);
+                got.timing = steps[i].timing;
+                assert_eq!(got, steps[i], "cut at {cut}, pose {i}");
+            }
+        }
     }
 
     #[test]

@@ -130,8 +130,8 @@ fn mean(runs: &[Run], f: impl Fn(&Run) -> f64) -> f64 {
 fn robust_beats_the_paper_and_smooth_output_glides() {
     let Some(data) = shared_data() else { return };
     let seqs = sequences(&data);
-    // The robust method's means: issue 14's bars (1.06 and 7.45 m; today 0.999 and 7.266 m, and
-    // 1.000-1.005 / 7.251-7.320 m over copies of the runs moved by a micrometre).
+    // The robust method's means: issue 14's bars (1.06 and 7.45 m; today 1.001 and 7.181 m, and
+    // 1.002-1.006 / 7.252-7.271 m over copies of the runs moved by a micrometre).
     for (odometry, preset, paper_mean, bar) in [
         ("lidar", Preset::KissIcp, 1.422, 1.06),
         ("stereo_vo", Preset::OrbSlam3, 9.849, 7.45),

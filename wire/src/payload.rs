@@ -67,8 +67,9 @@ pub enum StatusCode {
     /// The sequence number is beyond the next one the session expects: not used; send again
     /// from [`CorrectedPose::expected_seq`] on.
     Gap = 8,
-    /// The pose came between window poses of a source faster than its corrector's rate
-    /// (`odometry_rate_hz`): answered with the correction in force, no matching.
+    /// Answered with the correction in force, no alignment ran: the pose came between window
+    /// poses of a source faster than its corrector's rate (`odometry_rate_hz`), or less than
+    /// `alignment_spacing_m` of road after the last accepted alignment (the robust method's 1 m).
     Carried = 9,
 }
 
