@@ -828,6 +828,45 @@ mod tests {
             .collect()
     }
 
+    /// `drive` with `k - 1` poses interpolated between each two.
+    fn densified(drive: &[[f64; 2]], k: usize) -> Vec<[f64; 2]> {
+        drive
+            .windows(2)
+            .flat_map(|w| {
+                (0..k).map(move |j| {
+                    let f = j as f64 / k as f64;
+                    [
+                        w[0][0] + f * (w[1][0] - w[0][0]),
+                        w[0][1] + f * (w[1][1] - w[0][1]),
+                    ]
+                })
+            })
+            .collect()
+    }
+
+    /// A corrector given `drive` up to each of `cuts`, saved and restored, answers the rest as
+    /// `steps` (one uninterrupted run) did, bit for bit.
+    fn assert_restores_bit_for_bit(
+        params: Params,
+        drive: &[[f64; 2]],
+        steps: &[Step],
+        cuts: &[usize],
+    ) {
+        for &cut in cuts {
+            let mut first = Corrector::new(l_shaped_map(), params);
+            drive[..cut].iter().for_each(|&p| {
+                first.push(p);
+            });
+            let mut restored =
+                Corrector::restore(l_shaped_map(), params, MatchMode::Fast, first.state());
+            for (i, &p) in drive.iter().enumerate().skip(cut) {
+                let mut got = restored.push(p);
+                got.timing = steps[i].timing;
+                assert_eq!(got, steps[i], "cut at {cut}, pose {i}");
+            }
+        }
+    }
+
     #[test]
     fn warms_up_then_accepts_and_removes_an_offset() {
         let mut c = Corrector::new(l_shaped_map(), small_params());
@@ -853,18 +892,7 @@ mod tests {
     #[test]
     fn alignments_follow_the_road_covered_not_the_pose_rate() {
         // The L-shaped drive with a pose every 0.5 m, an alignment at most every 1.2 m.
-        let drive: Vec<[f64; 2]> = l_drive([0.0, 1.0])
-            .windows(2)
-            .flat_map(|w| {
-                (0..4).map(move |j| {
-                    let f = j as f64 / 4.0;
-                    [
-                        w[0][0] + f * (w[1][0] - w[0][0]),
-                        w[0][1] + f * (w[1][1] - w[0][1]),
-                    ]
-                })
-            })
-            .collect();
+        let drive = densified(&l_drive([0.0, 1.0]), 4);
         let mut params = small_params();
         params.alignment_spacing_m = 1.2;
         let mut c = Corrector::new(l_shaped_map(), params);
@@ -903,19 +931,7 @@ mod tests {
         let [x, y] = steps.last().unwrap().map_from_anchored.translation();
         assert!(x.abs() < 1e-6 && (y + 1.0).abs() < 1e-6, "{x} {y}");
         // A corrector restored between alignments continues where it was.
-        for cut in [30, 91, 500] {
-            let mut first = Corrector::new(l_shaped_map(), params);
-            drive[..cut].iter().for_each(|&p| {
-                first.push(p);
-            });
-            let mut restored =
-                Corrector::restore(l_shaped_map(), params, MatchMode::Fast, first.state());
-            for (i, &p) in drive.iter().enumerate().skip(cut) {
-                let mut got = restored.push(p);
-                got.timing = steps[i].timing;
-                assert_eq!(got, steps[i], "cut at {cut}, pose {i}");
-            }
-        }
+        assert_restores_bit_for_bit(params, &drive, &steps, &[30, 91, 500]);
     }
 
     #[test]
@@ -1097,18 +1113,7 @@ mod tests {
     fn a_faster_source_feeds_its_window_at_the_presets_rate() {
         // The L-shaped drive at ten times the rate: nine interpolated poses between each two.
         let slow = l_drive([0.0, 1.0]);
-        let fast: Vec<[f64; 2]> = slow
-            .windows(2)
-            .flat_map(|w| {
-                (0..10).map(move |j| {
-                    let f = j as f64 / 10.0;
-                    [
-                        w[0][0] + f * (w[1][0] - w[0][0]),
-                        w[0][1] + f * (w[1][1] - w[0][1]),
-                    ]
-                })
-            })
-            .collect();
+        let fast = densified(&slow, 10);
         let paper = small_params();
         let mut at_rate = paper;
         at_rate.odometry_rate_hz = 100.0;
@@ -1151,19 +1156,7 @@ mod tests {
             Some(Status::Accepted { .. })
         ));
         // A corrector restored between window poses continues the count.
-        for cut in [1, 13, 205, 1111] {
-            let mut first = Corrector::new(l_shaped_map(), at_rate);
-            fast[..cut].iter().for_each(|&p| {
-                first.push(p);
-            });
-            let mut restored =
-                Corrector::restore(l_shaped_map(), at_rate, MatchMode::Fast, first.state());
-            for (i, &p) in fast.iter().enumerate().skip(cut) {
-                let mut got = restored.push(p);
-                got.timing = steps[i].timing;
-                assert_eq!(got, steps[i], "cut at {cut}, pose {i}");
-            }
-        }
+        assert_restores_bit_for_bit(at_rate, &fast, &steps, &[1, 13, 205, 1111]);
     }
 
     #[test]
