@@ -232,12 +232,6 @@ impl Preset {
             Preset::Liodom | Preset::KissIcp => 500.0,
             Preset::Basalt | Preset::OrbSlam3 => 300.0,
         };
-        // A direction the lanes say next to nothing about (along a straight road) is never applied
-        // whole; every other direction is. One ratio for every preset: visual odometry gained
-        // from 1 to 0.1 once the newest matches were no longer trimmed, and for LiDAR odometry
-        // a stricter ratio (10) keeps every shared sequence within 5 cm of raw but lags behind
-        // real drift (docs/method.md, "Confidence").
-        let min_evidence_ratio = 0.1;
         // The correspondence gate opens at a few times the worst drift rate of the odometry kind
         // the preset is for (LiDAR 0.1-0.7 % of the distance, visual 1-15 %,
         // ../shared/data/README.md), as the covariance's drift model does.
@@ -245,19 +239,24 @@ impl Preset {
             Preset::Liodom | Preset::KissIcp => 0.02,
             Preset::Basalt | Preset::OrbSlam3 => 0.2,
         };
-        // The trim ranks the two newest matched poses as fitting: the matches of both rest on the
-        // newest position (a pose's direction is taken towards the next one, the newest's from
-        // the one before), which no alignment has seen yet.
-        // An alignment per metre of road: on the shared runs the same results as on every pose
-        // (docs/method.md, item 7) for half the alignments at KITTI's town speeds.
         Params {
             max_window_path_m,
-            alignment_spacing_m: 1.0,
-            lane_tolerance_m: 1.0,
-            untrimmed_newest: 2,
-            max_match_distance_m: 3.0,
             drift_per_m,
-            min_evidence_ratio,
+            lane_tolerance_m: 1.0,
+            max_match_distance_m: 3.0,
+            // The trim ranks the two newest matched poses as fitting: the matches of both rest on
+            // the newest position (a pose's direction is taken towards the next one, the newest's
+            // from the one before), which no alignment has seen yet.
+            untrimmed_newest: 2,
+            // A direction the lanes say next to nothing about (along a straight road) is never
+            // applied whole; every other direction is. One ratio for every preset: visual
+            // odometry gained from 1 to 0.1 once the newest matches were no longer trimmed, and
+            // for LiDAR odometry a stricter ratio (10) keeps every shared sequence within 5 cm of
+            // raw but lags behind real drift (docs/method.md, "Confidence").
+            min_evidence_ratio: 0.1,
+            // An alignment per metre of road: on the shared runs the same results as on every
+            // pose (docs/method.md, item 7) for half the alignments at KITTI's town speeds.
+            alignment_spacing_m: 1.0,
             ..self.params()
         }
     }
