@@ -7,7 +7,7 @@
 //! with its configuration ([`params`]) and its covariance ([`confidence`]), smooth output ([`smoothing`]), a source's corrector with
 //! its placement ([`source_corrector`]), accuracy metrics ([`metrics`]) and the file formats
 //! every tool shares: lane tiles ([`tile`]) and grids of them ([`grid`]), trajectories ([`trajectory`]) and lane CSV
-//! ([`lane_csv`]), with bounded readers and atomic outputs ([`input`]); [`plausibility`] warns
+//! ([`lane_csv`]), with bounded readers and atomic outputs ([`input`]) and numbers as they are written ([`number_text`]); [`plausibility`] warns
 //! about runs that are probably set up wrongly. The algorithm as implemented is described in `docs/algorithm.md`.
 //!
 //! ```
@@ -42,6 +42,7 @@ pub mod match_cache;
 pub mod matching;
 pub mod metrics;
 pub mod names;
+pub mod number_text;
 pub mod params;
 pub mod plausibility;
 pub mod pose;

@@ -1,6 +1,5 @@
 //! Trajectory files: KITTI (12 numbers a line, row-major 3x4) and TUM (`t x y z qx qy qz qw`).
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
@@ -8,6 +7,7 @@ use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::input::{quote, InputError, Lines};
+use crate::number_text::push_f64;
 use crate::pose::Pose3;
 
 /// A trajectory file format.
@@ -210,9 +210,11 @@ pub fn format_text(
     match format {
         Format::Kitti => {
             for p in &traj.poses {
-                for (i, v) in p.to_row_major().iter().enumerate() {
-                    let separator = if i == 0 { "" } else { " " };
-                    let _ = write!(s, "{separator}{v}");
+                for (i, &v) in p.to_row_major().iter().enumerate() {
+                    if i > 0 {
+                        s.push(' ');
+                    }
+                    push_f64(&mut s, v);
                 }
                 s.push('\n');
             }
@@ -227,7 +229,16 @@ pub fn format_text(
             for (t, p) in stamps.iter().zip(&traj.poses) {
                 let q = quaternion_from_rotation(&p.rotation);
                 let [x, y, z] = [p.translation[0], p.translation[1], p.translation[2]];
-                let _ = writeln!(s, "{t} {x} {y} {z} {} {} {} {}", q[0], q[1], q[2], q[3]);
+                for (i, v) in [*t, x, y, z, q[0], q[1], q[2], q[3]]
+                    .into_iter()
+                    .enumerate()
+                {
+                    if i > 0 {
+                        s.push(' ');
+                    }
+                    push_f64(&mut s, v);
+                }
+                s.push('\n');
             }
         }
     }
