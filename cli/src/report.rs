@@ -94,7 +94,11 @@ pub fn spinner(message: String) -> ProgressBar {
     if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
         bar.set_style(style);
     }
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    // Off a terminal nothing is drawn: no ticking thread either (its start and stop cost a
+    // short run a tenth of a millisecond or more).
+    if !bar.is_hidden() {
+        bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    }
     bar
 }
 
