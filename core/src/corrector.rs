@@ -209,9 +209,14 @@ pub struct Step {
     pub timing: StepTiming,
 }
 
+/// The distance between two window positions (metres). `sqrt` of the sum of squares rather
+/// than `hypot`: window positions are metres to kilometres apart, far from where the squares
+/// overflow or lose precision, and the square root is one instruction where `hypot` is a call
+/// of about twenty.
 #[inline]
 fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
+    let (dx, dy) = (a[0] - b[0], a[1] - b[1]);
+    (dx * dx + dy * dy).sqrt()
 }
 
 /// The window of corrected positions, oldest first, kept contiguous for matching.
