@@ -7,7 +7,7 @@
 //! - where it was last matched and the answer, reused outright when that pose and the one after
 //!   it (which gives its direction) have not moved since the last step's matching;
 //! - a proof (`Proof`) that its answer is one of a few known candidates while it moves less than
-//!   `PROOF_MOVE` (0.5 m) and its direction turns by less than a margin (the others, up to
+//!   `PROOF_MOVE` (0.625 m) and its direction turns by less than a margin (the others, up to
 //!   three partners, cover a pose near the joint of two segments, near-coincident lanes, or a
 //!   lane's end just passed): checked with one distance and a segment test per candidate that
 //!   also recomputes the matched point;
@@ -31,8 +31,12 @@ use crate::matching::{trajectory_direction, try_candidate, within, Correspondenc
 /// metres apart, so this usually holds a handful of lanes.
 const FIRST_RADIUS: f64 = 8.0;
 
-/// How far beyond the deciding distance a proof checks candidates (metres).
-const CONTENDER_MARGIN: f64 = 1.0;
+/// How far beyond the deciding distance a proof checks candidates (metres). Wider proofs are
+/// re-made less often (corrections move the window's old end by centimetres a step) but have
+/// more partners to test on every step: 1.25 m against 1 m, instructions -2.8 % on the speed
+/// bench, -0.4 to -0.6 % on KITTI 02 and 08 with OSM lanes, +0.06 % on 00; 1.5 m was +2.8 %
+/// on 00 with OSM lanes (docs/performance.md, "Output and distances").
+const CONTENDER_MARGIN: f64 = 1.25;
 
 /// How far (metres) a pose may move under a [`Proof`]: half the contender margin, so that no
 /// point beyond the checked ones can come closer than any checked one that matters.
