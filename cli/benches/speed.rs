@@ -2,11 +2,13 @@
 //! authors' stack runs it) against `lanealign correct` with both methods and both match modes, on
 //! the same input (docs/performance.md, "Whole process").
 //!
-//! `cargo bench -p lanealign-cli --bench speed [-- --poses 1500 --runs 7 --no-literal]`
+//! `cargo bench -p lanealign-cli --bench speed [-- --poses 1500 --runs 15 --no-literal]`
 //!
 //! Input: the first `--poses` poses of KITTI 00's LiDAR odometry, the reference lanes of 00, the
 //! kiss-icp preset. Every row is the wall time of a whole process (start, read, correct, write),
-//! the median of `--runs` runs (the Python loops run once: they take seconds to minutes). It
+//! the median of `--runs` runs (3 of the reference modes; the Python loops run once: they take
+//! seconds to minutes). The two fast modes alternate, half their runs before the Python loops and
+//! half after, so that a burst of load on a shared machine does not decide their row. It
 //! checks that the fast and reference match modes write identical files, and that the Python
 //! loop agrees with `--method paper` (largest position difference).
 
@@ -25,8 +27,9 @@ struct Args {
     /// Poses of KITTI 00 (LiDAR odometry) to correct.
     #[arg(long, default_value_t = 1500)]
     poses: usize,
-    /// Runs of each lanealign configuration; the table shows the median.
-    #[arg(long, default_value_t = 7)]
+    /// Runs of each lanealign configuration (at most 3 of the reference modes); the table shows
+    /// the median.
+    #[arg(long, default_value_t = 15)]
     runs: usize,
     /// Skip the per-candidate Python loop (the slowest row, about 30 s for 1500 poses).
     #[arg(long)]
@@ -101,6 +104,9 @@ struct Row {
 
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
     let data = default_data_dir();
     let lanes = data.join("reference/lanes/lanes_00.csv");
     let odometry = data.join("odometry/lidar/00.txt");
@@ -116,6 +122,33 @@ fn main() -> anyhow::Result<()> {
     let poses = lines.len();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/paper_loop.py");
     let lanealign = env!("CARGO_BIN_EXE_lanealign");
+
+    let run_lanealign = |method: &str, mode: &str| -> anyhow::Result<f64> {
+        timed(
+            Command::new(lanealign)
+                .args(["correct", "--lanes"])
+                .arg(&lanes)
+                .args(["--frame", "kitti-camera", "--preset", "kiss-icp"])
+                .args(["--method", method, "--match-mode", mode])
+                .arg(&input)
+                .arg("-o")
+                .arg(dir.path().join(format!("{method}_{mode}.txt"))),
+        )
+    };
+    // The fast modes take tens of milliseconds, the Python loops tens of seconds: a burst of
+    // load on this shared machine can cover every fast run in a row and none of a loop's. So
+    // the fast modes alternate, and half their runs come before the Python loops, half after.
+    let methods = ["paper", "robust"];
+    let mut fast_times: [Vec<f64>; 2] = Default::default();
+    let fast_rounds = |times: &mut [Vec<f64>; 2], rounds: usize| -> anyhow::Result<()> {
+        for _ in 0..rounds {
+            for (method, t) in methods.iter().zip(times.iter_mut()) {
+                t.push(run_lanealign(method, "fast")?);
+            }
+        }
+        Ok(())
+    };
+    fast_rounds(&mut fast_times, args.runs / 2)?;
 
     let mut rows = Vec::new();
     let mut python_paper = None;
@@ -146,36 +179,24 @@ fn main() -> anyhow::Result<()> {
             Err(e) => println!("Python loop ({name}) not run: {e:#} (needs numpy and scipy)"),
         }
     }
+    fast_rounds(&mut fast_times, args.runs - args.runs / 2)?;
 
     let mut outputs = Vec::new();
-    for method in ["paper", "robust"] {
-        for mode in ["fast", "reference"] {
-            let out = dir.path().join(format!("{method}_{mode}.txt"));
-            let runs = if mode == "reference" {
-                args.runs.min(3)
-            } else {
-                args.runs
-            };
-            let times = (0..runs)
-                .map(|_| {
-                    timed(
-                        Command::new(lanealign)
-                            .args(["correct", "--lanes"])
-                            .arg(&lanes)
-                            .args(["--frame", "kitti-camera", "--preset", "kiss-icp"])
-                            .args(["--method", method, "--match-mode", mode])
-                            .arg(&input)
-                            .arg("-o")
-                            .arg(&out),
-                    )
-                })
-                .collect::<anyhow::Result<Vec<f64>>>()?;
+    for (method, fast) in methods.into_iter().zip(fast_times) {
+        let reference = (0..args.runs.min(3))
+            .map(|_| run_lanealign(method, "reference"))
+            .collect::<anyhow::Result<Vec<f64>>>()?;
+        for (mode, times) in [("fast", fast), ("reference", reference)] {
             rows.push(Row {
                 name: format!("lanealign --method {method} --match-mode {mode}"),
+                runs: times.len(),
                 seconds: median(times),
-                runs,
             });
-            outputs.push((method, mode, out));
+            outputs.push((
+                method,
+                mode,
+                dir.path().join(format!("{method}_{mode}.txt")),
+            ));
         }
     }
 
