@@ -123,6 +123,7 @@ fn main() -> anyhow::Result<()> {
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/paper_loop.py");
     let lanealign = env!("CARGO_BIN_EXE_lanealign");
 
+    let output = |method: &str, mode: &str| dir.path().join(format!("{method}_{mode}.txt"));
     let run_lanealign = |method: &str, mode: &str| -> anyhow::Result<f64> {
         timed(
             Command::new(lanealign)
@@ -132,7 +133,7 @@ fn main() -> anyhow::Result<()> {
                 .args(["--method", method, "--match-mode", mode])
                 .arg(&input)
                 .arg("-o")
-                .arg(dir.path().join(format!("{method}_{mode}.txt"))),
+                .arg(output(method, mode)),
         )
     };
     // The fast modes take tens of milliseconds, the Python loops tens of seconds: a burst of
@@ -192,11 +193,7 @@ fn main() -> anyhow::Result<()> {
                 runs: times.len(),
                 seconds: median(times),
             });
-            outputs.push((
-                method,
-                mode,
-                dir.path().join(format!("{method}_{mode}.txt")),
-            ));
+            outputs.push((method, mode, output(method, mode)));
         }
     }
 

@@ -15,7 +15,7 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use lanealign_core::confidence::{position_covariance_in, Covariance};
 use lanealign_core::input::{Lines, Outputs};
-use lanealign_core::number_text::push_f64;
+use lanealign_core::number_text::{push_f64, push_separated};
 use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 
@@ -59,32 +59,15 @@ pub fn format<'a>(rows: impl ExactSizeIterator<Item = Row<'a>>) -> String {
 fn push_row(out: &mut String, index: usize, row: &Row<'_>) {
     let [x, y] = row.map_from_odom.translation();
     let c = &row.covariance;
-    let push_numbers = |out: &mut String, numbers: &[f64]| {
-        for &v in numbers {
-            out.push(',');
-            push_f64(out, v);
-        }
-    };
-    let _ = write!(out, "{index},");
-    out.push_str(row.status);
+    let _ = write!(out, "{index},{},{},", row.status, row.reason);
+    push_separated(out, &[row.residual_m, row.match_ratio], ',');
+    let _ = write!(out, ",{},", row.window_len);
+    push_separated(out, &[x, y, row.map_from_odom.yaw()], ',');
+    let _ = write!(out, ",{},", row.applied_directions);
+    let covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
+    push_separated(out, &covariance, ',');
     out.push(',');
-    out.push_str(row.reason);
-    push_numbers(out, &[row.residual_m, row.match_ratio]);
-    let _ = write!(out, ",{}", row.window_len);
-    push_numbers(out, &[x, y, row.map_from_odom.yaw()]);
-    let _ = write!(out, ",{}", row.applied_directions);
-    push_numbers(
-        out,
-        &[
-            c[0][0],
-            c[0][1],
-            c[0][2],
-            c[1][1],
-            c[1][2],
-            c[2][2],
-            row.anchor_yaw,
-        ],
-    );
+    push_f64(out, row.anchor_yaw);
     out.push('\n');
 }
 

@@ -20,7 +20,7 @@ use crate::lane_map::{Candidate, LaneMap};
 use crate::match_cache::MatchCache;
 use crate::matching::{match_window, Correspondence, MatchParams};
 use crate::params::Params;
-use crate::se2::Se2;
+use crate::se2::{distance, Se2};
 
 /// Why a matching attempt did not produce an accepted correction.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -209,16 +209,6 @@ pub struct Step {
     pub timing: StepTiming,
 }
 
-/// The distance between two window positions (metres). `sqrt` of the sum of squares rather
-/// than `hypot`: window positions are metres to kilometres apart, far from where the squares
-/// overflow or lose precision, and the square root is one instruction where `hypot` is a call
-/// of about twenty.
-#[inline]
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    let (dx, dy) = (a[0] - b[0], a[1] - b[1]);
-    (dx * dx + dy * dy).sqrt()
-}
-
 /// The window of corrected positions, oldest first, kept contiguous for matching.
 /// Dropping from the front moves a start offset; the buffer is compacted when the dead prefix
 /// outgrows the live part, so every operation is amortised O(1).
@@ -347,9 +337,7 @@ impl Window {
     fn path_at_least(&self, min_m: f64) -> bool {
         let mut length = 0.0;
         for w in self.as_slice().windows(2) {
-            let dx = w[1][0] - w[0][0];
-            let dy = w[1][1] - w[0][1];
-            length += (dx * dx + dy * dy).sqrt();
+            length += distance(w[1], w[0]);
             if length >= min_m {
                 return true;
             }

@@ -8,7 +8,7 @@
 //! the newest pairs as fitting ([`IcpParams::untrimmed_newest`]).
 
 use crate::matching::Correspondence;
-use crate::se2::Se2;
+use crate::se2::{distance, Se2};
 
 /// Trimmed ICP parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -122,17 +122,10 @@ pub fn fit_rigid(sources: &[[f64; 2]], targets: &[[f64; 2]], kept: &[u32]) -> Se
     Se2::from_rotation(c, s, t[0], t[1])
 }
 
-#[inline]
-fn residual(a: [f64; 2], b: [f64; 2]) -> f64 {
-    let dx = a[0] - b[0];
-    let dy = a[1] - b[1];
-    (dx * dx + dy * dy).sqrt()
-}
-
 /// The residual of `source` against the disc of radius `band` around `target` (metres).
 #[inline]
 fn band_residual(source: [f64; 2], target: [f64; 2], band: f64) -> f64 {
-    (residual(source, target) - band).max(0.0)
+    (distance(source, target) - band).max(0.0)
 }
 
 /// Sums over a trim's kept pairs, in the order the kept set lists them (ascending index): of
@@ -310,7 +303,7 @@ fn paper_icp(n: usize, params: &IcpParams, scratch: &mut IcpScratch) -> IcpResul
             .zip(residuals.iter_mut().zip(targets.iter()))
         {
             *s = step.apply(*s);
-            *r = residual(*s, q);
+            *r = distance(*s, q);
         }
         transform = step * transform;
         residual_m = mean_kept(residuals, kept, k);
@@ -517,7 +510,7 @@ fn band_newton_step(
     let mut g = nalgebra::Vector3::<f64>::zeros();
     for &i in active.iter() {
         let (s, q) = (sources[i as usize], targets[i as usize]);
-        let d = residual(s, q);
+        let d = distance(s, q);
         let rho = residuals[i as usize];
         let u = [(s[0] - q[0]) / d, (s[1] - q[1]) / d];
         let w = [-(s[1] - center[1]), s[0] - center[0]];

@@ -17,6 +17,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
 use crate::grid::Coverage;
 use crate::lane_geometry::LaneInfo;
+use crate::se2::distance;
 
 /// A lane centerline in its direction of travel (metres, map plane).
 #[derive(Clone, Debug, PartialEq)]
@@ -140,13 +141,6 @@ pub fn resample(points: &[[f64; 2]], spacing_m: f64) -> Vec<[f64; 2]> {
 /// The length of a polyline (metres, in the units of its points).
 pub fn polyline_length_m(points: &[[f64; 2]]) -> f64 {
     points.windows(2).map(|w| distance(w[0], w[1])).sum()
-}
-
-#[inline]
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    let dx = b[0] - a[0];
-    let dy = b[1] - a[1];
-    (dx * dx + dy * dy).sqrt()
 }
 
 /// The segment each point of a lane owns: `(start index, unit direction)`, relative to the

@@ -22,6 +22,16 @@ pub fn push_f64(out: &mut String, v: f64) {
     }
 }
 
+/// Appends `values` to `out` as [`push_f64`] writes them, `separator` between them.
+pub fn push_separated(out: &mut String, values: &[f64], separator: char) {
+    for (i, &v) in values.iter().enumerate() {
+        if i > 0 {
+            out.push(separator);
+        }
+        push_f64(out, v);
+    }
+}
+
 /// Whether two shortest decimals of `v` can be equally close to it. `v` is `m / 2^k` with `m`
 /// odd, and its exact decimal has the digits of `m 5^k`; a tie between two 17-digit decimals
 /// needs exactly 18 of them, so `m 5^k < 10^18`: `log2 m + k log2 5 < 59.8`. Computed values
@@ -44,7 +54,8 @@ fn may_tie(v: f64) -> bool {
     // v = mantissa 2^(e - 1075), e the biased exponent (1 for subnormals).
     let k = 1075 - biased_exponent.max(1) - zeros as i32;
     // log2 m < odd_bits, so the test below holds whenever m 5^k < 10^18 does.
-    k > 0 && f64::from(odd_bits) - 1.0 + f64::from(k) * 5f64.log2() < 59.8
+    // log2 5 = log2 10 - 1.
+    k > 0 && f64::from(odd_bits) - 1.0 + f64::from(k) * (std::f64::consts::LOG2_10 - 1.0) < 59.8
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::input::{quote, InputError, Lines};
-use crate::number_text::push_f64;
+use crate::number_text::push_separated;
 use crate::pose::Pose3;
 
 /// A trajectory file format.
@@ -210,12 +210,7 @@ pub fn format_text(
     match format {
         Format::Kitti => {
             for p in &traj.poses {
-                for (i, &v) in p.to_row_major().iter().enumerate() {
-                    if i > 0 {
-                        s.push(' ');
-                    }
-                    push_f64(&mut s, v);
-                }
+                push_separated(&mut s, &p.to_row_major(), ' ');
                 s.push('\n');
             }
         }
@@ -229,15 +224,7 @@ pub fn format_text(
             for (t, p) in stamps.iter().zip(&traj.poses) {
                 let q = quaternion_from_rotation(&p.rotation);
                 let [x, y, z] = [p.translation[0], p.translation[1], p.translation[2]];
-                for (i, v) in [*t, x, y, z, q[0], q[1], q[2], q[3]]
-                    .into_iter()
-                    .enumerate()
-                {
-                    if i > 0 {
-                        s.push(' ');
-                    }
-                    push_f64(&mut s, v);
-                }
+                push_separated(&mut s, &[*t, x, y, z, q[0], q[1], q[2], q[3]], ' ');
                 s.push('\n');
             }
         }
