@@ -369,6 +369,18 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     };
     run();
     run();
+    // `--status` goes beside `--output`: with a results folder alone it is refused, not ignored.
+    let stray = dir.path().join("stray.csv");
+    let mut args = vec!["correct", "--lanes", s(&lanes), "--format", "tum"];
+    args.extend(flags);
+    args.extend([s(&input), "--results", s(&results), "--status", s(&stray)]);
+    let refused = lanealign(&args);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && err.contains("--output"),
+        "{err}"
+    );
+    assert!(!stray.exists());
     let runs = std::fs::read_dir(&results).unwrap().count();
     assert_eq!(runs, 3, "two run folders and latest");
     let latest = results.join("latest");

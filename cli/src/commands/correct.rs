@@ -163,8 +163,8 @@ pub struct CorrectArgs {
     /// Where to write the corrected trajectory (same format and convention).
     #[arg(short, long, required_unless_present = "results")]
     output: Option<PathBuf>,
-    /// Also write a CSV of what happened at each pose.
-    #[arg(long)]
+    /// Also write a CSV of what happened at each pose (beside `--output`).
+    #[arg(long, requires = "output")]
     status: Option<PathBuf>,
     /// Also write a results folder below this one (`<UTC time>/`, with `latest` pointing at it):
     /// the corrected trajectory, the status CSV and `params.toml` (every effective parameter, the
@@ -287,9 +287,11 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         stamps: input.stamps.clone(),
         poses: run.iter().map(|c| c.pose).collect(),
     };
-    let status = status_csv(&run, &anchored_from_odom);
+    // Formatting the status CSV is a few percent of a whole run: only when a file takes it.
+    let status = (args.status.is_some() || args.results.is_some())
+        .then(|| status_csv(&run, &anchored_from_odom));
     if let Some(path) = &args.output {
-        let status = args.status.as_deref().map(|p| (p, status.clone()));
+        let status = args.status.as_deref().zip(status.clone());
         status_file::write_run(path, &output, args.format, status)?;
     }
     if let Some(parent) = &args.results {
@@ -299,11 +301,12 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             Format::Tum => "tum",
         };
         let corrected = dir.join(format!("corrected.{extension}"));
+        let status_path = dir.join("status.csv");
         status_file::write_run(
             &corrected,
             &output,
             args.format,
-            Some((&dir.join("status.csv"), status)),
+            status.map(|s| (status_path.as_path(), s)),
         )?;
         let params_file = ParamsFile {
             unmarked_offset_scale: config.unmarked_offset_scale(),
