@@ -11,9 +11,11 @@
 //! - `--paced MS`: instead, correct the first 3000 poses of KITTI 00 (lidar, kiss-icp, OSM lanes)
 //!   back to back, then with a sleep of MS milliseconds before each pose (the daemon's worker at
 //!   1000/MS Hz, idle between poses), then so and with `Corrector::prepare` and
-//!   `Corrector::work_ahead` after each pose (as the daemon calls them after publishing), and
-//!   print the step's parts as the daemon's latency event splits them, side by side, with how
-//!   many steps took a page fault; then the step's
+//!   `Corrector::work_ahead` after each pose (as the daemon calls them after publishing), then
+//!   prepared and spinning MS milliseconds between poses (a busy-spinning worker), and print the
+//!   step's parts as the daemon's latency event splits them, bookkeeping also apart for the
+//!   carried steps and for those that align, side by side, with how many steps took a page
+//!   fault; then the step's
 //!   p50 / p99 per block of 500 poses, the daemon's 5 s metrics intervals at 100 Hz (its latency
 //!   bars are per interval, and the drive's middle blocks cost the most).
 //!
@@ -158,6 +160,16 @@ fn part(steps: &[Step], f: impl Fn(StepTiming) -> Duration) -> Stats {
     )
 }
 
+/// The quantiles of one part of the steps that `which` picks (microseconds).
+fn part_of(
+    steps: &[Step],
+    which: impl Fn(&Step) -> bool,
+    f: impl Fn(StepTiming) -> Duration,
+) -> Stats {
+    let picked: Vec<Step> = steps.iter().filter(|s| which(s)).cloned().collect();
+    part(&picked, f)
+}
+
 /// Minor page faults of the calling thread so far (0 where /proc does not tell).
 fn minor_faults() -> u64 {
     std::fs::read_to_string("/proc/thread-self/stat")
@@ -178,21 +190,30 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
         "KITTI 00 lidar, kiss-icp, fast mode, {} poses; per step p50 / p99 (us), as the daemon's latency event splits it",
         positions.len()
     );
-    println!("| run | step | matching | ICP | confidence | bookkeeping | bookkeeping, first 1200 poses | steps with a page fault |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| run | step | matching | ICP | confidence | bookkeeping | bookkeeping, first 1200 poses | bookkeeping, carried | bookkeeping, aligned | steps with a page fault |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     let runs = [
-        ("back to back", None, false),
-        ("paced", Some(pause), false),
-        ("paced, prepared between poses", Some(pause), true),
+        ("back to back", Pause::None, false),
+        ("back to back, prepared between poses", Pause::None, true),
+        ("paced", Pause::Sleep, false),
+        ("paced, prepared between poses", Pause::Sleep, true),
+        ("paced spinning, prepared between poses", Pause::Spin, true),
     ];
     let mut blocks = Vec::new();
-    for (name, pause, prepared) in runs {
+    for (name, between, prepared) in runs {
         let mut c = Corrector::new(map.clone(), Method::Robust.params(Preset::KissIcp));
         let mut steps = Vec::with_capacity(positions.len());
         let mut faulting = 0;
         for &p in &positions {
-            if let Some(pause) = pause {
-                std::thread::sleep(pause);
+            match between {
+                Pause::None => {}
+                Pause::Sleep => std::thread::sleep(pause),
+                Pause::Spin => {
+                    let until = Instant::now() + pause;
+                    while Instant::now() < until {
+                        std::hint::spin_loop();
+                    }
+                }
             }
             let before = minor_faults();
             let step = c.push(p);
@@ -211,15 +232,18 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
             part(&steps, |t| t.confidence),
             part(&steps, bookkeeping),
             part(&steps[..1200.min(steps.len())], bookkeeping),
+            part_of(
+                &steps,
+                |s| matches!(s.status, Status::Carried { .. }),
+                bookkeeping,
+            ),
+            part_of(&steps, |s| s.status.attempted(), bookkeeping),
         ];
         let cells: Vec<String> = parts
             .iter()
             .map(|q| format!("{:.1} / {:.1}", q.p50, q.p99))
             .collect();
-        let name = match pause {
-            Some(_) => name.replace("paced", &format!("{pause_ms} ms apart")),
-            None => name.to_string(),
-        };
+        let name = name.replace("paced", &format!("{pause_ms} ms apart"));
         println!("| {name} | {} | {faulting} |", cells.join(" | "));
         let per_block: Vec<String> = steps
             .chunks(INTERVAL_POSES)
@@ -248,6 +272,17 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
         println!("{row}");
     }
     Ok(())
+}
+
+/// What the paced runs do between two poses.
+#[derive(Clone, Copy)]
+enum Pause {
+    /// Nothing: the poses back to back.
+    None,
+    /// Sleep (the daemon's worker waiting on events).
+    Sleep,
+    /// Spin on the clock without touching memory (a busy-spinning worker).
+    Spin,
 }
 
 /// Poses per block of the paced run's second table: the daemon's metrics interval (5 s by
