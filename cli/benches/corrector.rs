@@ -151,23 +151,16 @@ fn long_run(data: &Path, total: usize) -> anyhow::Result<()> {
 }
 
 /// The quantiles of one part of the step over `steps` (microseconds).
-fn part(steps: &[Step], f: impl Fn(StepTiming) -> Duration) -> Stats {
+fn part<'a>(
+    steps: impl IntoIterator<Item = &'a Step>,
+    f: impl Fn(StepTiming) -> Duration,
+) -> Stats {
     stats(
         steps
-            .iter()
+            .into_iter()
             .map(|s| f(s.timing).as_secs_f64() * 1e6)
             .collect(),
     )
-}
-
-/// The quantiles of one part of the steps that `which` picks (microseconds).
-fn part_of(
-    steps: &[Step],
-    which: impl Fn(&Step) -> bool,
-    f: impl Fn(StepTiming) -> Duration,
-) -> Stats {
-    let picked: Vec<Step> = steps.iter().filter(|s| which(s)).cloned().collect();
-    part(&picked, f)
 }
 
 /// Minor page faults of the calling thread so far (0 where /proc does not tell).
@@ -232,12 +225,13 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
             part(&steps, |t| t.confidence),
             part(&steps, bookkeeping),
             part(&steps[..1200.min(steps.len())], bookkeeping),
-            part_of(
-                &steps,
-                |s| matches!(s.status, Status::Carried { .. }),
+            part(
+                steps
+                    .iter()
+                    .filter(|s| matches!(s.status, Status::Carried { .. })),
                 bookkeeping,
             ),
-            part_of(&steps, |s| s.status.attempted(), bookkeeping),
+            part(steps.iter().filter(|s| s.status.attempted()), bookkeeping),
         ];
         let cells: Vec<String> = parts
             .iter()

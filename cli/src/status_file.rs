@@ -77,7 +77,7 @@ pub fn write_run(
     output: &Path,
     trajectory: &Trajectory,
     format: Format,
-    status: Option<(&Path, String)>,
+    status: Option<(&Path, &str)>,
 ) -> anyhow::Result<()> {
     let mut outputs = Outputs::default();
     outputs.stage(

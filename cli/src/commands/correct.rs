@@ -291,7 +291,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     let status = (args.status.is_some() || args.results.is_some())
         .then(|| status_csv(&run, &anchored_from_odom));
     if let Some(path) = &args.output {
-        let status = args.status.as_deref().zip(status.clone());
+        let status = args.status.as_deref().zip(status.as_deref());
         status_file::write_run(path, &output, args.format, status)?;
     }
     if let Some(parent) = &args.results {
@@ -306,7 +306,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             &corrected,
             &output,
             args.format,
-            status.map(|s| (status_path.as_path(), s)),
+            status.as_deref().map(|s| (status_path.as_path(), s)),
         )?;
         let params_file = ParamsFile {
             unmarked_offset_scale: config.unmarked_offset_scale(),

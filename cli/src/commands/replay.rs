@@ -122,6 +122,7 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         .status
         .as_deref()
         .map(|path| (path, status_csv(&result.answers)));
+    let status = status.as_ref().map(|(path, csv)| (*path, csv.as_str()));
     status_file::write_run(&args.output, &output, args.format, status)?;
     let mut rt = result.round_trip_ns.clone();
     rt.sort_unstable();
