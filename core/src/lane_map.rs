@@ -93,6 +93,8 @@ pub struct LaneMap {
     /// How far the road may lie from the segment each point owns (metres; see
     /// [`Self::chord_error_m`]).
     chord_error_m: Vec<f64>,
+    /// The longest segment's length (metres; see [`Self::longest_segment_m`]).
+    longest_segment_m: f64,
     tree: LaneTree,
     /// For a map assembled from some cells of a grid, where it answers as the whole map would.
     coverage: Option<Coverage>,
@@ -290,6 +292,11 @@ impl LaneMap {
                     })
             })
             .collect();
+        let longest_segment_m = segment_start
+            .iter()
+            .filter(|&&s| s != NO_SEGMENT)
+            .map(|&s| distance(points[s as usize], points[s as usize + 1]))
+            .fold(0.0, f64::max);
         Ok(LaneMap {
             points,
             segment_start,
@@ -299,6 +306,7 @@ impl LaneMap {
             lane_info,
             point_lane,
             chord_error_m,
+            longest_segment_m,
             tree,
             coverage: None,
             uncovered: AtomicU64::new(0),
@@ -408,6 +416,14 @@ impl LaneMap {
     #[inline]
     pub fn direction_of(&self, j: u32) -> Option<[f64; 2]> {
         (self.segment_start[j as usize] != NO_SEGMENT).then(|| self.directions[j as usize])
+    }
+
+    /// The longest lane segment (metres). Every point of a segment lies within half of it from
+    /// a lane point, so a pose farther than `r` plus half of it from every lane point is
+    /// farther than `r` from every segment.
+    #[inline]
+    pub fn longest_segment_m(&self) -> f64 {
+        self.longest_segment_m
     }
 
     /// How far the road may lie from the segment point `j` owns (metres): a lane is a polyline
@@ -528,6 +544,8 @@ mod tests {
         assert_eq!((a, b, d), ([3.0, 0.0], [3.0, 4.0], [0.0, 1.0]));
         assert!(map.segment_of(3).is_none());
         assert_eq!((map.lane_of(2), map.lane_of(3)), (0, 1));
+        // Between lanes there is no segment: the longest is the first lane's second.
+        assert_eq!(map.longest_segment_m(), 4.0);
     }
 
     #[test]

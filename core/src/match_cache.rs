@@ -17,6 +17,11 @@
 //!   decided from the set alone whenever that candidate, or `N` failing ones, lie inside. Only
 //!   when they do not is the KD-tree asked again, with a doubled radius.
 //!
+//! A pose with a finite gate (the robust method's) that lies farther from every lane than the
+//! gate plus half the longest segment can have no match within the gate: it is left unmatched
+//! without gathering candidates ([`Clearance`]). A corrector whose odometry jumped off the map
+//! would otherwise gather most of the map for each such pose.
+//!
 //! The answers are identical to [`crate::matching::match_window`], which the tests check on
 //! random windows and on real sequences.
 
@@ -107,10 +112,33 @@ impl Default for LastMatch {
     }
 }
 
+/// How far a pose was from the nearest lane point, where a match was last needed that the wide
+/// set could not decide close by: after a move by `delta`, it is at least `nearest_m - delta`
+/// away.
+#[derive(Clone, Copy, Debug)]
+struct Clearance {
+    anchor: [f64; 2],
+    nearest_m: f64,
+}
+
+/// The wide set's radius (metres) from which a pose whose set is still empty is checked for
+/// being out of the gate's reach: two doublings of [`FIRST_RADIUS`]; poses along the lanes
+/// almost never find nothing within half of it.
+const FAR_RADIUS: f64 = 4.0 * FIRST_RADIUS;
+
 #[derive(Clone, Debug, Default)]
 struct PoseCache {
     wide: CandidateSet,
     proof: Option<Proof>,
+    clearance: Option<Clearance>,
+}
+
+/// What matching a pose anew found.
+enum Anew {
+    /// The reference answer: the matched point and the lane point whose segment it lies on.
+    Answer(Option<([f64; 2], u32)>),
+    /// No match can pass the gate: the pose is too far from every lane.
+    BeyondGate,
 }
 
 /// Candidate squared distance and index, the reference order key.
@@ -191,6 +219,7 @@ impl MatchCache {
         for c in &mut self.poses {
             c.wide.points.clear();
             c.wide.radius = f64::NEG_INFINITY;
+            c.clearance = None;
             c.proof = c.proof.and_then(|p| {
                 if !covered(p.anchor, p.rests_on_m) {
                     return None;
@@ -240,6 +269,7 @@ impl MatchCache {
         c.wide.points.reserve(RESERVED_POINTS);
         c.wide.radius = f64::NEG_INFINITY;
         c.proof = None;
+        c.clearance = None;
         self.poses.push_back(c);
         self.lasts.push_back(LastMatch::NEVER);
     }
@@ -281,7 +311,14 @@ impl MatchCache {
                     Some(answer) => answer,
                     None => {
                         let scratch = (&mut self.keys, &mut self.tree_scratch);
-                        match_anew(map, cache, scratch, x, dir, params)
+                        match match_anew(map, cache, scratch, x, dir, params) {
+                            Anew::Answer(answer) => answer,
+                            Anew::BeyondGate => {
+                                // Unmatched at this gate; the next step's may reach it.
+                                self.lasts[i] = LastMatch::NEVER;
+                                continue;
+                            }
+                        }
                     }
                 }
             };
@@ -385,7 +422,8 @@ fn proven(
 }
 
 /// Decides the pose at `x` moving along `dir` from its candidate set (built again where it is
-/// when too narrow), and proves the answer for the steps to come.
+/// when too narrow), and proves the answer for the steps to come; or finds that no match can
+/// pass the gate, once the set would have to grow beyond [`FAR_RADIUS`].
 #[inline(never)]
 fn match_anew(
     map: &LaneMap,
@@ -394,7 +432,13 @@ fn match_anew(
     x: [f64; 2],
     dir: [f64; 2],
     params: &MatchParams,
-) -> Option<([f64; 2], u32)> {
+) -> Anew {
+    if cache
+        .clearance
+        .is_some_and(|c| beyond_gate(map, c, x, params.max_distance_m))
+    {
+        return Anew::BeyondGate;
+    }
     let mut radius = FIRST_RADIUS;
     loop {
         if let Decision::Decided(answer, reach) = decide(map, &cache.wide, keys, x, dir, params) {
@@ -428,11 +472,56 @@ fn match_anew(
                 let best = answer.map(|a| a.0);
                 cache.proof = prove(map, keys, x, dir, params, best, reach, wanted + PROOF_MOVE);
             }
-            return answer.map(|(key, q)| (q, key.1));
+            return Anew::Answer(answer.map(|(key, q)| (q, key.1)));
+        }
+        // Nothing within half this radius yet: the pose may be beyond the gate's reach.
+        if radius >= FAR_RADIUS
+            && cache.wide.points.is_empty()
+            && far_off(map, cache, tree_scratch, x, params.max_distance_m)
+        {
+            return Anew::BeyondGate;
         }
         rebuild(map, &mut cache.wide, tree_scratch, x, radius);
         radius *= 2.0;
     }
+}
+
+/// Whether the pose at `x` is beyond the reach of a finite `gate` (metres), measured from the
+/// nearest lane point and kept in `cache` for the steps to come. Only a whole map is asked: one
+/// assembled from a grid's cells knows the longest of its own segments, not the whole map's.
+#[cold]
+#[inline(never)]
+fn far_off(
+    map: &LaneMap,
+    cache: &mut PoseCache,
+    scratch: &mut TreeScratch,
+    x: [f64; 2],
+    gate: f64,
+) -> bool {
+    if !gate.is_finite() || map.coverage().is_some() {
+        return false;
+    }
+    let nearest = map
+        .kd_tree()
+        .query(&x)
+        .nearest_one::<SquaredEuclidean<f64>>()
+        .with_scratch(scratch)
+        .execute();
+    let clearance = Clearance {
+        anchor: x,
+        nearest_m: map.squared_distance(x, nearest.item).sqrt(),
+    };
+    cache.clearance = Some(clearance);
+    beyond_gate(map, clearance, x, gate)
+}
+
+/// Whether a pose at `x` is, by `clearance`, farther than `gate` (metres) from every lane
+/// segment, with room for rounding: then no matched point passes the gate.
+fn beyond_gate(map: &LaneMap, clearance: Clearance, x: [f64; 2], gate: f64) -> bool {
+    let (dx, dy) = (x[0] - clearance.anchor[0], x[1] - clearance.anchor[1]);
+    let nearest_m = clearance.nearest_m - (dx * dx + dy * dy).sqrt();
+    let reach_m = gate + 0.5 * map.longest_segment_m();
+    nearest_m > reach_m * (1.0 + 1e-6) + 1e-6
 }
 
 /// Tests candidate `k` at `x` moving along `dir`, and keeps it and its matched point in `first`
@@ -785,6 +874,78 @@ mod tests {
             }
         }
 
+    }
+
+    /// Lanes a block apart with points 3 m apart, both ways, as the synthetic town's.
+    fn blocks() -> LaneMap {
+        let mut lanes = Vec::new();
+        for r in 0..3 {
+            let y = r as f64 * 60.0;
+            let east: Vec<[f64; 2]> = (0..40).map(|i| [i as f64 * 3.0, y]).collect();
+            let mut west: Vec<[f64; 2]> = east.iter().map(|p| [p[0], p[1] + 3.5]).collect();
+            west.reverse();
+            lanes.push(Lane::new(2 * r, east));
+            lanes.push(Lane::new(2 * r + 1, west));
+        }
+        LaneMap::new(&lanes).unwrap()
+    }
+
+    /// A window driving along a lane, moved off the map by `offset` metres.
+    fn window_off_by(offset: [f64; 2]) -> Vec<[f64; 2]> {
+        (0..30)
+            .map(|i| [10.0 + i as f64 * 1.5 + offset[0], 1.0 + offset[1]])
+            .collect()
+    }
+
+    /// A window that jumps 200 m off the lanes and back, under a gate that is first too narrow
+    /// to reach them and then wide enough: the reference correspondences at every step, and
+    /// while out of reach the poses gather no candidates.
+    #[test]
+    fn poses_beyond_the_gate_gather_nothing() {
+        let map = blocks();
+        let mut both = SideBySide::new(30);
+        let gated = |gate: f64| MatchParams {
+            neighbours: 10,
+            min_direction_cos: 0.95,
+            max_distance_m: gate,
+        };
+        // (offset, gate, whether any pose is matched within the gate, whether any candidates
+        // were gathered: the last but one step is decided by the proofs of the one before).
+        let steps = [
+            ([0.0, 0.0], 3.0, true, true),
+            ([0.0, -200.0], 3.0, false, false),
+            ([0.0, -200.5], 150.0, false, false),
+            ([0.0, -200.0], 250.0, true, true),
+            ([0.0, -200.0], 3.0, false, true),
+            ([0.0, 0.3], 3.0, true, true),
+        ];
+        for (offset, gate, matched, gathered) in steps {
+            let (got, want) = both.matched(&map, &window_off_by(offset), &gated(gate));
+            assert_eq!(got, want, "{offset:?} at gate {gate}");
+            assert_eq!(!got.is_empty(), matched, "{offset:?} at gate {gate}");
+            let points: usize = both.cache.poses.iter().map(|c| c.wide.points.len()).sum();
+            assert_eq!(points > 0, gathered, "{offset:?} at gate {gate}: {points}");
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 256, rng_seed: proptest::test_runner::RngSeed::Fixed(13), ..ProptestConfig::default() })]
+        /// A window moved anywhere up to 300 m off the lanes under gates from 0.5 m to 300 m,
+        /// about as often within the gate's reach as beyond it: the reference correspondences
+        /// at every step.
+        #[test]
+        fn far_poses_match_as_the_reference_at_any_gate(
+            steps in prop::collection::vec((-300.0f64..300.0, -300.0f64..300.0, 0.5f64..300.0), 1..8),
+            n in 1usize..20,
+        ) {
+            let map = blocks();
+            let mut both = SideBySide::new(30);
+            for (dx, dy, gate) in steps {
+                let params = MatchParams { neighbours: n, min_direction_cos: 0.95, max_distance_m: gate };
+                let (got, want) = both.matched(&map, &window_off_by([dx, dy]), &params);
+                prop_assert_eq!(got, want);
+            }
+        }
     }
 
     proptest! {
