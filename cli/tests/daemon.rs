@@ -288,6 +288,7 @@ fn bad_input_is_flagged_and_changes_nothing() {
         "matching_p99_us",
         "icp_p99_us",
         "bookkeeping_p99_us",
+        "handling_p99_us",
         "e2e_p999_us",
         "daemon_p999_us",
         "gaps=1",

@@ -48,6 +48,9 @@ pub struct SourceMetrics {
     icp: Histogram<u64>,
     confidence: Histogram<u64>,
     bookkeeping: Histogram<u64>,
+    /// In the daemon around the corrector step (nanoseconds): the session's checks, the pose's
+    /// conversions, smoothing, the answer and its journal record.
+    handling: Histogram<u64>,
 }
 
 /// p50, p99, p999 and max of a histogram, in microseconds.
@@ -87,6 +90,7 @@ impl Default for SourceMetrics {
             icp: histogram(),
             confidence: histogram(),
             bookkeeping: histogram(),
+            handling: histogram(),
         }
     }
 }
@@ -118,6 +122,7 @@ impl SourceMetrics {
             .total
             .saturating_sub(timing.matching + timing.icp + timing.confidence)
             .as_nanos() as u64;
+        let handling_ns = in_daemon_ns.saturating_sub(timing.total.as_nanos() as u64);
         self.count += 1;
         // Saturating: values beyond the range are clamped, never an error.
         self.end_to_end.saturating_record(end_to_end_ns.max(1));
@@ -126,6 +131,7 @@ impl SourceMetrics {
         self.icp.saturating_record(icp_ns.max(1));
         self.confidence.saturating_record(confidence_ns.max(1));
         self.bookkeeping.saturating_record(bookkeeping_ns.max(1));
+        self.handling.saturating_record(handling_ns.max(1));
     }
 
     /// Emits one INFO event with the counts and latency quantiles, then starts over.
@@ -145,6 +151,7 @@ impl SourceMetrics {
         let [i50, i99, _, imax] = quantiles(&self.icp);
         let [c50, c99, _, cmax] = quantiles(&self.confidence);
         let [b50, b99, _, bmax] = quantiles(&self.bookkeeping);
+        let [h50, h99, _, hmax] = quantiles(&self.handling);
         tracing::info!(
             source,
             count = self.count,
@@ -179,6 +186,9 @@ impl SourceMetrics {
             bookkeeping_p50_us = b50,
             bookkeeping_p99_us = b99,
             bookkeeping_max_us = bmax,
+            handling_p50_us = h50,
+            handling_p99_us = h99,
+            handling_max_us = hmax,
             "latency"
         );
         self.count = 0;
@@ -199,6 +209,7 @@ impl SourceMetrics {
             &mut self.icp,
             &mut self.confidence,
             &mut self.bookkeeping,
+            &mut self.handling,
         ] {
             h.reset();
         }
@@ -209,6 +220,20 @@ impl SourceMetrics {
 mod tests {
     use super::*;
     use std::time::Duration;
+
+    #[test]
+    fn handling_is_the_daemons_time_around_the_corrector_step() {
+        let mut m = SourceMetrics::default();
+        let timing = StepTiming {
+            matching: Duration::from_micros(5),
+            icp: Duration::from_micros(7),
+            confidence: Duration::from_micros(3),
+            total: Duration::from_micros(20),
+        };
+        m.record(&Outcome::Flagged, 40_000, 26_000, &timing);
+        assert_eq!(m.handling.value_at_quantile(0.5) / 1000, 6);
+        assert_eq!(m.bookkeeping.value_at_quantile(0.5) / 1000, 5);
+    }
 
     #[test]
     fn every_histogram_starts_over_after_a_report() {
@@ -229,6 +254,7 @@ mod tests {
             &m.icp,
             &m.confidence,
             &m.bookkeeping,
+            &m.handling,
         ] {
             assert_eq!(h.len(), 0);
         }
