@@ -1,19 +1,20 @@
 //! The persistence thread: the journal work no worker waits for. It writes snapshots durably and
-//! then deletes the segments they replace, removes the journals of ended sessions, and fsyncs
-//! the open segments every second (a killed process loses nothing the kernel has; a power loss
-//! loses at most the last second).
+//! then deletes the segments they replace, removes the journals of ended sessions, and every
+//! second copies the records appended to the open segments into their synced copies (a killed
+//! process loses nothing the kernel has; a power loss loses at most the last second). The
+//! segments themselves are never synced (crate::journal: a sync would fault the worker's next
+//! copy on its latency path).
 
 use std::collections::HashMap;
-use std::fs::File;
 use std::path::PathBuf;
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use crate::journal::{segment_path, segments, write_durably};
+use crate::journal::{copy_path, segment_path, segments, write_durably, SegmentCopier};
 use crate::session::PersistJob;
 
-/// How often open segments are synced to disk.
+/// How often the open segments' new records are copied and synced to disk.
 const SYNC_PERIOD: Duration = Duration::from_secs(1);
 
 /// Starts the thread; it ends (after a last sync) when every sender is dropped.
@@ -25,22 +26,33 @@ pub fn spawn() -> std::io::Result<(Sender<PersistJob>, JoinHandle<()>)> {
     Ok((tx, handle))
 }
 
-fn sync_all(tracked: &HashMap<PathBuf, File>) {
-    for (dir, file) in tracked {
-        if let Err(e) = file.sync_data() {
-            tracing::warn!(dir = %dir.display(), error = %e, "syncing a journal segment failed");
-        }
+fn sync(dir: &std::path::Path, copier: &mut SegmentCopier) {
+    if let Err(e) = copier.sync() {
+        tracing::warn!(dir = %dir.display(), error = %e, "syncing a journal segment's copy failed");
+    }
+}
+
+fn sync_all(tracked: &mut HashMap<PathBuf, SegmentCopier>) {
+    for (dir, copier) in tracked {
+        sync(dir, copier);
     }
 }
 
 fn run(rx: Receiver<PersistJob>) {
-    let mut tracked: HashMap<PathBuf, File> = HashMap::new();
+    let mut tracked: HashMap<PathBuf, SegmentCopier> = HashMap::new();
+    // Due every period whether or not jobs keep arriving (under load they always do).
+    let mut next_sync = Instant::now() + SYNC_PERIOD;
     loop {
-        match rx.recv_timeout(SYNC_PERIOD) {
-            Ok(PersistJob::Track { dir, file }) => {
-                if let Some(previous) = tracked.insert(dir, file) {
+        let job = rx.recv_timeout(next_sync.saturating_duration_since(Instant::now()));
+        if Instant::now() >= next_sync {
+            sync_all(&mut tracked);
+            next_sync = Instant::now() + SYNC_PERIOD;
+        }
+        match job {
+            Ok(PersistJob::Track { dir, copier }) => {
+                if let Some(mut previous) = tracked.insert(dir.clone(), copier) {
                     // The segment before: its last records reach the disk too.
-                    let _ = previous.sync_data();
+                    sync(&dir, &mut previous);
                 }
             }
             Ok(PersistJob::Snapshot {
@@ -53,6 +65,12 @@ fn run(rx: Receiver<PersistJob>) {
                         if n < keep_from {
                             if let Err(e) = std::fs::remove_file(segment_path(&dir, n)) {
                                 tracing::warn!(dir = %dir.display(), error = %e, "removing an old journal segment failed");
+                            }
+                            match std::fs::remove_file(copy_path(&dir, n)) {
+                                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                                    tracing::warn!(dir = %dir.display(), error = %e, "removing an old journal segment's copy failed")
+                                }
+                                _ => {}
                             }
                         }
                     }
@@ -69,9 +87,9 @@ fn run(rx: Receiver<PersistJob>) {
                     }
                 }
             }
-            Err(RecvTimeoutError::Timeout) => sync_all(&tracked),
+            Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => {
-                sync_all(&tracked);
+                sync_all(&mut tracked);
                 return;
             }
         }

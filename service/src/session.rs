@@ -23,19 +23,20 @@ use lanealign_wire::payload::{
 
 use crate::grid_loader::{GridLoader, GridView};
 use crate::journal::{
-    read_segment, segments, Header, JournalError, Record, SegmentWriter, Snapshot, SEGMENT_RECORDS,
+    recover_segment, segments, Header, JournalError, Record, SegmentCopier, SegmentWriter,
+    Snapshot, SEGMENT_RECORDS,
 };
 use crate::metrics::Outcome;
 use crate::worker::wire_status;
 
 /// Work for the persistence thread: nothing a worker waits for.
 pub enum PersistJob {
-    /// Keep this segment file synced to disk every second.
+    /// Copy this segment's records to its synced copy every second.
     Track {
         /// The session's folder.
         dir: PathBuf,
-        /// A handle on the open segment.
-        file: std::fs::File,
+        /// The open segment's copier.
+        copier: SegmentCopier,
     },
     /// Write a snapshot durably, then delete the segments before `keep_from`.
     Snapshot {
@@ -405,10 +406,10 @@ fn create_journal(
 
 fn track(setup: &SessionSetup, dir: &Path, segment: &SegmentWriter) -> Result<(), JournalError> {
     if let Some(p) = &setup.persistence {
-        // A persistence thread that is gone only means no periodic fsync.
+        // A persistence thread that is gone only means no synced copies.
         let _ = p.send(PersistJob::Track {
             dir: dir.to_path_buf(),
-            file: segment.sync_handle()?,
+            copier: segment.copier(dir)?,
         });
     }
     Ok(())
@@ -527,7 +528,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
     let numbers = segments(dir)?;
     let mut open: Option<(u64, u64)> = None;
     for &n in &numbers {
-        let records = read_segment(&crate::journal::segment_path(dir, n))?;
+        let records = recover_segment(dir, n)?;
         for r in &records {
             if n >= first_segment {
                 if let Some(last) = last_seq {
