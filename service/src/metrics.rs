@@ -221,16 +221,20 @@ mod tests {
     use super::*;
     use std::time::Duration;
 
-    #[test]
-    fn handling_is_the_daemons_time_around_the_corrector_step() {
-        let mut m = SourceMetrics::default();
-        let timing = StepTiming {
+    /// A step of `total_us` microseconds, 15 of them in matching, ICP and confidence.
+    fn step_of(total_us: u64) -> StepTiming {
+        StepTiming {
             matching: Duration::from_micros(5),
             icp: Duration::from_micros(7),
             confidence: Duration::from_micros(3),
-            total: Duration::from_micros(20),
-        };
-        m.record(&Outcome::Flagged, 40_000, 26_000, &timing);
+            total: Duration::from_micros(total_us),
+        }
+    }
+
+    #[test]
+    fn handling_is_the_daemons_time_around_the_corrector_step() {
+        let mut m = SourceMetrics::default();
+        m.record(&Outcome::Flagged, 40_000, 26_000, &step_of(20));
         assert_eq!(m.handling.value_at_quantile(0.5) / 1000, 6);
         assert_eq!(m.bookkeeping.value_at_quantile(0.5) / 1000, 5);
     }
@@ -238,13 +242,7 @@ mod tests {
     #[test]
     fn every_histogram_starts_over_after_a_report() {
         let mut m = SourceMetrics::default();
-        let timing = StepTiming {
-            matching: Duration::from_micros(5),
-            icp: Duration::from_micros(7),
-            confidence: Duration::from_micros(3),
-            total: Duration::from_micros(100),
-        };
-        m.record(&Outcome::Flagged, 1000, 500, &timing);
+        m.record(&Outcome::Flagged, 1000, 500, &step_of(100));
         m.report("test");
         assert_eq!((m.count, m.flagged), (0, 0));
         for h in [
