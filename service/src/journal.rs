@@ -235,15 +235,21 @@ pub struct Record {
 impl Record {
     /// The record's bytes, checksum last.
     pub fn encode(&self) -> [u8; RECORD_LEN] {
-        // Sized once: a record is encoded on every pose.
         let mut e = Encoder(Vec::with_capacity(RECORD_LEN));
-        encode_odom(&mut e, &self.input);
-        encode_answer(&mut e, &self.answer);
-        let sum = xxh3_64(&e.0);
-        e.u64(sum);
+        self.encode_into(&mut e);
         let mut out = [0u8; RECORD_LEN];
         out.copy_from_slice(&e.0);
         out
+    }
+
+    /// Encodes the record into `e` (cleared first): a worker reuses one buffer for every pose,
+    /// so that appending allocates nothing.
+    fn encode_into(&self, e: &mut Encoder) {
+        e.0.clear();
+        encode_odom(e, &self.input);
+        encode_answer(e, &self.answer);
+        let sum = xxh3_64(&e.0);
+        e.u64(sum);
     }
 
     /// A record from its bytes; `None` when the checksum or the layout is wrong.
@@ -514,6 +520,8 @@ pub struct SegmentWriter {
     pub records: u64,
     /// Records written to it, for the persistence thread's copier.
     appended: Arc<AtomicU64>,
+    /// The record being appended, encoded (room for one, reused).
+    encoded: Encoder,
 }
 
 impl SegmentWriter {
@@ -564,6 +572,7 @@ impl SegmentWriter {
             number,
             records: records.min(SEGMENT_RECORDS),
             appended: Arc::new(AtomicU64::new(records.min(SEGMENT_RECORDS))),
+            encoded: Encoder(Vec::with_capacity(RECORD_LEN)),
         };
         writer.prefault_next();
         Ok(writer)
@@ -573,7 +582,8 @@ impl SegmentWriter {
     /// [`SegmentWriter::is_full`]).
     pub fn append(&mut self, record: &Record) {
         let at = self.records as usize * RECORD_LEN;
-        self.map[at..at + RECORD_LEN].copy_from_slice(&record.encode());
+        record.encode_into(&mut self.encoded);
+        self.map[at..at + RECORD_LEN].copy_from_slice(&self.encoded.0);
         self.records += 1;
         // Release: the copier reads the records this count covers.
         self.appended.store(self.records, Ordering::Release);
