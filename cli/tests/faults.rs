@@ -180,6 +180,68 @@ fn killed_daemons_lose_nothing_on_the_town() {
     killed_daemons(&setup, &name, &input, &poses, 12, "800");
 }
 
+/// Every file below `dir` whose name ends with `.ext`.
+fn files_ending(dir: &Path, ext: &str, found: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            files_ending(&path, ext, found);
+        } else if path.extension().is_some_and(|e| e == ext) {
+            found.push(path);
+        }
+    }
+}
+
+/// A power loss, as hard as one can be: the daemon killed, and not one page of its mapped
+/// journal segments on disk (every `.log` zeroed), only what the persistence thread synced: the
+/// segments' copies, which hold every record up to the last second. The session is restored from
+/// them, at the pose after their last record, and the replay still gets every pose answered (as
+/// a fresh start: the daemon lost answers its client had).
+#[test]
+fn a_power_loss_restores_sessions_from_the_synced_copies() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("town");
+    let setup = town_setup(&[&name]);
+    let (input, poses) = town_input(&setup);
+    let daemon = start(&setup);
+    let output = setup.dir.path().join("through-power-loss.txt");
+    let client = spawn_replay(&setup, &name, &input, &output, "800");
+    std::thread::sleep(Duration::from_millis(2500));
+    daemon.kill().unwrap();
+    let mut last_copied = 0;
+    let mut logs = Vec::new();
+    files_ending(&setup.state, "log", &mut logs);
+    for log in &logs {
+        let n: u64 = log.file_stem().unwrap().to_str().unwrap().parse().unwrap();
+        let copy = lanealign_service::journal::copy_path(log.parent().unwrap(), n);
+        if copy.exists() {
+            let records = lanealign_service::journal::read_segment(&copy).unwrap();
+            let last = records.iter().map(|r| r.input.seq).max().unwrap_or(0);
+            last_copied = last_copied.max(last);
+        }
+        let len = std::fs::metadata(log).unwrap().len() as usize;
+        std::fs::write(log, vec![0; len]).unwrap();
+    }
+    assert!(
+        !logs.is_empty() && last_copied > 0,
+        "{} segments, last record copied {last_copied}",
+        logs.len()
+    );
+    let daemon =
+        DaemonProcess::start_ready(&setup.config, &daemon_log(&setup), Duration::from_secs(20))
+            .unwrap();
+    let restored = format!("next_seq={}", last_copied + 1);
+    assert!(
+        daemon.log().contains(&restored),
+        "{restored} in {}",
+        daemon.log()
+    );
+    let summary = finish(client);
+    assert!(daemon.stop().unwrap());
+    let got = read(&output, Format::Kitti).unwrap().poses;
+    assert_eq!(got.len(), poses.len(), "{summary}");
+}
+
 #[test]
 fn killed_clients_leave_no_trace_on_kitti() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
