@@ -147,37 +147,48 @@ fn killed_daemons(
     );
 }
 
-fn town_input(setup: &Setup) -> (PathBuf, Vec<Pose3>) {
-    let (_, odometry) = synthetic::drive(2, 7);
-    let path = setup.dir.path().join("town-odometry.txt");
+/// A source on the synthetic town, its daemon setup, and two laps of its odometry as a file.
+struct Town {
+    name: String,
+    setup: Setup,
+    input: PathBuf,
+    poses: Vec<Pose3>,
+}
+
+fn town() -> Town {
+    let name = unique("town");
+    let setup = town_setup(&[&name]);
+    let (_, poses) = synthetic::drive(2, 7);
+    let input = setup.dir.path().join("town-odometry.txt");
     write(
-        &path,
+        &input,
         &Trajectory {
             stamps: None,
-            poses: odometry.clone(),
+            poses: poses.clone(),
         },
         Format::Kitti,
     )
     .unwrap();
-    (path, odometry)
+    Town {
+        name,
+        setup,
+        input,
+        poses,
+    }
 }
 
 #[test]
 fn killed_clients_leave_no_trace_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let name = unique("town");
-    let setup = town_setup(&[&name]);
-    let (input, poses) = town_input(&setup);
-    killed_clients(&setup, &name, &input, &poses, 11);
+    let t = town();
+    killed_clients(&t.setup, &t.name, &t.input, &t.poses, 11);
 }
 
 #[test]
 fn killed_daemons_lose_nothing_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let name = unique("town");
-    let setup = town_setup(&[&name]);
-    let (input, poses) = town_input(&setup);
-    killed_daemons(&setup, &name, &input, &poses, 12, "800");
+    let t = town();
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 12, "800");
 }
 
 /// Every file below `dir` whose name ends with `.ext`.
@@ -200,9 +211,12 @@ fn files_ending(dir: &Path, ext: &str, found: &mut Vec<PathBuf>) {
 #[test]
 fn a_power_loss_restores_sessions_from_the_synced_copies() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let name = unique("town");
-    let setup = town_setup(&[&name]);
-    let (input, poses) = town_input(&setup);
+    let Town {
+        name,
+        setup,
+        input,
+        poses,
+    } = town();
     let daemon = start(&setup);
     let output = setup.dir.path().join("through-power-loss.txt");
     let client = spawn_replay(&setup, &name, &input, &output, "800");

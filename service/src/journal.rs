@@ -451,7 +451,23 @@ pub fn segment_path(dir: &Path, n: u64) -> PathBuf {
 
 /// The path of segment `n`'s synced copy in `dir`.
 pub fn copy_path(dir: &Path, n: u64) -> PathBuf {
-    dir.join(format!("{n:08}.copy"))
+    copy_of(&segment_path(dir, n))
+}
+
+/// The synced copy of the segment at `segment`: beside it, `NNNNNNNN.copy`.
+fn copy_of(segment: &Path) -> PathBuf {
+    segment.with_extension("copy")
+}
+
+/// Removes segment `n` in `dir` and its synced copy (a segment may have none yet).
+pub fn remove_segment(dir: &Path, n: u64) -> Result<(), JournalError> {
+    let path = segment_path(dir, n);
+    std::fs::remove_file(&path).map_err(io(&path))?;
+    let copy = copy_of(&path);
+    match std::fs::remove_file(&copy) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(io(&copy)(e)),
+        _ => Ok(()),
+    }
 }
 
 /// The segments present in `dir`, in order.
@@ -472,13 +488,23 @@ pub fn segments(dir: &Path) -> Result<Vec<u64>, JournalError> {
 /// damaged or not yet written (a crash mid-copy leaves at most one torn record; the space after
 /// the last record is zeros).
 pub fn read_segment(path: &Path) -> Result<Vec<Record>, JournalError> {
+    Ok(valid_records(&segment_bytes(path)?))
+}
+
+/// A segment file's bytes (at most a segment's and one more, so that a longer file is caught).
+fn segment_bytes(path: &Path) -> Result<Vec<u8>, JournalError> {
     let mut bytes = Vec::new();
     File::open(path)
         .map_err(io(path))?
         .take(SEGMENT_BYTES as u64 + 1)
         .read_to_end(&mut bytes)
         .map_err(io(path))?;
-    Ok(bytes.chunks(RECORD_LEN).map_while(Record::decode).collect())
+    Ok(bytes)
+}
+
+/// The records at the start of `bytes` up to the first that is torn, damaged or not written.
+fn valid_records(bytes: &[u8]) -> Vec<Record> {
+    bytes.chunks(RECORD_LEN).map_while(Record::decode).collect()
 }
 
 /// The valid records of segment `n` in `dir`: the longer run of the segment and its synced copy
@@ -488,11 +514,12 @@ pub fn read_segment(path: &Path) -> Result<Vec<Record>, JournalError> {
 pub fn recover_segment(dir: &Path, n: u64) -> Result<Vec<Record>, JournalError> {
     let path = segment_path(dir, n);
     let records = read_segment(&path)?;
-    let copy = copy_path(dir, n);
+    let copy = copy_of(&path);
     if !copy.exists() {
         return Ok(records);
     }
-    let copied = read_segment(&copy)?;
+    let bytes = segment_bytes(&copy)?;
+    let copied = valid_records(&bytes);
     if copied.len() <= records.len() {
         return Ok(records);
     }
@@ -500,8 +527,8 @@ pub fn recover_segment(dir: &Path, n: u64) -> Result<Vec<Record>, JournalError> 
         .write(true)
         .open(&path)
         .map_err(io(&path))?;
-    let bytes: Vec<u8> = copied.iter().flat_map(|r| r.encode()).collect();
-    file.write_all_at(&bytes, 0).map_err(io(&path))?;
+    file.write_all_at(&bytes[..copied.len() * RECORD_LEN], 0)
+        .map_err(io(&path))?;
     file.sync_data().map_err(io(&path))?;
     Ok(copied)
 }
@@ -605,11 +632,11 @@ impl SegmentWriter {
     }
 
     /// What copies this segment's records to its synced copy (on the persistence thread).
-    pub fn copier(&self, dir: &Path) -> Result<SegmentCopier, JournalError> {
+    pub fn copier(&self) -> Result<SegmentCopier, JournalError> {
         Ok(SegmentCopier {
             segment: self.file.try_clone().map_err(io(&self.path))?,
             appended: self.appended.clone(),
-            path: copy_path(dir, self.number),
+            path: copy_of(&self.path),
             copy: None,
             copied: 0,
         })
@@ -783,7 +810,7 @@ mod tests {
     fn the_copier_copies_what_was_appended_and_a_power_loss_is_recovered_from_it() {
         let dir = tempfile::tempdir().unwrap();
         let mut w = SegmentWriter::create(dir.path(), 0).unwrap();
-        let mut copier = w.copier(dir.path()).unwrap();
+        let mut copier = w.copier().unwrap();
         // Nothing appended: no copy yet.
         copier.sync().unwrap();
         assert!(!copy_path(dir.path(), 0).exists());
@@ -820,7 +847,7 @@ mod tests {
         assert_eq!(seqs(&read_segment(&path).unwrap()), [1, 2, 3, 4, 5]);
         let mut w = SegmentWriter::reopen(dir.path(), 0, 5).unwrap();
         w.append(&record(6));
-        let mut copier = w.copier(dir.path()).unwrap();
+        let mut copier = w.copier().unwrap();
         copier.sync().unwrap();
         assert_eq!(
             seqs(&read_segment(&copy_path(dir.path(), 0)).unwrap()),

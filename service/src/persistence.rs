@@ -11,7 +11,7 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::journal::{copy_path, segment_path, segments, write_durably, SegmentCopier};
+use crate::journal::{remove_segment, segments, write_durably, SegmentCopier};
 use crate::session::PersistJob;
 
 /// How often the open segments' new records are copied and synced to disk.
@@ -63,14 +63,8 @@ fn run(rx: Receiver<PersistJob>) {
                 Ok(()) => {
                     for n in segments(&dir).unwrap_or_default() {
                         if n < keep_from {
-                            if let Err(e) = std::fs::remove_file(segment_path(&dir, n)) {
-                                tracing::warn!(dir = %dir.display(), error = %e, "removing an old journal segment failed");
-                            }
-                            match std::fs::remove_file(copy_path(&dir, n)) {
-                                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                                    tracing::warn!(dir = %dir.display(), error = %e, "removing an old journal segment's copy failed")
-                                }
-                                _ => {}
+                            if let Err(e) = remove_segment(&dir, n) {
+                                tracing::warn!(error = %e, "removing an old journal segment failed");
                             }
                         }
                     }

@@ -409,7 +409,7 @@ fn track(setup: &SessionSetup, dir: &Path, segment: &SegmentWriter) -> Result<()
         // A persistence thread that is gone only means no synced copies.
         let _ = p.send(PersistJob::Track {
             dir: dir.to_path_buf(),
-            copier: segment.copier(dir)?,
+            copier: segment.copier()?,
         });
     }
     Ok(())
