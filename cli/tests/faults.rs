@@ -18,6 +18,7 @@ use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
 use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::service::Namespace;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -297,8 +298,12 @@ fn a_million_poses_over_eight_sources_lose_none_and_memory_stays_flat() {
             "62.5",
         ])
         .args(["--waits", "event"])
-        .output()
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
         .unwrap();
+    let namespace: Namespace = format!("soak-{}", out.id()).parse().unwrap();
+    let out = out.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -327,4 +332,9 @@ fn a_million_poses_over_eight_sources_lose_none_and_memory_stays_flat() {
             "{row:?}: grew while serving"
         );
     }
+    assert_eq!(
+        namespace.files(),
+        Vec::<PathBuf>::new(),
+        "the soak's namespace files"
+    );
 }

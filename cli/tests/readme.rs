@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use lanealign_tests::shared_data;
+use lanealign_wire::service::Namespace;
 
 /// The ```sh blocks of the README, each as its lines (trailing `\` continuations joined).
 fn sh_blocks(readme: &str) -> Vec<Vec<String>> {
@@ -160,11 +161,15 @@ fn every_readme_command_runs_as_written() {
 #[test]
 fn the_demo_runs_without_data() {
     let empty = tempfile::tempdir().unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+    let demo = Command::new(env!("CARGO_BIN_EXE_lanealign"))
         .arg("demo")
         .env("LANEALIGN_DATA", empty.path())
-        .output()
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
         .unwrap();
+    let namespace = format!("demo-{}", demo.id());
+    let out = demo.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -181,5 +186,11 @@ fn the_demo_runs_without_data() {
     assert!(
         stdout.contains("throughput, 64 poses in flight (a new session, same answers: yes)"),
         "{stdout}"
+    );
+    let namespace: Namespace = namespace.parse().unwrap();
+    assert_eq!(
+        namespace.files(),
+        Vec::<PathBuf>::new(),
+        "the demo's namespace files"
     );
 }

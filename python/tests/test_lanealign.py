@@ -6,6 +6,7 @@ Needs the `lanealign` binary (LANEALIGN_BIN, else the workspace's target/release
 
 import json
 import os
+import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -200,6 +201,15 @@ def test_compile_map_writes_the_tile_the_command_line_writes(tmp_path):
         lanealign.compile_map(tmp_path / "missing.osm", tmp_path / "x.tile")
 
 
+def remove_namespace_files(namespace):
+    """iceoryx2 keeps a namespace's files after its last process has left (the root folder and
+    the shared-memory files, named as `Namespace::remove_files` in wire/src/service.rs removes
+    them); a test's namespace goes with the test."""
+    shutil.rmtree(f"/tmp/lanealign-{namespace}", ignore_errors=True)
+    for f in Path("/dev/shm").glob(f"lanealign_{namespace}_*"):
+        f.unlink(missing_ok=True)
+
+
 def test_client_through_the_daemon_equals_correct(tmp_path):
     needs_data()
     osm = DATA / "osm" / "kitti_00.osm"
@@ -235,6 +245,8 @@ preset = "kiss-icp"
     finally:
         daemon.terminate()
         daemon.wait(20)
+        client = None  # its iceoryx2 node goes before the namespace's files
+        remove_namespace_files(namespace)
     offline = lanealign.correct(poses, osm=str(osm), anchor=(48.9825452359, 8.3903661, 59.5584,
                                 0.806, 0.365), projection="kitti", preset="kiss-icp",
                                 frame="kitti-camera")

@@ -183,6 +183,46 @@ impl Namespace {
         format!("/tmp/lanealign-{}/", self.0)
     }
 
+    /// The namespace's iceoryx2 files that exist: its root folder and its shared-memory files
+    /// in `/dev/shm`.
+    pub fn files(&self) -> Vec<std::path::PathBuf> {
+        let root = std::path::PathBuf::from(self.root_path());
+        let prefix = self.prefix();
+        let shm = std::fs::read_dir("/dev/shm")
+            .into_iter()
+            .flatten()
+            .flatten();
+        root.exists()
+            .then_some(root)
+            .into_iter()
+            .chain(
+                shm.filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+                    .map(|e| e.path()),
+            )
+            .collect()
+    }
+
+    /// Removes the namespace's iceoryx2 files ([`Namespace::files`]). iceoryx2 keeps a
+    /// namespace's management state after its last process has left, by design; a namespace
+    /// made for one run (`lanealign demo`, `lanealign soak`, a test) should go with the run.
+    /// Only for a namespace no process uses any more. Files already gone are no error; the
+    /// first other failure is returned, after trying the rest.
+    pub fn remove_files(&self) -> std::io::Result<()> {
+        let mut result = Ok(());
+        for path in self.files() {
+            let removed = if path.is_dir() {
+                std::fs::remove_dir_all(&path)
+            } else {
+                std::fs::remove_file(&path)
+            };
+            match removed {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => result = result.and(Err(e)),
+                _ => {}
+            }
+        }
+        result
+    }
+
     /// iceoryx2's configuration for this namespace: its defaults with this namespace's root
     /// folder and file prefix.
     pub fn config(&self) -> iceoryx2::config::Config {

@@ -24,6 +24,7 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::payload::StatusCode;
+use lanealign_wire::service::Namespace;
 use lanealign_wire::wait::WaitStrategy;
 
 use super::percentile_us;
@@ -92,14 +93,14 @@ pub fn run() -> anyhow::Result<()> {
         tile_path.display()
     );
     let source = format!("demo-{}", std::process::id());
-    let namespace = format!("demo-{}", std::process::id());
+    let namespace: Namespace = format!("demo-{}", std::process::id()).parse()?;
     let corrector = CorrectorConfig::new(Preset::KissIcp, Method::Robust);
     let config = dir.path().join("lanealignd.toml");
     daemon_config::write(
         &config,
         &daemon_config::config(
             &tile_path,
-            &namespace,
+            namespace.as_str(),
             5.0,
             &dir.path().join("state"),
             &[daemon_config::Source {
@@ -123,7 +124,7 @@ pub fn run() -> anyhow::Result<()> {
     // flooded with 64 in flight, whose round trips are mostly queueing.
     let run = |in_flight: usize| -> anyhow::Result<(Replay, Duration)> {
         let mut conn = Connection::connect_in(
-            &namespace.parse()?,
+            &namespace,
             &source.parse()?,
             lanealign_client::connection::new_session_id(),
         )?;
@@ -142,6 +143,10 @@ pub fn run() -> anyhow::Result<()> {
     let runs = run(1).and_then(|latency| Ok((latency, run(64)?)));
     let log = daemon.log();
     let clean = daemon.stop()?;
+    // The daemon and both sessions are gone: so goes the demo's namespace.
+    if let Err(e) = namespace.remove_files() {
+        eprintln!("warning: removing the demo's namespace files: {e}");
+    }
     let ((result, _), (flood, flood_time)) =
         runs.with_context(|| format!("replay failed; daemon log:\n{log}"))?;
     let corrected: Vec<Pose3> = result

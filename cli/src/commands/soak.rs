@@ -15,6 +15,7 @@ use lanealign_cli::{daemon_config, report};
 use lanealign_client::Connection;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::AxisConvention;
+use lanealign_wire::service::Namespace;
 use lanealign_wire::wait::WaitStrategy;
 
 use super::percentile_us;
@@ -78,6 +79,11 @@ struct PhaseSpec {
     index: usize,
 }
 
+/// The soak's own iceoryx2 namespace: one per run, removed after each phase.
+fn namespace() -> anyhow::Result<Namespace> {
+    Ok(format!("soak-{}", std::process::id()).parse()?)
+}
+
 fn run_phase(
     dir: &Path,
     tile_path: &Path,
@@ -108,10 +114,16 @@ fn run_phase(
             wait,
         })
         .collect();
-    let namespace = format!("soak-{}", std::process::id());
+    let namespace = namespace()?;
     daemon_config::write(
         &config,
-        &daemon_config::config(tile_path, &namespace, 5.0, &dir.join("state"), &entries),
+        &daemon_config::config(
+            tile_path,
+            namespace.as_str(),
+            5.0,
+            &dir.join("state"),
+            &entries,
+        ),
     )?;
     let daemon = DaemonProcess::start_ready(
         &config,
@@ -129,7 +141,7 @@ fn run_phase(
             let namespace = namespace.clone();
             std::thread::spawn(move || -> anyhow::Result<SourceResult> {
                 let mut conn = Connection::connect_in(
-                    &namespace.parse()?,
+                    &namespace,
                     &name.parse()?,
                     lanealign_client::connection::new_session_id(),
                 )?;
@@ -226,6 +238,10 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
             };
             let phase = run_phase(dir.path(), &tile_path, args, spec);
             spinner.finish_and_clear();
+            // The phase's daemon and clients are gone: its namespace files go too.
+            if let Err(e) = namespace()?.remove_files() {
+                eprintln!("warning: removing the soak's namespace files: {e}");
+            }
             let phase = phase?;
             let mut all: Vec<u64> = Vec::new();
             let mut lost = 0;

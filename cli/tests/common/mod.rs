@@ -46,19 +46,10 @@ pub fn unique(name: &str) -> String {
     )
 }
 
-/// Removes a namespace's iceoryx2 folder and shared-memory files (iceoryx2 keeps a
-/// namespace's management state by design; a test's namespace goes with the test).
+/// Removes a test's namespace files ([`lanealign_wire::service::Namespace::remove_files`]).
 pub fn remove_namespace_files(namespace: &str) {
-    let _ = std::fs::remove_dir_all(format!("/tmp/lanealign-{namespace}"));
-    let prefix = format!("lanealign_{namespace}_");
-    for entry in std::fs::read_dir("/dev/shm")
-        .into_iter()
-        .flatten()
-        .flatten()
-    {
-        if entry.file_name().to_string_lossy().starts_with(&prefix) {
-            let _ = std::fs::remove_file(entry.path());
-        }
+    if let Ok(namespace) = namespace.parse::<Namespace>() {
+        let _ = namespace.remove_files();
     }
 }
 
