@@ -136,6 +136,15 @@ pub fn drive(laps: usize, seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
     drive_route(&route, seed)
 }
 
+/// At least `poses` true poses and their odometry run (see [`drive`]): as many laps as that
+/// takes, driven in one go, so that the odometry drifts on from lap to lap as a vehicle's would
+/// (a run replayed in a loop jumps back to its start at every loop instead, and its corrector
+/// then finds itself hundreds of metres off).
+pub fn drive_at_least(poses: usize, seed: u64) -> (Vec<Pose3>, Vec<Pose3>) {
+    let lap = drive(1, seed).0.len().max(1);
+    drive(poses.div_ceil(lap).max(1), seed)
+}
+
 /// A drive across a city of `streets` streets (see [`city_lanes`]): from its south-west
 /// corner to its north-east one in steps of three blocks east and three north, as
 /// [`drive`] drives the town.
@@ -212,6 +221,26 @@ mod tests {
     use lanealign_core::se2::Se2;
     use lanealign_core::source_corrector::{correct_trajectory, counts, Placement};
     use std::sync::Arc;
+
+    #[test]
+    fn a_long_drive_drifts_on_from_lap_to_lap_without_jumping_back() {
+        let (truth, odometry) = drive_at_least(20_000, 7);
+        assert!(odometry.len() >= 20_000, "{}", odometry.len());
+        assert_eq!(truth.len(), odometry.len());
+        let step = |w: &[Pose3]| {
+            let ([ax, ay], [bx, by]) = (w[0].planar_position(), w[1].planar_position());
+            (bx - ax).hypot(by - ay)
+        };
+        let longest = odometry.windows(2).map(step).fold(0.0, f64::max);
+        // Steps of a metre, a few at the corners, where the lane offset turns with the street.
+        assert!(longest < 5.0, "an odometry step of {longest} m");
+        // It drifts on: the last lap's odometry is farther from the truth than the first's.
+        let off = |k: usize| {
+            let ([ax, ay], [bx, by]) = (truth[k].planar_position(), odometry[k].planar_position());
+            (bx - ax).hypot(by - ay)
+        };
+        assert!(off(odometry.len() - 1) > off(drive(1, 7).0.len() - 1));
+    }
 
     #[test]
     fn the_town_drive_drifts_and_lanealign_removes_most_of_it() {

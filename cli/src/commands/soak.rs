@@ -131,9 +131,9 @@ fn run_phase(
         Duration::from_secs(20),
     )?;
     let mut rss = vec![rss_kib(daemon.id())];
-    let (_, odometry) = synthetic::drive(3, 7);
-    let odometry = Arc::new(odometry);
     let count = (rate * duration).round() as usize;
+    let (_, odometry) = synthetic::drive_at_least(count, 7);
+    let odometry = Arc::new(odometry);
     let handles: Vec<_> = names
         .into_iter()
         .map(|name| {
@@ -146,11 +146,11 @@ fn run_phase(
                     lanealign_client::connection::new_session_id(),
                 )?;
                 conn.set_wait_strategy(wait);
-                let poses: Vec<_> = (0..count).map(|i| odometry[i % odometry.len()]).collect();
+                let poses = &odometry[..count];
                 match replay(
                     &mut conn,
                     &name,
-                    &poses,
+                    poses,
                     &[],
                     Rate::Hz(rate),
                     Duration::from_secs(10),
