@@ -6,6 +6,7 @@ Needs the `lanealign` binary (LANEALIGN_BIN, else the workspace's target/release
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import time
@@ -206,8 +207,10 @@ def remove_namespace_files(namespace):
     the shared-memory files, named as `Namespace::remove_files` in wire/src/service.rs removes
     them); a test's namespace goes with the test."""
     shutil.rmtree(f"/tmp/lanealign-{namespace}", ignore_errors=True)
-    for f in Path("/dev/shm").glob(f"lanealign_{namespace}_*"):
-        f.unlink(missing_ok=True)
+    ours = re.compile(rf"lanealign_{re.escape(namespace)}_[0-9a-fA-F]{{40}}.*")
+    for f in Path("/dev/shm").iterdir():
+        if ours.fullmatch(f.name):
+            f.unlink(missing_ok=True)
 
 
 def test_client_through_the_daemon_equals_correct(tmp_path):

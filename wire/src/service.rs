@@ -184,10 +184,17 @@ impl Namespace {
     }
 
     /// The namespace's iceoryx2 files that exist: its root folder and its shared-memory files
-    /// in `/dev/shm`.
+    /// in `/dev/shm`, which iceoryx2 names by the [`Namespace::prefix`] and a 40-digit hex hash.
+    /// The hash is checked too: names may hold `_`, so the prefix of namespace `a` begins the
+    /// files of namespace `a_b` as well.
     pub fn files(&self) -> Vec<std::path::PathBuf> {
         let root = std::path::PathBuf::from(self.root_path());
         let prefix = self.prefix();
+        let ours = |name: &str| {
+            name.strip_prefix(&prefix).is_some_and(|rest| {
+                rest.len() >= 40 && rest.bytes().take(40).all(|b| b.is_ascii_hexdigit())
+            })
+        };
         let shm = std::fs::read_dir("/dev/shm")
             .into_iter()
             .flatten()
@@ -196,7 +203,7 @@ impl Namespace {
             .then_some(root)
             .into_iter()
             .chain(
-                shm.filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+                shm.filter(|e| ours(&e.file_name().to_string_lossy()))
                     .map(|e| e.path()),
             )
             .collect()
@@ -626,6 +633,31 @@ impl SessionServices {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_namespace_removes_its_own_files_and_not_those_of_a_name_it_begins() {
+        let name = format!("files-test-{}", std::process::id());
+        let (a, a_b): (Namespace, Namespace) =
+            (name.parse().unwrap(), format!("{name}_b").parse().unwrap());
+        let hash = "9204dd183d1c4d8e1ff592a30766ffa6765aa8b5";
+        let fake = |n: &Namespace| {
+            std::fs::create_dir_all(format!("{}nodes", n.root_path())).unwrap();
+            let shm = std::path::PathBuf::from(format!("/dev/shm/{}{hash}_node", n.prefix()));
+            std::fs::write(&shm, b"x").unwrap();
+            shm
+        };
+        let (shm_a, shm_a_b) = (fake(&a), fake(&a_b));
+        let root = |n: &Namespace| std::path::PathBuf::from(n.root_path());
+        assert_eq!(a.files(), vec![root(&a), shm_a.clone()]);
+        a.remove_files().unwrap();
+        assert_eq!(a.files(), Vec::<std::path::PathBuf>::new());
+        assert!(!shm_a.exists());
+        assert_eq!(a_b.files(), vec![root(&a_b), shm_a_b.clone()]);
+        a_b.remove_files().unwrap();
+        assert!(!shm_a_b.exists() && !root(&a_b).exists());
+        // Gone already: no error.
+        a_b.remove_files().unwrap();
+    }
 
     #[test]
     fn names_are_checked_and_map_to_services() {
