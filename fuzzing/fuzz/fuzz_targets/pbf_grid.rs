@@ -4,8 +4,11 @@
 use lanealign_fuzzing::targets::Target;
 use libfuzzer_sys::fuzz_target;
 
-fuzz_target!(|data: &[u8]| {
-    let mut input = data.to_vec();
-    Target::PbfGrid.prepare(&mut input, data.len() as u64);
-    let _ = Target::PbfGrid.run(&input);
-});
+fuzz_target!(
+    init: lanealign_fuzzing::let_osmpbf_panics_unwind(),
+    |data: &[u8]| {
+        let mut input = data.to_vec();
+        Target::PbfGrid.prepare(&mut input, data.len() as u64);
+        let _ = Target::PbfGrid.run(&input);
+    }
+);
