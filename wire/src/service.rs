@@ -397,7 +397,7 @@ impl Namespace {
     pub fn named_node(&self, name: &str) -> Result<Node<ipc::Service>, NodeCreateError> {
         let error = |source| NodeCreateError {
             namespace: self.0.clone(),
-            hint: ownership_hint(&self.config(), &self.prefix()),
+            hint: ownership_hint(self),
             source,
         };
         let builder = NodeBuilder::new().config(&self.config());
@@ -431,36 +431,26 @@ impl Namespace {
     }
 }
 
-/// Who owns the namespace's files, when it is not this process's user: what a permission error
-/// means, and what to do. Empty when nothing can be said.
-fn ownership_hint(config: &iceoryx2::config::Config, prefix: &str) -> String {
+/// Who owns `namespace`'s files ([`Namespace::files`], and everything in its root folder), when
+/// it is not this process's user: what a permission error means, and what to do. Empty when
+/// nothing can be said.
+fn ownership_hint(namespace: &Namespace) -> String {
     let me = rustix::process::geteuid().as_raw();
     let mut owners = std::collections::BTreeSet::new();
-    let root = config.global.root_path().to_string();
-    for dir in ["/dev/shm".to_string(), root.clone()] {
-        let mut stack = vec![std::path::PathBuf::from(dir)];
-        while let Some(dir) = stack.pop() {
-            for entry in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
-                let path = entry.path();
-                let Ok(meta) = std::fs::symlink_metadata(&path) else {
-                    continue;
-                };
-                let name = entry.file_name().to_string_lossy().into_owned();
-                if meta.is_dir() && path.starts_with(&root) {
-                    stack.push(path.clone());
-                }
-                let relevant = name.starts_with(prefix) || path == std::path::Path::new(&root);
-                if relevant && std::os::unix::fs::MetadataExt::uid(&meta) != me {
-                    owners.insert(std::os::unix::fs::MetadataExt::uid(&meta));
-                }
-            }
+    let mut stack = namespace.files();
+    while let Some(path) = stack.pop() {
+        let Ok(meta) = std::fs::symlink_metadata(&path) else {
+            continue;
+        };
+        if meta.is_dir() {
+            let entries = std::fs::read_dir(&path).into_iter().flatten().flatten();
+            stack.extend(entries.map(|e| e.path()));
         }
-    }
-    if let Ok(meta) = std::fs::metadata(&root) {
         if std::os::unix::fs::MetadataExt::uid(&meta) != me {
             owners.insert(std::os::unix::fs::MetadataExt::uid(&meta));
         }
     }
+    let (root, prefix) = (namespace.root_path(), namespace.prefix());
     if owners.is_empty() {
         return String::new();
     }
