@@ -227,8 +227,7 @@ fn a_power_loss_restores_sessions_from_the_synced_copies() {
     let mut logs = Vec::new();
     files_ending(&setup.state, "log", &mut logs);
     for log in &logs {
-        let n: u64 = log.file_stem().unwrap().to_str().unwrap().parse().unwrap();
-        let copy = lanealign_service::journal::copy_path(log.parent().unwrap(), n);
+        let copy = lanealign_service::journal::copy_of(log);
         if copy.exists() {
             let records = lanealign_service::journal::read_segment(&copy).unwrap();
             let last = records.iter().map(|r| r.input.seq).max().unwrap_or(0);

@@ -449,13 +449,8 @@ pub fn segment_path(dir: &Path, n: u64) -> PathBuf {
     dir.join(format!("{n:08}.log"))
 }
 
-/// The path of segment `n`'s synced copy in `dir`.
-pub fn copy_path(dir: &Path, n: u64) -> PathBuf {
-    copy_of(&segment_path(dir, n))
-}
-
 /// The synced copy of the segment at `segment`: beside it, `NNNNNNNN.copy`.
-fn copy_of(segment: &Path) -> PathBuf {
+pub fn copy_of(segment: &Path) -> PathBuf {
     segment.with_extension("copy")
 }
 
@@ -813,7 +808,7 @@ mod tests {
         let mut copier = w.copier().unwrap();
         // Nothing appended: no copy yet.
         copier.sync().unwrap();
-        assert!(!copy_path(dir.path(), 0).exists());
+        assert!(!copy_of(&segment_path(dir.path(), 0)).exists());
         for seq in 1..=3 {
             w.append(&record(seq));
         }
@@ -823,7 +818,7 @@ mod tests {
         }
         copier.sync().unwrap();
         assert_eq!(
-            seqs(&read_segment(&copy_path(dir.path(), 0)).unwrap()),
+            seqs(&read_segment(&copy_of(&segment_path(dir.path(), 0))).unwrap()),
             [1, 2, 3, 4, 5]
         );
         // Appended after the last sync: in the segment only.
@@ -850,7 +845,7 @@ mod tests {
         let mut copier = w.copier().unwrap();
         copier.sync().unwrap();
         assert_eq!(
-            seqs(&read_segment(&copy_path(dir.path(), 0)).unwrap()),
+            seqs(&read_segment(&copy_of(&segment_path(dir.path(), 0))).unwrap()),
             [1, 2, 3, 4, 5, 6]
         );
     }

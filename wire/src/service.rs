@@ -450,10 +450,10 @@ fn ownership_hint(namespace: &Namespace) -> String {
             owners.insert(std::os::unix::fs::MetadataExt::uid(&meta));
         }
     }
-    let (root, prefix) = (namespace.root_path(), namespace.prefix());
     if owners.is_empty() {
         return String::new();
     }
+    let (root, prefix) = (namespace.root_path(), namespace.prefix());
     let names: Vec<String> = owners
         .iter()
         .map(|&uid| match user_name(uid) {

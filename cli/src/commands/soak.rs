@@ -79,14 +79,10 @@ struct PhaseSpec {
     index: usize,
 }
 
-/// The soak's own iceoryx2 namespace: one per run, removed after each phase.
-fn namespace() -> anyhow::Result<Namespace> {
-    Ok(format!("soak-{}", std::process::id()).parse()?)
-}
-
 fn run_phase(
     dir: &Path,
     tile_path: &Path,
+    namespace: &Namespace,
     args: &SoakArgs,
     spec: PhaseSpec,
 ) -> anyhow::Result<Phase> {
@@ -114,7 +110,6 @@ fn run_phase(
             wait,
         })
         .collect();
-    let namespace = namespace()?;
     daemon_config::write(
         &config,
         &daemon_config::config(
@@ -209,6 +204,8 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let dir = tempfile::tempdir().context("creating a temporary folder")?;
     let tile_path = dir.path().join("town.tile");
     synthetic::write_town_tile(&tile_path)?;
+    // The soak's own iceoryx2 namespace: one per run, its files removed after each phase.
+    let namespace: Namespace = format!("soak-{}", std::process::id()).parse()?;
     println!("soak: {rate} Hz x {duration} s per phase, synthetic town, kiss-icp; round trip = client send to client receive; {cores} cores");
     println!("| mode | wait | sources | poses | lost | p50 (us) | p99 (us) | max (us) | daemon memory at start / 25 / 50 / 75 % / end (KiB) |");
     println!("|---|---|---|---|---|---|---|---|---|");
@@ -236,10 +233,10 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
                 wait,
                 index: phase_index,
             };
-            let phase = run_phase(dir.path(), &tile_path, args, spec);
+            let phase = run_phase(dir.path(), &tile_path, &namespace, args, spec);
             spinner.finish_and_clear();
             // The phase's daemon and clients are gone: its namespace files go too.
-            if let Err(e) = namespace()?.remove_files() {
+            if let Err(e) = namespace.remove_files() {
                 eprintln!("warning: removing the soak's namespace files: {e}");
             }
             let phase = phase?;
