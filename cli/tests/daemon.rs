@@ -399,8 +399,11 @@ fn a_reload_keeps_running_sessions(
     );
     let after = offline(setup, name, &odometry);
     assert!(after != before, "the new map changes corrections");
+    // Paced, not flooded: a session on a grid that outruns its loader answers on the cells it
+    // has (by design, counted as uncovered queries), and then differs from the whole tile.
+    // Flooded with 32 in flight on two busy cores, that happened in 1 run of 4 here (and in CI).
     assert!(
-        run_replay(setup, name, &odometry, Rate::Max(32)) == after,
+        run_replay(setup, name, &odometry, Rate::Hz(1000.0)) == after,
         "a new session uses it"
     );
     assert!(daemon.stop().unwrap());
