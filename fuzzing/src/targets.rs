@@ -474,7 +474,7 @@ fn serve(bytes: &[u8]) {
             continue;
         };
         let before = session.expected_seq();
-        let (handled, _) = session.handle(&input, 0, &setup);
+        let (handled, _) = session.handle(&input, 0, &setup, || false);
         let a = handled.answer;
         assert_eq!(
             (a.session, a.seq),

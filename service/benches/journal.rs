@@ -78,7 +78,7 @@ fn run(setup: &SessionSetup, poses: &[Pose3]) -> Vec<f64> {
         .enumerate()
         .map(|(i, p)| {
             let t = Instant::now();
-            let (handled, failure) = session.handle(&input(i as u64 + 1, p), 0, setup);
+            let (handled, failure) = session.handle(&input(i as u64 + 1, p), 0, setup, || false);
             let us = t.elapsed().as_secs_f64() * 1e6;
             assert!(failure.is_none());
             std::hint::black_box(handled.answer);
@@ -125,7 +125,7 @@ fn main() -> anyhow::Result<()> {
         .enumerate()
         .map(|(i, p)| {
             let input = input(i as u64 + 1, p);
-            let (handled, _) = session.handle(&input, 0, &record_setup);
+            let (handled, _) = session.handle(&input, 0, &record_setup, || false);
             Record {
                 input,
                 answer: handled.answer,
@@ -211,7 +211,7 @@ fn main() -> anyhow::Result<()> {
     let mut window = 0;
     let mut used = 0;
     for (i, p) in poses.iter().enumerate() {
-        session.handle(&input(i as u64 + 1, p), 0, &s);
+        session.handle(&input(i as u64 + 1, p), 0, &s, || false);
         used = i + 1;
         window = session_window(&session);
         // Stop half-way into a segment: the restore replays a typical tail.
@@ -257,7 +257,7 @@ fn write_snapshot(dir: &Path, s: &SessionSetup, poses: &[Pose3]) -> anyhow::Resu
     };
     let (mut replica, _) = Session::start(7, 1, &no_journal);
     for (i, p) in poses[..boundary].iter().enumerate() {
-        replica.handle(&input(i as u64 + 1, p), 0, &no_journal);
+        replica.handle(&input(i as u64 + 1, p), 0, &no_journal, || false);
     }
     let snapshot = Snapshot {
         last_seq: boundary as u64,

@@ -5,18 +5,23 @@
 //! quarter cell the source drives it works out which cells its window and the road ahead need
 //! ([`Grid::wanted`]) and, when its map lacks any, asks the loader. The loader thread reads the
 //! missing cells (validated, checksummed against the manifest, signature checked when keys are
-//! trusted), assembles the session's new map and sends it back. A correction never waits for a
-//! file: until the new map arrives the session corrects on the one it has, and its map counts
-//! any query that reaches past its cells. Cells no session wants any more are dropped.
+//! trusted), assembles the session's new map and sends it back. A session that keeps up never
+//! waits for a file: until the new map arrives it corrects on the one it has, and its map counts
+//! any query that reaches past its cells. A session that is behind (poses queued) waits for
+//! it, briefly, rather than outrun its loader. Cells no session wants any more are dropped.
 
 use std::collections::{BTreeSet, HashMap};
-use std::sync::mpsc::{self, Receiver, Sender, TryRecvError};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
 use lanealign_core::grid::{self, CellKey, CellNeeds, Grid, GridCell, LoadPolicy};
 use lanealign_core::lane_map::LaneMap;
+
+/// Longest a session that is behind waits for the map it asked for (see
+/// [`GridView::arrived`]); a loader slower than this leaves it on the map it has, as before.
+pub const CATCH_UP: Duration = Duration::from_millis(100);
 
 /// A request to the loader thread.
 enum Request {
@@ -112,10 +117,23 @@ impl GridView {
         self.pending.is_some()
     }
 
-    /// The map the loader assembled since the last call, if one arrived; never waits.
-    pub fn arrived(&mut self) -> Option<Arc<LaneMap>> {
+    /// The map the loader assembled since the last call, if one arrived. Waits for it (at most
+    /// [`CATCH_UP`]) only when `behind()` says more poses are queued behind this one: the
+    /// session is then answering faster than it is driven (a replay flooding it, or a backlog)
+    /// and would outrun the cells being read, which makes its answers differ from offline
+    /// correction on the whole map. A session keeping up never waits for a file.
+    pub fn arrived(&mut self, behind: impl FnOnce() -> bool) -> Option<Arc<LaneMap>> {
         let (_, rx) = self.pending.as_ref()?;
-        match rx.try_recv() {
+        let received = match rx.try_recv() {
+            Err(TryRecvError::Empty) if behind() => {
+                rx.recv_timeout(CATCH_UP).map_err(|e| match e {
+                    RecvTimeoutError::Timeout => TryRecvError::Empty,
+                    RecvTimeoutError::Disconnected => TryRecvError::Disconnected,
+                })
+            }
+            other => other,
+        };
+        match received {
             Ok(map) => {
                 let (cells, _) = self.pending.take()?;
                 self.current = cells;
@@ -311,5 +329,66 @@ impl Loader {
         self.assemble_ns.reset();
         self.maps = 0;
         self.failures = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lanealign_core::geo::{MapPlane, Projection};
+    use lanealign_core::grid::GridSpec;
+    use lanealign_core::lane_geometry::LaneGeometry;
+    use lanealign_core::lane_map::Lane;
+
+    /// A view of a one-lane grid whose request is pending, and the loader's side of it.
+    fn pending_view(dir: &std::path::Path) -> (GridView, Sender<Arc<LaneMap>>, Arc<LaneMap>) {
+        let lane = Lane::new(1, (0..50).map(|i| [i as f64 * 5.0, 0.0]).collect());
+        let map = LaneMap::new(&[lane]).unwrap();
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &LaneGeometry::default(),
+            cell_size_m: 100.0,
+            margin_m: 50.0,
+            sign: None,
+        };
+        grid::write(dir, &map, &spec, 1).unwrap();
+        let grid = Arc::new(Grid::open(dir).unwrap());
+        let (loader, _) =
+            GridLoader::spawn(grid, LoadPolicy::default(), None, Duration::from_secs(60)).unwrap();
+        let mut view = loader.view(1);
+        let (reply, rx) = mpsc::channel();
+        view.pending = Some((BTreeSet::new(), rx));
+        (view, reply, Arc::new(map))
+    }
+
+    /// A session that keeps up takes what has arrived and goes on; one that is behind waits for
+    /// the map it asked for (here sent 20 ms later), so that it does not outrun its loader.
+    #[test]
+    fn only_a_session_that_is_behind_waits_for_its_map() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut view, reply, map) = pending_view(dir.path());
+        let mut asked = false;
+        assert!(view
+            .arrived(|| {
+                asked = true;
+                false
+            })
+            .is_none());
+        assert!(
+            asked && view.loading(),
+            "not behind: still pending, not waited for"
+        );
+        let sender = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(20));
+            reply.send(map).unwrap();
+        });
+        assert!(view.arrived(|| true).is_some(), "behind: waited for it");
+        assert!(!view.loading());
+        sender.join().unwrap();
+        assert!(view
+            .arrived(|| panic!("nothing pending: not asked"))
+            .is_none());
     }
 }

@@ -202,12 +202,14 @@ impl Session {
 
     /// Answers one input of this session. A used pose is journaled before its answer is
     /// returned (so before anyone can see it); a journal write that fails is reported and the
-    /// session goes on unjournaled.
+    /// session goes on unjournaled. `behind` says whether more poses are queued behind this
+    /// one (asked only while a session on a grid waits for cells: see `GridView::arrived`).
     pub fn handle(
         &mut self,
         input: &OdomPose,
         received_mono_ns: u64,
         setup: &SessionSetup,
+        behind: impl FnOnce() -> bool,
     ) -> (Handled, Option<JournalFailure>) {
         let epoch = setup.daemon_epoch;
         let mut answer = blank_answer(input, received_mono_ns, epoch);
@@ -267,7 +269,7 @@ impl Session {
         let pose = Pose3::from_row_major(&input.pose);
         let mut map_swapped = false;
         if let Some(view) = &mut self.grid {
-            if let Some(map) = view.arrived() {
+            if let Some(map) = view.arrived(behind) {
                 self.corrector.replace_map(map);
                 map_swapped = true;
             }

@@ -322,7 +322,7 @@ impl Worker {
                 None,
             ),
             Some(session) => {
-                let (handled, failure) = session.handle(&input, received, setup);
+                let (handled, failure) = session.handle(&input, received, setup, &queued);
                 self.metrics.uncovered_queries += handled.uncovered_queries;
                 self.metrics.map_swaps += u64::from(handled.map_swapped);
                 (handled.answer, handled.outcome, handled.timing, failure)

@@ -25,8 +25,7 @@ pub struct ReplayArgs {
     /// The daemon's namespace (its config's `namespace`).
     #[arg(long, default_value = "default")]
     namespace: Namespace,
-    /// Poses per second, or max (flow-controlled, 64 in flight). A daemon serving a grid may
-    /// answer a flood on fewer cells than offline correction uses (docs/grids.md).
+    /// Poses per second, or max (flow-controlled, 64 in flight).
     #[arg(long, default_value = "max")]
     rate: Rate,
     /// How to wait for answers: event (sleep until notified), busy-spin[:CORE] (poll; a core
