@@ -218,6 +218,7 @@ fn kitti_on_a_grid_matches_the_whole_tile_bit_for_bit() {
     );
     assert_eq!(uncovered, 0, "{log}");
     assert!(log.contains("resident_cells="), "the loader reports: {log}");
+    assert!(log.contains(" map_waits="), "waits are reported: {log}");
 }
 
 /// Always runs: through a raw wire client, the protocol of sequence numbers: non-finite poses

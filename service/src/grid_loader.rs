@@ -97,6 +97,7 @@ impl GridLoader {
             current: BTreeSet::new(),
             needs: CellNeeds::default(),
             pending: None,
+            waits: 0,
         }
     }
 }
@@ -109,12 +110,19 @@ pub struct GridView {
     current: BTreeSet<CellKey>,
     needs: CellNeeds,
     pending: Option<(BTreeSet<CellKey>, Receiver<Arc<LaneMap>>)>,
+    /// How often the session, behind, waited for a pending map.
+    waits: u64,
 }
 
 impl GridView {
     /// Whether a map asked for has not arrived yet (cells are being read).
     pub fn loading(&self) -> bool {
         self.pending.is_some()
+    }
+
+    /// How often [`Self::arrived`] waited for a pending map (the session was behind).
+    pub fn waits(&self) -> u64 {
+        self.waits
     }
 
     /// The map the loader assembled since the last call, if one arrived. Waits for it (at most
@@ -126,6 +134,7 @@ impl GridView {
         let (_, rx) = self.pending.as_ref()?;
         let received = match rx.try_recv() {
             Err(TryRecvError::Empty) if behind() => {
+                self.waits += 1;
                 rx.recv_timeout(CATCH_UP).map_err(|e| match e {
                     RecvTimeoutError::Timeout => TryRecvError::Empty,
                     RecvTimeoutError::Disconnected => TryRecvError::Disconnected,
@@ -384,8 +393,9 @@ mod tests {
             std::thread::sleep(Duration::from_millis(20));
             reply.send(map).unwrap();
         });
+        assert_eq!(view.waits(), 0);
         assert!(view.arrived(|| true).is_some(), "behind: waited for it");
-        assert!(!view.loading());
+        assert!(!view.loading() && view.waits() == 1);
         sender.join().unwrap();
         assert!(view
             .arrived(|| panic!("nothing pending: not asked"))

@@ -39,6 +39,9 @@ pub struct SourceMetrics {
     pub uncovered_queries: u64,
     /// On a grid: sessions that moved to a newly assembled map in this interval.
     pub map_swaps: u64,
+    /// On a grid: poses whose session was behind (poses queued) and waited for the map it
+    /// asked for, at most `grid_loader::CATCH_UP` each, in this interval.
+    pub map_waits: u64,
     /// Client send to daemon publish (nanoseconds).
     end_to_end: Histogram<u64>,
     /// Daemon receive to daemon publish (nanoseconds).
@@ -84,6 +87,7 @@ impl Default for SourceMetrics {
             journal_failures: 0,
             uncovered_queries: 0,
             map_swaps: 0,
+            map_waits: 0,
             end_to_end: histogram(),
             in_daemon: histogram(),
             matching: histogram(),
@@ -166,6 +170,7 @@ impl SourceMetrics {
             journal_failures = self.journal_failures,
             uncovered_queries = self.uncovered_queries,
             map_swaps = self.map_swaps,
+            map_waits = self.map_waits,
             e2e_p50_us = e50,
             e2e_p99_us = e99,
             e2e_p999_us = e999,
@@ -202,6 +207,7 @@ impl SourceMetrics {
         self.journal_failures = 0;
         self.uncovered_queries = 0;
         self.map_swaps = 0;
+        self.map_waits = 0;
         for h in [
             &mut self.end_to_end,
             &mut self.in_daemon,

@@ -96,6 +96,9 @@ pub struct Handled {
     pub uncovered_queries: u64,
     /// On a grid: the session moved to a newly assembled map before this pose.
     pub map_swapped: bool,
+    /// On a grid: the session was behind and waited for the map it asked for (at most
+    /// `grid_loader::CATCH_UP`) before this pose.
+    pub map_waited: bool,
 }
 
 /// One session of a source.
@@ -226,6 +229,7 @@ impl Session {
                 timing: StepTiming::default(),
                 uncovered_queries: 0,
                 map_swapped: false,
+                map_waited: false,
             }
         };
         if input.seq > self.expected_seq {
@@ -253,6 +257,7 @@ impl Session {
                         timing: StepTiming::default(),
                         uncovered_queries: 0,
                         map_swapped: false,
+                        map_waited: false,
                     };
                     (h, None)
                 }
@@ -267,12 +272,14 @@ impl Session {
             };
         }
         let pose = Pose3::from_row_major(&input.pose);
-        let mut map_swapped = false;
+        let (mut map_swapped, mut map_waited) = (false, false);
         if let Some(view) = &mut self.grid {
+            let waits = view.waits();
             if let Some(map) = view.arrived(behind) {
                 self.corrector.replace_map(map);
                 map_swapped = true;
             }
+            map_waited = view.waits() > waits;
             if pose.problem().is_none() {
                 let next = self.corrector.predicted_position_in_map(&pose);
                 view.request_if_needed(self.corrector.window(), next);
@@ -323,6 +330,7 @@ impl Session {
                 timing,
                 uncovered_queries,
                 map_swapped,
+                map_waited,
             },
             failure,
         )

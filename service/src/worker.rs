@@ -325,6 +325,7 @@ impl Worker {
                 let (handled, failure) = session.handle(&input, received, setup, &queued);
                 self.metrics.uncovered_queries += handled.uncovered_queries;
                 self.metrics.map_swaps += u64::from(handled.map_swapped);
+                self.metrics.map_waits += u64::from(handled.map_waited);
                 (handled.answer, handled.outcome, handled.timing, failure)
             }
         };
