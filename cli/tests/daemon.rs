@@ -402,7 +402,7 @@ fn a_reload_keeps_running_sessions(
     let after = offline(setup, name, &odometry);
     assert!(after != before, "the new map changes corrections");
     // Flooded: a session on a grid that is behind waits for the cells it asked for, so that it
-    // does not outrun its loader (before it did, this differed in 1 run of 4 on busy cores).
+    // does not outrun its loader (before it did, this differed in 4 runs of 20 on busy cores).
     assert!(
         run_replay(setup, name, &odometry, Rate::Max(32)) == after,
         "a new session uses it"

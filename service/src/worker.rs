@@ -303,7 +303,8 @@ impl Worker {
     }
 
     /// Answers one pose; then readies its session for the next, and does the session's work
-    /// ahead when `queued` (asked after publishing) says no pose waits.
+    /// ahead when `queued` (asked after publishing) says no pose waits. A session on a grid
+    /// asks it too, while a map it asked for is pending (`GridView::arrived`).
     fn serve(&mut self, input: OdomPose, received: u64, queued: impl Fn() -> bool) {
         self.summary.received += 1;
         if !self.ensure_live(&input) {
