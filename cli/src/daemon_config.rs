@@ -9,7 +9,17 @@ use lanealign_core::grid::LoadPolicy;
 use lanealign_core::params::CorrectorConfig;
 use lanealign_core::pose::AxisConvention;
 use lanealign_service::config::{Config, LogFormat, SourceConfig};
+use lanealign_wire::service::Namespace;
 use lanealign_wire::wait::WaitStrategy;
+
+/// The iceoryx2 namespace of one run of `command` (`demo`, `soak`) by process `pid`:
+/// `<command>-<pid>`, its own so that the run can remove its files when done
+/// ([`Namespace::remove_files`]).
+pub fn run_namespace(command: &str, pid: u32) -> anyhow::Result<Namespace> {
+    format!("{command}-{pid}")
+        .parse()
+        .with_context(|| format!("the namespace of `{command}`"))
+}
 
 /// One source of a generated configuration.
 #[derive(Clone, Debug)]

@@ -12,13 +12,13 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use common::*;
+use lanealign_cli::daemon_config;
 use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::synthetic::{self, Lcg};
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::service::Namespace;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -301,7 +301,7 @@ fn a_million_poses_over_eight_sources_lose_none_and_memory_stays_flat() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let namespace: Namespace = format!("soak-{}", out.id()).parse().unwrap();
+    let namespace = daemon_config::run_namespace("soak", out.id()).unwrap();
     let out = out.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(

@@ -13,8 +13,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use lanealign_cli::daemon_config;
 use lanealign_tests::shared_data;
-use lanealign_wire::service::Namespace;
 
 /// The ```sh blocks of the README, each as its lines (trailing `\` continuations joined).
 fn sh_blocks(readme: &str) -> Vec<Vec<String>> {
@@ -168,7 +168,7 @@ fn the_demo_runs_without_data() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let namespace = format!("demo-{}", demo.id());
+    let namespace = daemon_config::run_namespace("demo", demo.id()).unwrap();
     let out = demo.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -187,7 +187,6 @@ fn the_demo_runs_without_data() {
         stdout.contains("throughput, 64 poses in flight (a new session, same answers: yes)"),
         "{stdout}"
     );
-    let namespace: Namespace = namespace.parse().unwrap();
     assert_eq!(
         namespace.files(),
         Vec::<PathBuf>::new(),

@@ -24,7 +24,6 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::payload::StatusCode;
-use lanealign_wire::service::Namespace;
 use lanealign_wire::wait::WaitStrategy;
 
 use super::percentile_us;
@@ -93,7 +92,7 @@ pub fn run() -> anyhow::Result<()> {
         tile_path.display()
     );
     let source = format!("demo-{}", std::process::id());
-    let namespace: Namespace = format!("demo-{}", std::process::id()).parse()?;
+    let namespace = daemon_config::run_namespace("demo", std::process::id())?;
     let corrector = CorrectorConfig::new(Preset::KissIcp, Method::Robust);
     let config = dir.path().join("lanealignd.toml");
     daemon_config::write(

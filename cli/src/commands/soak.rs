@@ -205,7 +205,7 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     let tile_path = dir.path().join("town.tile");
     synthetic::write_town_tile(&tile_path)?;
     // The soak's own iceoryx2 namespace: one per run, its files removed after each phase.
-    let namespace: Namespace = format!("soak-{}", std::process::id()).parse()?;
+    let namespace = daemon_config::run_namespace("soak", std::process::id())?;
     println!("soak: {rate} Hz x {duration} s per phase, synthetic town, kiss-icp; round trip = client send to client receive; {cores} cores");
     println!("| mode | wait | sources | poses | lost | p50 (us) | p99 (us) | max (us) | daemon memory at start / 25 / 50 / 75 % / end (KiB) |");
     println!("|---|---|---|---|---|---|---|---|---|");
