@@ -148,7 +148,8 @@ fn killed_daemons(
     );
 }
 
-/// A source on the synthetic town, its daemon setup, and two laps of its odometry as a file.
+/// A source on the synthetic town, its daemon setup (a tile, or a grid of 100 m cells), and two
+/// laps of its odometry as a file.
 struct Town {
     name: String,
     setup: Setup,
@@ -156,9 +157,9 @@ struct Town {
     poses: Vec<Pose3>,
 }
 
-fn town() -> Town {
+fn town(setup_of: fn(&[&str]) -> Setup) -> Town {
     let name = unique("town");
-    let setup = town_setup(&[&name]);
+    let setup = setup_of(&[&name]);
     let (_, poses) = synthetic::drive(2, 7);
     let input = setup.dir.path().join("town-odometry.txt");
     write(
@@ -181,15 +182,24 @@ fn town() -> Town {
 #[test]
 fn killed_clients_leave_no_trace_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let t = town();
+    let t = town(town_setup);
     killed_clients(&t.setup, &t.name, &t.input, &t.poses, 11);
 }
 
 #[test]
 fn killed_daemons_lose_nothing_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let t = town();
+    let t = town(town_setup);
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 12, "800");
+}
+
+/// The same on a grid: a restored session asks for its cells again and, behind the poses the
+/// client sends again, waits for them; its answers equal offline correction on the whole tile.
+#[test]
+fn killed_daemons_lose_nothing_on_a_grid() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town(town_grid_setup);
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 13, "800");
 }
 
 /// Every file below `dir` whose name ends with `.ext`.
@@ -217,7 +227,7 @@ fn a_power_loss_restores_sessions_from_the_synced_copies() {
         setup,
         input,
         poses,
-    } = town();
+    } = town(town_setup);
     let daemon = start(&setup);
     let output = setup.dir.path().join("through-power-loss.txt");
     let client = spawn_replay(&setup, &name, &input, &output, "800");
