@@ -266,6 +266,100 @@ fn a_power_loss_restores_sessions_from_the_synced_copies() {
     assert_eq!(got.len(), poses.len(), "{summary}");
 }
 
+/// The daemon's own state files are input too: killed three times, each time with every
+/// session's journal damaged in another way before the restart (the session header cut short,
+/// the first record of every segment and of its copy flipped, the snapshot overwritten with
+/// random bytes), the daemon starts, says which journals it could not restore, and the replay
+/// still gets every pose answered. A session that lost what its client had received starts
+/// afresh, once per restart however many poses were in flight.
+#[test]
+fn tampered_journals_are_refused_and_every_pose_is_answered() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Town {
+        name,
+        setup,
+        input,
+        poses,
+    } = town(town_setup);
+    let mut rng = Lcg(31);
+    let mut daemon = start(&setup);
+    let output = setup.dir.path().join("through-tampering.txt");
+    let client = spawn_replay(&setup, &name, &input, &output, "800");
+    let mut refused = 0;
+    for (kind, what) in [
+        ("session", "header cut short"),
+        ("log", "first record flipped"),
+        ("snapshot", "snapshot overwritten"),
+    ] {
+        // A snapshot is written once a segment is full (512 poses): wait for what is damaged.
+        let mut files = Vec::new();
+        let until = Instant::now() + Duration::from_secs(20);
+        while files.is_empty() && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(20));
+            files_named(&setup.state, kind, &mut files);
+        }
+        assert!(!files.is_empty(), "{what}: no {kind} file to damage");
+        std::thread::sleep(between(&mut rng, 0.1, 0.4));
+        daemon.kill().unwrap();
+        files.clear();
+        files_named(&setup.state, kind, &mut files);
+        for file in &files {
+            let mut bytes = std::fs::read(file).unwrap();
+            match kind {
+                "session" => bytes.truncate(bytes.len() / 2),
+                "log" => {
+                    let inside = lanealign_service::journal::RECORD_LEN / 2;
+                    bytes[inside] ^= 0x5a;
+                    let copy = lanealign_service::journal::copy_of(file);
+                    if let Ok(mut copied) = std::fs::read(&copy) {
+                        if let Some(b) = copied.get_mut(inside) {
+                            *b ^= 0x5a;
+                        }
+                        std::fs::write(&copy, copied).unwrap();
+                    }
+                }
+                _ => bytes
+                    .iter_mut()
+                    .for_each(|b| *b = (rng.uniform() * 256.0) as u8),
+            }
+            std::fs::write(file, bytes).unwrap();
+        }
+        daemon =
+            DaemonProcess::start_ready(&setup.config, &daemon_log(&setup), Duration::from_secs(20))
+                .unwrap_or_else(|e| panic!("{what}: the daemon did not start: {e}"));
+        refused += daemon.log().contains("a journal was not restored") as usize;
+    }
+    let summary = finish(client);
+    println!("{summary}");
+    assert!(daemon.stop().unwrap());
+    let got = read(&output, Format::Kitti).unwrap().poses;
+    assert_eq!(got.len(), poses.len(), "{summary}");
+    assert!(refused >= 2, "{refused} of 3 restarts refused a journal");
+    let fresh_starts: usize = summary
+        .split([',', ';'])
+        .find_map(|part| part.trim().strip_suffix(" fresh session starts"))
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count of fresh starts in {summary}"));
+    assert!(
+        summary.contains("3 daemon restarts") && (2..=3).contains(&fresh_starts),
+        "one fresh start per restart that lost the session: {summary}"
+    );
+}
+
+/// Every file below `dir` named `name` or ending with `.name`.
+fn files_named(dir: &Path, name: &str, found: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap().flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            files_named(&path, name, found);
+        } else if path.file_name().is_some_and(|n| n == name)
+            || path.extension().is_some_and(|e| e == name)
+        {
+            found.push(path);
+        }
+    }
+}
+
 #[test]
 fn killed_clients_leave_no_trace_on_kitti() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());

@@ -125,6 +125,28 @@ struct Pending {
     pose: [f64; 12],
 }
 
+/// Where a connection last resumed sending: at `from`, with the poses up to `upto` already sent
+/// once. The gap answers to those poses that were on their way then need nothing more.
+#[derive(Clone, Copy, Debug, Default)]
+struct Rewind {
+    from: u64,
+    upto: u64,
+    /// Set when the rewind started the session afresh at `from` because the daemon run with this
+    /// epoch had lost it.
+    fresh_in_epoch: Option<u64>,
+}
+
+impl Rewind {
+    /// Whether `gap` answers a pose sent before this rewind and asks for nothing it does not
+    /// send: a pose from `from` on, or, after a fresh start, anything the same daemon run asks
+    /// for (the fresh start answers it: the session begins again at `from`). Without the second
+    /// case every pose in flight when a daemon lost its session would start it afresh again.
+    fn covers(&self, gap: &CorrectedPose) -> bool {
+        gap.seq <= self.upto
+            && (gap.expected_seq >= self.from || self.fresh_in_epoch == Some(gap.daemon_epoch))
+    }
+}
+
 /// An odometry process's connection to one source of the daemon, in one session: the daemon
 /// runs a fresh corrector for a new session, and only this session's answers come here. Not
 /// `Send`: create it on the thread that uses it (iceoryx2 ports are bound to their thread).
@@ -139,9 +161,8 @@ pub struct Connection {
     fresh_at: Option<u64>,
     /// The highest pose ever delivered to a daemon.
     highest_sent: u64,
-    /// The last rewind: sending resumed at `.0` with poses up to `.1` already sent. A gap
-    /// answer to one of those, asking for `.0` or later, is covered by it.
-    rewound: (u64, u64),
+    /// The last rewind.
+    rewound: Rewind,
     /// The living daemon's process, if one is (a daemon has several nodes, one process).
     daemon: Option<i32>,
     /// The last daemon process seen alive: a different one appearing is a restart.
@@ -196,7 +217,7 @@ impl Connection {
             unsent_from: next_seq.max(1),
             fresh_at: None,
             highest_sent: 0,
-            rewound: (0, 0),
+            rewound: Rewind::default(),
             daemon,
             last_daemon: daemon,
             last_check: Some(Instant::now()),
@@ -309,7 +330,11 @@ impl Connection {
     /// Sends again from pose `from` on (everything unanswered from there).
     fn rewind(&mut self, from: u64) {
         self.unsent_from = self.unsent_from.min(from);
-        self.rewound = (from, self.next_seq - 1);
+        self.rewound = Rewind {
+            from,
+            upto: self.next_seq - 1,
+            fresh_in_epoch: None,
+        };
     }
 
     /// Checks (at most every 100 ms) which daemon is alive; when one appeared or replaced
@@ -348,8 +373,7 @@ impl Connection {
             }
             if answer.status() == Some(StatusCode::Gap) {
                 self.events.gaps += 1;
-                let (from, upto) = self.rewound;
-                if answer.seq <= upto && answer.expected_seq >= from {
+                if self.rewound.covers(&answer) {
                     // Sent before the last rewind, which already covers what it asks for.
                     continue;
                 }
@@ -361,6 +385,7 @@ impl Connection {
                         self.events.fresh_starts += 1;
                         self.fresh_at = Some(o);
                         self.rewind(o);
+                        self.rewound.fresh_in_epoch = Some(answer.daemon_epoch);
                     }
                     None => {}
                 }
