@@ -346,6 +346,55 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
     );
 }
 
+/// A journal the disk loses (the session's folder removed while it streams, as a full or failing
+/// state disk ends a journal) ends crash recovery for that session, not the session: the worker's
+/// error is logged once, the persistence thread stops copying the lost segment (once logged), every
+/// pose is answered exactly as offline, and the daemon stops cleanly.
+#[test]
+fn a_lost_journal_ends_crash_recovery_not_the_session() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let Town {
+        name,
+        setup,
+        input,
+        poses,
+    } = town(town_setup);
+    let daemon = start(&setup);
+    let output = setup.dir.path().join("without-journal.txt");
+    let client = spawn_replay(&setup, &name, &input, &output, "800");
+    let mut headers = Vec::new();
+    let until = Instant::now() + Duration::from_secs(20);
+    while headers.is_empty() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+        files_named(&setup.state, "session", &mut headers);
+    }
+    let folder = headers
+        .first()
+        .and_then(|h| h.parent())
+        .expect("the session's journal folder");
+    std::fs::remove_dir_all(folder).unwrap();
+    let summary = finish(client);
+    let log = daemon.log();
+    assert!(daemon.stop().unwrap(), "{log}");
+    assert_eq!(
+        log.matches("journal write failed").count(),
+        1,
+        "the failure is logged once: {log}"
+    );
+    assert!(
+        log.matches("syncing a journal segment's copy failed")
+            .count()
+            <= 1,
+        "the persistence thread gives up on a copy that failed, not retries it every second: {log}"
+    );
+    let got = read(&output, Format::Kitti).unwrap().poses;
+    assert_eq!(got.len(), poses.len(), "{summary}");
+    assert!(
+        got == offline(&setup, &name, &poses),
+        "answered as offline: {summary}"
+    );
+}
+
 /// Every file below `dir` named `name` or ending with `.name`.
 fn files_named(dir: &Path, name: &str, found: &mut Vec<PathBuf>) {
     for entry in std::fs::read_dir(dir).unwrap().flatten() {

@@ -26,16 +26,22 @@ pub fn spawn() -> std::io::Result<(Sender<PersistJob>, JoinHandle<()>)> {
     Ok((tx, handle))
 }
 
-fn sync(dir: &std::path::Path, copier: &mut SegmentCopier) {
-    if let Err(e) = copier.sync() {
-        tracing::warn!(dir = %dir.display(), error = %e, "syncing a journal segment's copy failed");
+/// Copies and syncs the segment's new records; false (logged) when that failed.
+fn sync(dir: &std::path::Path, copier: &mut SegmentCopier) -> bool {
+    match copier.sync() {
+        Ok(()) => true,
+        Err(e) => {
+            tracing::warn!(dir = %dir.display(), error = %e, "syncing a journal segment's copy failed; this segment is no longer copied (the session's next segment is)");
+            false
+        }
     }
 }
 
+/// Syncs every tracked segment's copy. A copy that failed is no longer tracked: the disk or the
+/// folder under it is failing, and trying again every second would log the same failure every
+/// second (the worker's own journal then fails at its next segment, or tracks a new one).
 fn sync_all(tracked: &mut HashMap<PathBuf, SegmentCopier>) {
-    for (dir, copier) in tracked {
-        sync(dir, copier);
-    }
+    tracked.retain(|dir, copier| sync(dir, copier));
 }
 
 fn run(rx: Receiver<PersistJob>) {
