@@ -426,7 +426,12 @@ impl Connection {
                 left.min(LIVENESS_PERIOD),
                 || subscriber.has_samples().unwrap_or(true),
                 |left| {
-                    failed = listener.timed_wait(|_| {}, left).err();
+                    // An interrupted sleep is a wake-up: a signal the process handles, or the
+                    // process stopped and continued (SIGSTOP, SIGCONT: a debugger, Ctrl-Z).
+                    failed = listener
+                        .timed_wait(|_| {}, left)
+                        .err()
+                        .filter(|e| !matches!(e, ListenerWaitError::InterruptSignal));
                 },
             );
             if let Some(e) = failed {

@@ -12,7 +12,7 @@ use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
 use crate::tile_watch::TileWatch;
-use iceoryx2::node::NodeView;
+use iceoryx2::node::{NodeView, NodeWaitFailure};
 use iceoryx2::prelude::*;
 use lanealign_core::grid::{self, Grid};
 use lanealign_core::input::InputError;
@@ -524,14 +524,17 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     ]);
     let mut refused = BTreeSet::new();
     loop {
-        // node.wait returns an error when a signal interrupts it: SIGHUP asks for a reload,
-        // anything else (SIGINT, SIGTERM) for shutdown.
+        // SIGINT and SIGTERM end the wait as a termination request (at once, or on the next
+        // wait when they interrupted this one); SIGHUP asks for a reload. Any other interruption
+        // is a wake-up: a process stopped and continued (SIGSTOP, SIGCONT) has its sleep
+        // interrupted without any request.
         let waited = node.wait(SUPERVISION_PERIOD);
-        if hangup.swap(false, Ordering::Relaxed) {
-            if reload(&config, &path, &sources, &workers, &mut loader_threads) {
-                tile_watch = TileWatch::new(&watched);
-            }
-        } else if waited.is_err() {
+        if hangup.swap(false, Ordering::Relaxed)
+            && reload(&config, &path, &sources, &workers, &mut loader_threads)
+        {
+            tile_watch = TileWatch::new(&watched);
+        }
+        if matches!(waited, Err(NodeWaitFailure::TerminationRequest)) {
             break;
         }
         if let Some(change) = tile_watch.check() {
