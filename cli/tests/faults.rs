@@ -275,16 +275,9 @@ fn a_power_loss_restores_sessions_from_the_synced_copies() {
 #[test]
 fn tampered_journals_are_refused_and_every_pose_is_answered() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Town {
-        name,
-        setup,
-        input,
-        poses,
-    } = town(town_setup);
+    let t = town(town_setup);
     let mut rng = Lcg(31);
-    let mut daemon = start(&setup);
-    let output = setup.dir.path().join("through-tampering.txt");
-    let client = spawn_replay(&setup, &name, &input, &output, "800");
+    let (mut daemon, client, output) = replay_on_town(&t, "800");
     let mut refused = 0;
     for (kind, what) in [
         ("session", "header cut short"),
@@ -292,18 +285,10 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
         ("snapshot", "snapshot overwritten"),
     ] {
         // A snapshot is written once a segment is full (512 poses): wait for what is damaged.
-        let mut files = Vec::new();
-        let until = Instant::now() + Duration::from_secs(20);
-        while files.is_empty() && Instant::now() < until {
-            std::thread::sleep(Duration::from_millis(20));
-            files_named(&setup.state, kind, &mut files);
-        }
-        assert!(!files.is_empty(), "{what}: no {kind} file to damage");
+        wait_for_files(&t.setup.state, kind);
         std::thread::sleep(between(&mut rng, 0.1, 0.4));
         daemon.kill().unwrap();
-        files.clear();
-        files_named(&setup.state, kind, &mut files);
-        for file in &files {
+        for file in &wait_for_files(&t.setup.state, kind) {
             let mut bytes = std::fs::read(file).unwrap();
             match kind {
                 "session" => bytes.truncate(bytes.len() / 2),
@@ -324,16 +309,15 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
             }
             std::fs::write(file, bytes).unwrap();
         }
-        daemon =
-            DaemonProcess::start_ready(&setup.config, &daemon_log(&setup), Duration::from_secs(20))
-                .unwrap_or_else(|e| panic!("{what}: the daemon did not start: {e}"));
+        daemon = DaemonProcess::start_ready(
+            &t.setup.config,
+            &daemon_log(&t.setup),
+            Duration::from_secs(20),
+        )
+        .unwrap_or_else(|e| panic!("{what}: the daemon did not start: {e}"));
         refused += daemon.log().contains("a journal was not restored") as usize;
     }
-    let summary = finish(client);
-    println!("{summary}");
-    assert!(daemon.stop().unwrap());
-    let got = read(&output, Format::Kitti).unwrap().poses;
-    assert_eq!(got.len(), poses.len(), "{summary}");
+    let (summary, _, _) = all_answered(&t, daemon, client, &output);
     assert!(refused >= 2, "{refused} of 3 restarts refused a journal");
     let fresh_starts: usize = summary
         .split([',', ';'])
@@ -353,29 +337,15 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
 #[test]
 fn a_lost_journal_ends_crash_recovery_not_the_session() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Town {
-        name,
-        setup,
-        input,
-        poses,
-    } = town(town_setup);
-    let daemon = start(&setup);
-    let output = setup.dir.path().join("without-journal.txt");
-    let client = spawn_replay(&setup, &name, &input, &output, "800");
-    let mut headers = Vec::new();
-    let until = Instant::now() + Duration::from_secs(20);
-    while headers.is_empty() && Instant::now() < until {
-        std::thread::sleep(Duration::from_millis(20));
-        files_named(&setup.state, "session", &mut headers);
-    }
+    let t = town(town_setup);
+    let (daemon, client, output) = replay_on_town(&t, "800");
+    let headers = wait_for_files(&t.setup.state, "session");
     let folder = headers
         .first()
         .and_then(|h| h.parent())
         .expect("the session's journal folder");
     std::fs::remove_dir_all(folder).unwrap();
-    let summary = finish(client);
-    let log = daemon.log();
-    assert!(daemon.stop().unwrap(), "{log}");
+    let (summary, log, got) = all_answered(&t, daemon, client, &output);
     assert_eq!(
         log.matches("journal write failed").count(),
         1,
@@ -387,31 +357,23 @@ fn a_lost_journal_ends_crash_recovery_not_the_session() {
             <= 1,
         "the persistence thread gives up on a copy that failed, not retries it every second: {log}"
     );
-    let got = read(&output, Format::Kitti).unwrap().poses;
-    assert_eq!(got.len(), poses.len(), "{summary}");
     assert!(
-        got == offline(&setup, &name, &poses),
+        got == offline(&t.setup, &t.name, &t.poses),
         "answered as offline: {summary}"
     );
 }
 
 /// Processes frozen mid-stream (SIGSTOP, then SIGCONT, as a debugger or a terminal's Ctrl-Z and
 /// `fg` do) lose nothing: the daemon nine times, once for 1.2 s (the client holds back what comes
-/// due meanwhile, more than the 512 poses it may keep in flight), then the client four times. Every pose is answered once, equal to offline correction, nobody takes the
-/// interrupted sleeps for a request to stop, and the daemon stops cleanly when asked.
+/// due meanwhile, more than the 512 poses it may keep in flight), then the client four times.
+/// Every pose is answered once, equal to offline correction, nobody takes the interrupted sleeps
+/// for a request to stop, and the daemon stops cleanly when asked.
 #[test]
 fn frozen_processes_answer_everything_when_they_run_again() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let Town {
-        name,
-        setup,
-        input,
-        poses,
-    } = town(town_setup);
-    let daemon = start(&setup);
-    let output = setup.dir.path().join("through-freezes.txt");
+    let t = town(town_setup);
     // 11.5 s of poses: every freeze below falls inside the replay.
-    let client = spawn_replay(&setup, &name, &input, &output, "500");
+    let (daemon, client, output) = replay_on_town(&t, "500");
     let freeze = |pid: u32, for_ms: u64| {
         for signal in ["-STOP", "-CONT"] {
             let status = Command::new("kill")
@@ -433,13 +395,48 @@ fn frozen_processes_answer_everything_when_they_run_again() {
         std::thread::sleep(Duration::from_millis(250));
         freeze(client.id(), 300);
     }
+    let (summary, _, got) = all_answered(&t, daemon, client, &output);
+    assert!(got == offline(&t.setup, &t.name, &t.poses), "{summary}");
+    assert!(summary.contains("0 daemon restarts"), "{summary}");
+}
+
+/// Starts a daemon on `town`'s setup and a replay of its odometry at `rate` (Hz): the daemon, the
+/// client and the file the client writes the answers to.
+fn replay_on_town(town: &Town, rate: &str) -> (DaemonProcess, Child, PathBuf) {
+    let daemon = start(&town.setup);
+    let output = town.setup.dir.path().join("answers.txt");
+    let client = spawn_replay(&town.setup, &town.name, &town.input, &output, rate);
+    (daemon, client, output)
+}
+
+/// Waits for the replay `client`, stops `daemon` (which must exit cleanly) and asserts that every
+/// pose of `town` came back in `output`: the client's summary, the daemon's log and the answers.
+fn all_answered(
+    town: &Town,
+    daemon: DaemonProcess,
+    client: Child,
+    output: &Path,
+) -> (String, String, Vec<Pose3>) {
     let summary = finish(client);
     println!("{summary}");
-    assert!(daemon.stop().unwrap());
-    let got = read(&output, Format::Kitti).unwrap().poses;
-    assert_eq!(got.len(), poses.len(), "{summary}");
-    assert!(got == offline(&setup, &name, &poses), "{summary}");
-    assert!(summary.contains("0 daemon restarts"), "{summary}");
+    let log = daemon.log();
+    assert!(daemon.stop().unwrap(), "{log}");
+    let got = read(output, Format::Kitti).unwrap().poses;
+    assert_eq!(got.len(), town.poses.len(), "{summary}");
+    (summary, log, got)
+}
+
+/// The files below `dir` named `name` or ending with `.name`, waiting up to 20 s for one.
+fn wait_for_files(dir: &Path, name: &str) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    let until = Instant::now() + Duration::from_secs(20);
+    files_named(dir, name, &mut found);
+    while found.is_empty() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+        files_named(dir, name, &mut found);
+    }
+    assert!(!found.is_empty(), "no {name} file below {}", dir.display());
+    found
 }
 
 /// Every file below `dir` named `name` or ending with `.name`.
