@@ -125,12 +125,12 @@ struct Pending {
     pose: [f64; 12],
 }
 
-/// Where a connection last resumed sending: at `from`, with the poses up to `upto` already sent
-/// once. The gap answers to those poses that were on their way then need nothing more.
+/// Where a connection last resumed sending: at `from`, at `at_mono_ns`. The gap answers to poses
+/// sent before then (a gap echoes its input's `sent_mono_ns`) need nothing more.
 #[derive(Clone, Copy, Debug, Default)]
 struct Rewind {
     from: u64,
-    upto: u64,
+    at_mono_ns: u64,
     /// Set when the rewind started the session afresh at `from` because the daemon run with this
     /// epoch had lost it.
     fresh_in_epoch: Option<u64>,
@@ -142,7 +142,7 @@ impl Rewind {
     /// for (the fresh start answers it: the session begins again at `from`). Without the second
     /// case every pose in flight when a daemon lost its session would start it afresh again.
     fn covers(&self, gap: &CorrectedPose) -> bool {
-        gap.seq <= self.upto
+        gap.sent_mono_ns < self.at_mono_ns
             && (gap.expected_seq >= self.from || self.fresh_in_epoch == Some(gap.daemon_epoch))
     }
 }
@@ -332,7 +332,7 @@ impl Connection {
         self.unsent_from = self.unsent_from.min(from);
         self.rewound = Rewind {
             from,
-            upto: self.next_seq - 1,
+            at_mono_ns: monotonic_ns(),
             fresh_in_epoch: None,
         };
     }
