@@ -202,18 +202,6 @@ fn killed_daemons_lose_nothing_on_a_grid() {
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 13, "800");
 }
 
-/// Every file below `dir` whose name ends with `.ext`.
-fn files_ending(dir: &Path, ext: &str, found: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap().flatten() {
-        let path = entry.path();
-        if path.is_dir() {
-            files_ending(&path, ext, found);
-        } else if path.extension().is_some_and(|e| e == ext) {
-            found.push(path);
-        }
-    }
-}
-
 /// A power loss, as hard as one can be: the daemon killed, and not one page of its mapped
 /// journal segments on disk (every `.log` zeroed), only what the persistence thread synced: the
 /// segments' copies, which hold every record up to the last second. The session is restored from
@@ -235,7 +223,7 @@ fn a_power_loss_restores_sessions_from_the_synced_copies() {
     daemon.kill().unwrap();
     let mut last_copied = 0;
     let mut logs = Vec::new();
-    files_ending(&setup.state, "log", &mut logs);
+    files_named(&setup.state, "log", &mut logs);
     for log in &logs {
         let copy = lanealign_service::journal::copy_of(log);
         if copy.exists() {

@@ -327,13 +327,14 @@ impl Connection {
         Ok(())
     }
 
-    /// Sends again from pose `from` on (everything unanswered from there).
-    fn rewind(&mut self, from: u64) {
+    /// Sends again from pose `from` on (everything unanswered from there); `fresh_in_epoch`:
+    /// the session starts afresh at `from` because the daemon run with this epoch lost it.
+    fn rewind(&mut self, from: u64, fresh_in_epoch: Option<u64>) {
         self.unsent_from = self.unsent_from.min(from);
         self.rewound = Rewind {
             from,
             at_mono_ns: monotonic_ns(),
-            fresh_in_epoch: None,
+            fresh_in_epoch,
         };
     }
 
@@ -354,7 +355,7 @@ impl Connection {
             }
             self.last_daemon = now;
             let oldest = self.pending.keys().next().copied().unwrap_or(self.next_seq);
-            self.rewind(oldest);
+            self.rewind(oldest, None);
         }
         self.daemon = now;
         Ok(())
@@ -379,13 +380,12 @@ impl Connection {
                 }
                 match self.pending.keys().next().copied() {
                     // The daemon needs a pose this connection still has: send from there.
-                    Some(o) if answer.expected_seq >= o => self.rewind(answer.expected_seq),
+                    Some(o) if answer.expected_seq >= o => self.rewind(answer.expected_seq, None),
                     // It needs one already answered: it lost the session; start it afresh.
                     Some(o) => {
                         self.events.fresh_starts += 1;
                         self.fresh_at = Some(o);
-                        self.rewind(o);
-                        self.rewound.fresh_in_epoch = Some(answer.daemon_epoch);
+                        self.rewind(o, Some(answer.daemon_epoch));
                     }
                     None => {}
                 }
