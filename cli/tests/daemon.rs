@@ -1,8 +1,9 @@
 //! lanealignd through its real process and shared memory: sessions get correctors of their own
 //! and only their own answers, answers equal offline correction bit for bit, bad input is
 //! flagged and changes nothing, one daemon per namespace, a source that cannot start stops the
-//! daemon, SIGHUP reloads the tile for new sessions, nothing is left in shared memory. On the
-//! synthetic town always; on real KITTI data where `../shared/data` is present.
+//! daemon, SIGHUP reloads the tile for new sessions (and refuses a bad one), nothing is left in
+//! shared memory. On the synthetic town always; on real KITTI data where `../shared/data` is
+//! present.
 
 mod common;
 
@@ -451,6 +452,85 @@ fn sighup_reloads_a_grid_for_new_sessions() {
         std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
     };
     a_reload_keeps_running_sessions(&setup, &name, replace, "grid reloaded");
+}
+
+/// Always runs: a SIGHUP that finds a bad tile in the configured place (a byte flipped, cut
+/// short, of a lane geometry the sources' correctors refuse, removed) is refused with an error
+/// naming the problem, and the daemon goes on serving the tile it has: every new session after
+/// each refused reload corrects exactly as before.
+#[test]
+fn a_bad_tile_on_sighup_keeps_the_one_the_daemon_has() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("badreload");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let expected = offline(&setup, &name, &odometry);
+    let good = std::fs::read(&setup.tile).unwrap();
+    let mut flipped = good.clone();
+    let middle = flipped.len() / 2;
+    flipped[middle] ^= 0x10;
+    let other_geometry = setup.dir.path().join("other-geometry.tile");
+    let map = lanealign_core::lane_map::LaneMap::new(&synthetic::town_lanes()).unwrap();
+    let geometry = lanealign_core::lane_geometry::LaneGeometry {
+        unmarked_offset_scale: Some(1.0),
+        ..synthetic::town_geometry()
+    };
+    lanealign_core::tile::write(
+        &other_geometry,
+        &map,
+        &synthetic::town_plane(),
+        3.0,
+        &geometry,
+    )
+    .unwrap();
+    // What the configured place holds at each reload (`None`: nothing), and what the refusal names.
+    let cases = [
+        ("a byte flipped", Some(flipped), "checksum mismatch"),
+        (
+            "cut short",
+            Some(good[..good.len() / 3].to_vec()),
+            "truncated",
+        ),
+        (
+            "another lane geometry",
+            Some(std::fs::read(&other_geometry).unwrap()),
+            "unmarked-street offset scale 1,",
+        ),
+        ("removed", None, "No such file"),
+    ];
+    for (k, (what, bytes, named)) in cases.iter().enumerate() {
+        match bytes {
+            Some(bytes) => std::fs::write(&setup.tile, bytes).unwrap(),
+            None => std::fs::remove_file(&setup.tile).unwrap(),
+        }
+        rustix::process::kill_process(
+            rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
+            rustix::process::Signal::HUP,
+        )
+        .unwrap();
+        let refusals = || daemon.log().matches("the tile was not reloaded").count();
+        let until = Instant::now() + Duration::from_secs(5);
+        while refusals() <= k && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let log = daemon.log();
+        let refusal = log
+            .lines()
+            .filter(|l| l.contains("the tile was not reloaded"))
+            .nth(k);
+        assert!(
+            refusal.is_some_and(|l| l.contains(named)),
+            "{what}: refused naming '{named}'\n{log}"
+        );
+        assert!(
+            run_replay(&setup, &name, &odometry, Rate::Max(32)) == expected,
+            "{what}: a new session corrects on the tile the daemon has"
+        );
+        std::fs::write(&setup.tile, &good).unwrap();
+    }
+    assert!(!daemon.log().contains("tile reloaded"), "{}", daemon.log());
+    assert!(daemon.stop().unwrap());
 }
 
 /// The daemon never shares its fate with the tile file: truncated in place and then removed
