@@ -1,9 +1,9 @@
 //! lanealignd through its real process and shared memory: sessions get correctors of their own
 //! and only their own answers, answers equal offline correction bit for bit, bad input is
-//! flagged and changes nothing, one daemon per namespace, a source that cannot start stops the
-//! daemon, SIGHUP reloads the tile for new sessions (and refuses a bad one), nothing is left in
-//! shared memory. On the synthetic town always; on real KITTI data where `../shared/data` is
-//! present.
+//! flagged and changes nothing, a client that never reads holds up no one, one daemon per
+//! namespace, a source that cannot start stops the daemon, SIGHUP reloads the tile for new
+//! sessions (and refuses a bad one), nothing is left in shared memory. On the synthetic town
+//! always; on real KITTI data where `../shared/data` is present.
 
 mod common;
 
@@ -452,6 +452,59 @@ fn sighup_reloads_a_grid_for_new_sessions() {
         std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
     };
     a_reload_keeps_running_sessions(&setup, &name, replace, "grid reloaded");
+}
+
+/// Always runs: a client that floods its session and never reads an answer (a hung odometry
+/// process, or one on the raw wire that ignores the protocol) holds up no one. A session of
+/// the same source streaming beside it gets every answer, equal to offline correction; the
+/// flooder's answers beyond what its subscriber holds are dropped, not waited for, and counted.
+#[test]
+fn a_client_that_never_reads_holds_up_no_one() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("noreader");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let expected = offline(&setup, &name, &odometry);
+    let flooder = RawClient::new(&setup, &name);
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    let (mut answers, mut flooded, mut taken) = (Vec::new(), 0u64, 0u64);
+    for p in &odometry {
+        for _ in 0..4 {
+            flooded += 1;
+            let pose = odometry[(flooded as usize - 1) % odometry.len()];
+            taken += u64::from(flooder.send_only(flooded, pose.to_row_major()));
+        }
+        conn.publish(0, &p.to_row_major()).unwrap();
+        let answer = conn.recv(Duration::from_secs(5)).unwrap();
+        answers.push(answer.expect("an answer within 5 s, the flooder beside it"));
+    }
+    assert!(poses_of(&answers) == expected, "answers as offline");
+    let undelivered = || -> u64 {
+        daemon
+            .log()
+            .split("undelivered=")
+            .skip(1)
+            .filter_map(|rest| rest.split(' ').next()?.parse::<u64>().ok())
+            .sum()
+    };
+    let held = lanealign_wire::service::BUFFER_SIZE as u64;
+    assert!(
+        taken > 2 * held,
+        "the flooder sent more than its answers fill: {taken}"
+    );
+    let until = Instant::now() + Duration::from_secs(5);
+    while undelivered() < taken - held && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(
+        undelivered(),
+        taken - held,
+        "every answer beyond the flooder's buffer counted as undelivered\n{}",
+        daemon.log()
+    );
+    assert!(daemon.stop().unwrap());
 }
 
 /// Always runs: a SIGHUP that finds a bad tile in the configured place (a byte flipped, cut

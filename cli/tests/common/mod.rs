@@ -301,8 +301,8 @@ impl RawClient {
         }
     }
 
-    /// Sends `pose` as `seq` and returns the answer.
-    pub fn send(&self, seq: u64, pose: [f64; 12]) -> CorrectedPose {
+    /// Sends `pose` as `seq` and wakes the daemon, reading nothing; whether the daemon took it.
+    pub fn send_only(&self, seq: u64, pose: [f64; 12]) -> bool {
         let delivered = self
             .publisher
             .send_copy(OdomPose {
@@ -315,8 +315,13 @@ impl RawClient {
                 reserved: 0,
             })
             .unwrap();
-        assert_eq!(delivered, 1, "the daemon takes the pose");
         self.notifier.notify().unwrap();
+        delivered == 1
+    }
+
+    /// Sends `pose` as `seq` and returns the answer.
+    pub fn send(&self, seq: u64, pose: [f64; 12]) -> CorrectedPose {
+        assert!(self.send_only(seq, pose), "the daemon takes the pose");
         let until = Instant::now() + Duration::from_secs(5);
         loop {
             if let Some(sample) = self.subscriber.receive().unwrap() {
