@@ -52,3 +52,4 @@ pub mod smoothing;
 pub mod source_corrector;
 pub mod tile;
 pub mod trajectory;
+mod window;
