@@ -307,11 +307,7 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
     }
     let (summary, _, _) = all_answered(&t, daemon, client, &output);
     assert!(refused >= 2, "{refused} of 3 restarts refused a journal");
-    let fresh_starts: usize = summary
-        .split([',', ';'])
-        .find_map(|part| part.trim().strip_suffix(" fresh session starts"))
-        .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("no count of fresh starts in {summary}"));
+    let fresh_starts = fresh_starts(&summary);
     assert!(
         summary.contains("3 daemon restarts") && (2..=3).contains(&fresh_starts),
         "one fresh start per restart that lost the session: {summary}"
@@ -349,6 +345,94 @@ fn a_lost_journal_ends_crash_recovery_not_the_session() {
         got == offline(&t.setup, &t.name, &t.poses),
         "answered as offline: {summary}"
     );
+}
+
+/// A full state disk: the journals' folder on a 400 KiB file system (less than two segments and
+/// their copies; the replay's journal needs about ten times that). The journal ends where the disk does, with an
+/// error in the log, and never the daemon (its segments' space is allocated when they are made,
+/// so no copy into a mapped page can meet a full disk). Killed after that and restarted on the
+/// still-full disk, the daemon starts, and the replay gets every pose answered: as offline up to
+/// the pose where the session, its journal behind what the client received, starts afresh (at
+/// most once), and from there as an offline run that starts at that pose. Needs root (to mount the small
+/// file system): visibly skipped otherwise.
+#[test]
+fn a_full_state_disk_ends_the_journal_not_the_daemon() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town(town_setup);
+    let Some(_disk) = SmallDisk::mount(&t.setup.state, "400k") else {
+        println!("SKIPPED a_full_state_disk_ends_the_journal_not_the_daemon: needs root to mount a tmpfs");
+        return;
+    };
+    let (mut daemon, client, output) = replay_on_town(&t, "800");
+    let until = Instant::now() + Duration::from_secs(10);
+    while !daemon.log().contains("journal write failed") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // A metrics interval (1 s) and more: the daemon must go on serving and reporting.
+    std::thread::sleep(Duration::from_millis(1500));
+    let full = daemon.log();
+    let after = full
+        .split("journal write failed")
+        .nth(1)
+        .unwrap_or_else(|| {
+            panic!(
+                "the journal's end is logged (a daemon the full disk killed logs nothing): {full}"
+            )
+        });
+    assert!(full.contains("No space left on device"), "{full}");
+    assert!(
+        !after.contains("journal write failed") && after.contains("latency source"),
+        "logged once, and the daemon serves on: {full}"
+    );
+    daemon.kill().unwrap();
+    daemon = DaemonProcess::start_ready(
+        &t.setup.config,
+        &daemon_log(&t.setup),
+        Duration::from_secs(20),
+    )
+    .unwrap_or_else(|e| panic!("the daemon did not start on a full disk: {e}\n{full}"));
+    let (summary, log, got) = all_answered(&t, daemon, client, &output);
+    let fresh_starts = fresh_starts(&summary);
+    // Up to the pose the restarted daemon started afresh at, answers as offline; after it, as an
+    // offline run that starts there.
+    let expected = offline(&t.setup, &t.name, &t.poses);
+    let k = got
+        .iter()
+        .zip(&expected)
+        .take_while(|(a, b)| a == b)
+        .count();
+    assert!(k > 0, "{summary}");
+    assert_eq!(fresh_starts, usize::from(k < got.len()), "{summary}\n{log}");
+    assert!(
+        got[k..] == offline(&t.setup, &t.name, &t.poses[k..])[..],
+        "after the fresh start at pose {k}, as offline from there: {summary}"
+    );
+}
+
+/// A tmpfs of a given size mounted on a folder while it lives.
+struct SmallDisk(PathBuf);
+
+impl SmallDisk {
+    /// Mounts a tmpfs of `size` (mount's notation) on `dir`, made if missing; `None` when this
+    /// process may not mount.
+    fn mount(dir: &Path, size: &str) -> Option<SmallDisk> {
+        if !rustix::process::geteuid().is_root() {
+            return None;
+        }
+        std::fs::create_dir_all(dir).unwrap();
+        let mounted = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(dir)
+            .status()
+            .is_ok_and(|s| s.success());
+        mounted.then(|| SmallDisk(dir.to_path_buf()))
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
+    }
 }
 
 /// Processes frozen mid-stream (SIGSTOP, then SIGCONT, as a debugger or a terminal's Ctrl-Z and
@@ -412,6 +496,15 @@ fn all_answered(
     let got = read(output, Format::Kitti).unwrap().poses;
     assert_eq!(got.len(), town.poses.len(), "{summary}");
     (summary, log, got)
+}
+
+/// The count of fresh session starts in a replay's summary.
+fn fresh_starts(summary: &str) -> usize {
+    summary
+        .split([',', ';'])
+        .find_map(|part| part.trim().strip_suffix(" fresh session starts"))
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count of fresh starts in {summary}"))
 }
 
 /// The files below `dir` named `name` or ending with `.name`, waiting up to 20 s for one.
