@@ -454,6 +454,51 @@ fn sighup_reloads_a_grid_for_new_sessions() {
     a_reload_keeps_running_sessions(&setup, &name, replace, "grid reloaded");
 }
 
+/// Always runs: sessions come and go (a client restarting over and over, each time a new
+/// session that streams a few hundred poses and leaves without a word). Past `max_sessions` the
+/// least recently active end, and what the daemon holds stays bounded: its open files, its
+/// journals on disk and its shared-memory files are the same after 60 sessions as after 30.
+#[test]
+fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("churn");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let held = || {
+        let fds = std::fs::read_dir(format!("/proc/{}/fd", daemon.id()))
+            .unwrap()
+            .count();
+        let journals = std::fs::read_dir(setup.state.join(&setup.namespace).join(&name))
+            .map(|d| d.count())
+            .unwrap_or(0);
+        let ours = format!("lanealign_{}_", setup.namespace);
+        let shm = shm_entries().iter().filter(|e| e.contains(&ours)).count();
+        (fds, journals, shm)
+    };
+    let mut counts = Vec::new();
+    for k in 0..60 {
+        let mut conn = connect(&setup, &name);
+        wait_for_daemon(&mut conn);
+        for p in &odometry[..600] {
+            conn.publish(0, &p.to_row_major()).unwrap();
+            let answer = conn.recv(Duration::from_secs(5)).unwrap();
+            assert!(answer.is_some(), "session {k}: every pose answered");
+        }
+        drop(conn);
+        if k == 29 || k == 59 {
+            std::thread::sleep(Duration::from_millis(1500));
+            counts.push(held());
+        }
+    }
+    println!("open files, journals, shared-memory files after 30 and 60 sessions: {counts:?}");
+    assert_eq!(
+        counts[0], counts[1],
+        "(open files, journals, shared-memory files)"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
 /// Always runs: a client that floods its session and never reads an answer (a hung odometry
 /// process, or one on the raw wire that ignores the protocol) holds up no one. A session of
 /// the same source streaming beside it gets every answer, equal to offline correction; the
