@@ -602,25 +602,7 @@ fn a_bad_tile_on_sighup_keeps_the_one_the_daemon_has() {
             Some(bytes) => std::fs::write(&setup.tile, bytes).unwrap(),
             None => std::fs::remove_file(&setup.tile).unwrap(),
         }
-        rustix::process::kill_process(
-            rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
-            rustix::process::Signal::HUP,
-        )
-        .unwrap();
-        let refusals = || daemon.log().matches("the tile was not reloaded").count();
-        let until = Instant::now() + Duration::from_secs(5);
-        while refusals() <= k && Instant::now() < until {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        let log = daemon.log();
-        let refusal = log
-            .lines()
-            .filter(|l| l.contains("the tile was not reloaded"))
-            .nth(k);
-        assert!(
-            refusal.is_some_and(|l| l.contains(named)),
-            "{what}: refused naming '{named}'\n{log}"
-        );
+        assert_reload_refused(&daemon, k, "the tile was not reloaded", what, named);
         assert!(
             run_replay(&setup, &name, &odometry, Rate::Max(32)) == expected,
             "{what}: a new session corrects on the tile the daemon has"
@@ -629,6 +611,88 @@ fn a_bad_tile_on_sighup_keeps_the_one_the_daemon_has() {
     }
     assert!(!daemon.log().contains("tile reloaded"), "{}", daemon.log());
     assert!(daemon.stop().unwrap());
+}
+
+/// Always runs: the same for a grid. The configured link switched to a grid folder with its
+/// manifest cut short, with every cell's bytes changed, or without a manifest: each reload is
+/// refused naming the problem, and new sessions correct on the grid the daemon has.
+#[test]
+fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("badregrid");
+    let setup = town_grid_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let expected = offline(&setup, &name, &odometry);
+    let map = lanealign_core::lane_map::LaneMap::new(&synthetic::town_lanes()).unwrap();
+    let dir = setup.dir.path();
+    let manifest = |grid: &std::path::Path| grid.join(lanealign_core::grid::MANIFEST);
+    type Damage = fn(&std::path::Path);
+    let cases: [(&str, Damage, &str); 3] = [
+        (
+            "manifest cut short",
+            |grid| {
+                let path = grid.join(lanealign_core::grid::MANIFEST);
+                let text = std::fs::read(&path).unwrap();
+                std::fs::write(&path, &text[..text.len() / 2]).unwrap();
+            },
+            "manifest",
+        ),
+        (
+            "every cell changed",
+            |grid| {
+                let cells = std::fs::read_dir(grid.join("cells")).unwrap().flatten();
+                for cell in cells.map(|entry| entry.path()) {
+                    let mut bytes = std::fs::read(&cell).unwrap();
+                    let middle = bytes.len() / 2;
+                    bytes[middle] ^= 0x10;
+                    std::fs::write(&cell, bytes).unwrap();
+                }
+            },
+            "checksum",
+        ),
+        (
+            "no manifest",
+            |grid| std::fs::remove_file(grid.join(lanealign_core::grid::MANIFEST)).unwrap(),
+            "manifest",
+        ),
+    ];
+    for (k, (what, damage, named)) in cases.iter().enumerate() {
+        let folder = dir.join(format!("bad-grid-{k}"));
+        write_town_maps(&map, &dir.join(format!("bad-{k}.tile")), &folder);
+        assert!(manifest(&folder).is_file());
+        damage(&folder);
+        std::os::unix::fs::symlink(format!("bad-grid-{k}"), dir.join("town-grid.new")).unwrap();
+        std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
+        assert_reload_refused(&daemon, k, "the grid was not reloaded", what, named);
+        assert!(
+            run_replay(&setup, &name, &odometry, Rate::Max(32)) == expected,
+            "{what}: a new session corrects on the grid the daemon has"
+        );
+    }
+    assert!(!daemon.log().contains("grid reloaded"), "{}", daemon.log());
+    assert!(daemon.stop().unwrap());
+}
+
+/// Sends SIGHUP to `daemon` and asserts that its `k`-th (from 0) log line saying `refusal`
+/// comes within 5 s and names `named`.
+fn assert_reload_refused(daemon: &DaemonProcess, k: usize, refusal: &str, what: &str, named: &str) {
+    rustix::process::kill_process(
+        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
+        rustix::process::Signal::HUP,
+    )
+    .unwrap();
+    let refusals = || daemon.log().matches(refusal).count();
+    let until = Instant::now() + Duration::from_secs(5);
+    while refusals() <= k && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let log = daemon.log();
+    let line = log.lines().filter(|l| l.contains(refusal)).nth(k);
+    assert!(
+        line.is_some_and(|l| l.contains(named)),
+        "{what}: refused naming '{named}'\n{log}"
+    );
 }
 
 /// The daemon never shares its fate with the tile file: truncated in place and then removed
