@@ -411,18 +411,6 @@ fn a_reload_keeps_running_sessions(
     assert!(daemon.stop().unwrap());
 }
 
-/// The town's lanes moved 1 m north.
-fn town_moved_north() -> lanealign_core::lane_map::LaneMap {
-    let lanes: Vec<lanealign_core::lane_map::Lane> = synthetic::town_lanes()
-        .into_iter()
-        .map(|mut lane| {
-            lane.points.iter_mut().for_each(|p| p[1] += 1.0);
-            lane
-        })
-        .collect();
-    lanealign_core::lane_map::LaneMap::new(&lanes).unwrap()
-}
-
 /// Always runs: SIGHUP loads the tile again for new sessions; the tile is rewritten in place.
 #[test]
 fn sighup_reloads_the_tile_for_new_sessions() {

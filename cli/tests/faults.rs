@@ -314,6 +314,46 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
     );
 }
 
+/// The map replaced while the daemon is down (a new tile installed between a crash and the
+/// restart): a journal written under the old map is not replayed on the new one. The session
+/// starts afresh once, and every pose is answered: as offline on the old map up to that pose,
+/// and from there as an offline run on the new map that starts at it.
+#[test]
+fn a_daemon_restarted_on_another_map_starts_its_sessions_afresh() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town(town_setup);
+    let on_old_map = offline(&t.setup, &t.name, &t.poses);
+    let (daemon, client, output) = replay_on_town(&t, "800");
+    wait_for_files(&t.setup.state, "snapshot");
+    daemon.kill().unwrap();
+    let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
+    lanealign_core::tile::write(&t.setup.tile, &town_moved_north(), &plane, 3.0, &geometry)
+        .unwrap();
+    let daemon = DaemonProcess::start_ready(
+        &t.setup.config,
+        &daemon_log(&t.setup),
+        Duration::from_secs(20),
+    )
+    .unwrap();
+    let restart = daemon.log();
+    let (summary, _, got) = all_answered(&t, daemon, client, &output);
+    assert!(
+        restart.contains("a journal was not restored"),
+        "the old map's journal is refused: {restart}"
+    );
+    assert_eq!(fresh_starts(&summary), 1, "{summary}");
+    let k = got
+        .iter()
+        .zip(&on_old_map)
+        .take_while(|(a, b)| a == b)
+        .count();
+    assert!(0 < k && k < got.len(), "{k}: {summary}");
+    assert!(
+        got[k..] == offline(&t.setup, &t.name, &t.poses[k..])[..],
+        "from the fresh start at pose {k}, as offline on the new map: {summary}"
+    );
+}
+
 /// A journal the disk loses (the session's folder removed while it streams, as a full or failing
 /// state disk ends a journal) ends crash recovery for that session, not the session: the worker's
 /// error is logged once, the persistence thread stops copying the lost segment (once logged), every

@@ -184,6 +184,18 @@ pub fn write_town_maps(map: &LaneMap, tile: &Path, grid: &Path) {
     grid::write(grid, map, &spec, 2).unwrap();
 }
 
+/// The town's lanes moved 1 m north.
+pub fn town_moved_north() -> LaneMap {
+    let lanes: Vec<lanealign_core::lane_map::Lane> = synthetic::town_lanes()
+        .into_iter()
+        .map(|mut lane| {
+            lane.points.iter_mut().for_each(|p| p[1] += 1.0);
+            lane
+        })
+        .collect();
+    LaneMap::new(&lanes).unwrap()
+}
+
 /// The synthetic town as a tile (for offline correction) and as a grid the daemon serves:
 /// `town-grid`, a symbolic link to the folder `town-grid-1`.
 pub fn town_grid_setup(sources: &[&str]) -> Setup {
