@@ -126,6 +126,7 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
         "robust, no match gate:max_match_distance_m=inf",
         "robust, no window path limit:max_window_path_m=inf",
         "robust, newest matches trimmed:untrimmed_newest=0",
+        "robust, gate since the last accepted step:gate_widens_through_null_steps=false",
         "robust, an alignment on every pose:alignment_spacing_m=0",
         "robust, smooth:+smooth",
     ]

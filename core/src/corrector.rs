@@ -261,6 +261,9 @@ pub struct CorrectorState {
     pub failures: u32,
     /// Odometry path length since the last accepted step (metres).
     pub travelled_m: f64,
+    /// Odometry path length the match gate widens by (metres; see
+    /// [`Params::gate_widens_through_null_steps`]).
+    pub gate_travelled_m: f64,
     /// The last position pushed (metres, frame `anchored`).
     pub last_position_in_anchored: Option<[f64; 2]>,
     /// The filter's covariance of the current pose (without the inherited map error).
@@ -278,9 +281,15 @@ pub struct Corrector {
     map_from_anchored: Se2,
     window: Window,
     failures: u32,
-    /// Odometry path length since the last accepted step (metres): how far the odometry may
-    /// have drifted since the window last fitted the lanes.
+    /// Odometry path length since the last accepted step (metres): what share of the window's
+    /// evidence an alignment adds, and when the next alignment is due.
     travelled_m: f64,
+    /// Odometry path length since the match gate last closed (metres): since the last accepted
+    /// step that moved the window or matched its newest pose. An accepted step that changes
+    /// nothing while the newest pose has no match (the older poses fit their lanes, the newer
+    /// ones have drifted beyond the gate) does not close it, so it widens until they are
+    /// matched ([`Params::gate_widens_through_null_steps`]).
+    gate_travelled_m: f64,
     last_position_in_anchored: Option<[f64; 2]>,
     uncertainty: PoseUncertainty,
     /// The map error the pose inherits from its last alignment (see
@@ -309,6 +318,7 @@ impl Corrector {
             window: Window::default(),
             failures: 0,
             travelled_m: 0.0,
+            gate_travelled_m: 0.0,
             last_position_in_anchored: None,
             uncertainty: PoseUncertainty::new(&params),
             map_error: [[0.0; 2]; 2],
@@ -340,6 +350,7 @@ impl Corrector {
             window_path_m: self.window.path_m(),
             failures: self.failures,
             travelled_m: self.travelled_m,
+            gate_travelled_m: self.gate_travelled_m,
             last_position_in_anchored: self.last_position_in_anchored,
             covariance: self.uncertainty.covariance(),
             map_error: self.map_error,
@@ -364,6 +375,7 @@ impl Corrector {
         c.map_from_anchored = state.map_from_anchored;
         c.failures = state.failures;
         c.travelled_m = state.travelled_m;
+        c.gate_travelled_m = state.gate_travelled_m;
         c.last_position_in_anchored = state.last_position_in_anchored;
         c.uncertainty = PoseUncertainty::from_covariance(&state.covariance);
         c.map_error = state.map_error;
@@ -439,7 +451,7 @@ impl Corrector {
     }
 
     /// The matching parameters of the next step: the preset's, with the distance gate widened
-    /// by the drift since the last accepted step.
+    /// by the drift the odometry may have accumulated since the gate last closed.
     fn match_params(&self) -> MatchParams {
         MatchParams {
             neighbours: self.params.neighbours,
@@ -471,7 +483,9 @@ impl Corrector {
         }
         let p = self.params;
         if let Some(last) = self.last_position_in_anchored {
-            self.travelled_m += distance(last, position_in_anchored);
+            let moved = distance(last, position_in_anchored);
+            self.travelled_m += moved;
+            self.gate_travelled_m += moved;
             let motion = [
                 position_in_anchored[0] - last[0],
                 position_in_anchored[1] - last[1],
@@ -561,6 +575,16 @@ impl Corrector {
                     }
                     self.failures = 0;
                     self.travelled_m = 0.0;
+                    // A step that changed nothing closes the gate only if its newest pose was
+                    // matched (correspondences come in window order: the newest pose's is last).
+                    if correction != Se2::IDENTITY
+                        || self
+                            .correspondences
+                            .last()
+                            .is_some_and(|c| c.index == window_len - 1)
+                    {
+                        self.gate_travelled_m = 0.0;
+                    }
                     return self.step(Status::Accepted {
                         residual_m: fit.residual_m,
                         applied_directions,
@@ -632,10 +656,16 @@ impl Corrector {
         applied
     }
 
-    /// `base` widened by the drift the odometry may have accumulated since the last accepted
-    /// step (metres).
+    /// `base` widened by the drift the odometry may have accumulated since the gate last closed
+    /// (metres), or since the last accepted step without
+    /// [`Params::gate_widens_through_null_steps`].
     fn widened(&self, base: f64) -> f64 {
-        base + self.params.drift_per_m * self.travelled_m
+        let driven = if self.params.gate_widens_through_null_steps {
+            self.gate_travelled_m
+        } else {
+            self.travelled_m
+        };
+        base + self.params.drift_per_m * driven
     }
 
     fn drop_oldest(&mut self, count: usize) {
@@ -885,6 +915,51 @@ mod tests {
                 ..
             } | Status::Reset { .. }
         ));
+    }
+
+    #[test]
+    fn the_gate_widens_while_the_newest_poses_find_no_lane() {
+        // East along y = 0, then north; the odometry's north leg runs 6 m east of its lane
+        // (along-road drift on the first leg that the turn made cross-road), twice the robust
+        // preset's 3 m gate. The first leg's poses keep fitting their lane, so the steps after
+        // the turn are accepted and change nothing. Widening through such steps, the gate
+        // reaches the north leg and it is matched; closed again by each of them, the north leg
+        // stays 6 m off its lane for 300 m and more, until the first leg's poses are too few
+        // to accept a step.
+        let east: Vec<[f64; 2]> = (0..=100).map(|i| [i as f64 * 3.0, 0.0]).collect();
+        let north: Vec<[f64; 2]> = (1..=300).map(|i| [300.0, i as f64 * 3.0]).collect();
+        let map = Arc::new(LaneMap::new(&[Lane::new(1, east), Lane::new(2, north)]).unwrap());
+        let mut drive: Vec<[f64; 2]> = (0..150).map(|i| [i as f64 * 2.0, 0.0]).collect();
+        drive.extend((1..400).map(|i| [306.0, i as f64 * 2.0]));
+        let off_lane = |s: &Step| (s.position_in_map[0] - 300.0).abs() > 1.0;
+        // Poses after the turn until the pose is back on its lane, and the steps of the drive.
+        let back = |gate_widens_through_null_steps: bool| {
+            let mut params = crate::params::Preset::KissIcp.robust_params();
+            params.min_window = 20;
+            params.gate_widens_through_null_steps = gate_widens_through_null_steps;
+            let mut c = Corrector::new(map.clone(), params);
+            let steps: Vec<Step> = drive.iter().map(|&p| c.push(p)).collect();
+            let back = steps[150..].iter().position(|s| !off_lane(s));
+            (back.expect("the north leg comes back to its lane"), steps)
+        };
+        let (late, _) = back(false);
+        assert!(late >= 150, "{} m", 2 * late);
+        let (soon, steps) = back(true);
+        assert!(
+            soon <= 100,
+            "back on the lane {} m after the turn",
+            2 * soon
+        );
+        assert!(
+            steps[150..150 + soon]
+                .iter()
+                .all(|s| matches!(s.status, Status::Accepted { .. } | Status::Carried { .. })),
+            "the steps before were accepted: the first leg fit"
+        );
+        assert!(
+            !steps[150 + soon..].iter().any(off_lane),
+            "and it stays there"
+        );
     }
 
     #[test]

@@ -54,7 +54,10 @@ pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
 const ANSWER_LEN: usize = 272;
 const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP04";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP05";
+/// Snapshots before the match gate widened through steps that change nothing (read with the
+/// gate closed at the last accepted step, as the corrector then had it).
+const SNAPSHOT_MAGIC_V4: &[u8; 8] = b"LASNAP04";
 /// Snapshots before poses could be carried between window poses (read with none carried: every
 /// pose of their sources entered the window).
 const SNAPSHOT_MAGIC_V3: &[u8; 8] = b"LASNAP03";
@@ -298,7 +301,7 @@ impl Snapshot {
         for row in &c.map_error {
             e.f64s(row);
         }
-        e.u32(c.carried);
+        e.u32(c.carried).f64(c.gate_travelled_m);
         match c.last_position_in_anchored {
             Some(p) => e.u32(1).f64s(&p),
             None => e.u32(0).f64s(&[0.0, 0.0]),
@@ -324,10 +327,11 @@ impl Snapshot {
             return None;
         }
         let magic = body.get(..8)?;
-        let (has_map_error, has_carried) = match magic {
-            m if m == SNAPSHOT_MAGIC => (true, true),
-            m if m == SNAPSHOT_MAGIC_V3 => (true, false),
-            m if m == SNAPSHOT_MAGIC_V2 => (false, false),
+        let (has_map_error, has_carried, has_unanchored) = match magic {
+            m if m == SNAPSHOT_MAGIC => (true, true, true),
+            m if m == SNAPSHOT_MAGIC_V4 => (true, true, false),
+            m if m == SNAPSHOT_MAGIC_V3 => (true, false, false),
+            m if m == SNAPSHOT_MAGIC_V2 => (false, false, false),
             _ => return None,
         };
         let mut d = Decoder(&body[8..]);
@@ -344,6 +348,11 @@ impl Snapshot {
             [[0.0; 2]; 2]
         };
         let carried = if has_carried { d.u32()? } else { 0 };
+        let gate_travelled_m = if has_unanchored {
+            d.f64()?
+        } else {
+            travelled_m
+        };
         let last_position = (d.u32()?, d.f64s::<2>()?);
         let smoothed = (d.u32()?, d.se2()?);
         let n = d.u64()?;
@@ -354,6 +363,7 @@ impl Snapshot {
         let finite = window.iter().flatten().all(|v| v.is_finite())
             && window_path_m.is_finite()
             && travelled_m.is_finite()
+            && gate_travelled_m.is_finite()
             && covariance.iter().flatten().all(|v| v.is_finite())
             && map_error.iter().flatten().all(|v| v.is_finite());
         let flag = |f: u32| (f <= 1).then_some(f == 1);
@@ -364,6 +374,7 @@ impl Snapshot {
                 window_path_m,
                 failures,
                 travelled_m,
+                gate_travelled_m,
                 last_position_in_anchored: flag(last_position.0)?.then_some(last_position.1),
                 covariance,
                 map_error,
@@ -761,6 +772,7 @@ mod tests {
                     window_path_m: 549.9000000000001,
                     failures: 3,
                     travelled_m: 12.5,
+                    gate_travelled_m: 40.25,
                     last_position_in_anchored: Some([5.0, 6.0]),
                     covariance: [[0.5, 0.1, 1e-3], [0.1, 0.7, -2e-3], [1e-3, -2e-3, 1e-4]],
                     map_error: [[0.4, -0.1], [-0.1, 0.3]],
@@ -776,16 +788,21 @@ mod tests {
         let older = |magic: &[u8; 8], keep: std::ops::Range<usize>| {
             let mut v = magic.to_vec();
             v.extend_from_slice(&bytes[keep]);
-            v.extend_from_slice(&bytes[at + 36..bytes.len() - 8]);
+            v.extend_from_slice(&bytes[at + 44..bytes.len() - 8]);
             v.extend_from_slice(&xxh3_64(&v).to_le_bytes());
             v
         };
-        // The format before: no carried count (4 bytes fewer), read as none carried.
+        // The format before: no distance the gate widens by (8 bytes fewer), read as the
+        // distance since the last accepted step.
         let mut old = snap.clone();
+        old.state.corrector.gate_travelled_m = old.state.corrector.travelled_m;
+        let v4 = older(SNAPSHOT_MAGIC_V4, 8..at + 36);
+        assert_eq!(Snapshot::decode(&v4), Some(old.clone()));
+        // The one before: no carried count (4 bytes fewer), read as none carried.
         old.state.corrector.carried = 0;
         let v3 = older(SNAPSHOT_MAGIC_V3, 8..at + 32);
         assert_eq!(Snapshot::decode(&v3), Some(old.clone()));
-        // The one before that: no map error either (32 bytes fewer), read as none.
+        // And before that: no map error either (32 bytes fewer), read as none.
         old.state.corrector.map_error = [[0.0; 2]; 2];
         let v2 = older(SNAPSHOT_MAGIC_V2, 8..at);
         assert_eq!(Snapshot::decode(&v2), Some(old));
