@@ -52,7 +52,8 @@ pub struct Params {
     /// an accepted step; it widens by `drift_per_m` per metre travelled since. Infinite = paper.
     pub max_match_distance_m: f64,
     /// Beyond the paper: drift the odometry may accumulate per metre travelled (ratio) since the
-    /// last accepted step, widening the match distance bound.
+    /// last accepted step (see [`Params::gate_widens_through_null_steps`]), widening the match
+    /// distance bound.
     pub drift_per_m: f64,
     /// Beyond the paper: an accepted step that changes nothing while the window's newest pose
     /// has no lane match does not restart the match distance bound's widening. Such steps come
