@@ -380,11 +380,7 @@ fn a_reload_keeps_running_sessions(
     };
     stream(&odometry[..300]);
     replace();
-    rustix::process::kill_process(
-        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
-        rustix::process::Signal::HUP,
-    )
-    .unwrap();
+    hang_up(&daemon);
     let until = Instant::now() + Duration::from_secs(5);
     while !daemon.log().contains(reloaded) && Instant::now() < until {
         std::thread::sleep(Duration::from_millis(20));
@@ -417,11 +413,7 @@ fn sighup_reloads_the_tile_for_new_sessions() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let name = unique("reload");
     let setup = town_setup(&[&name]);
-    let replace = || {
-        let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
-        lanealign_core::tile::write(&setup.tile, &town_moved_north(), &plane, 3.0, &geometry)
-            .unwrap();
-    };
+    let replace = || write_town_tile(&town_moved_north(), &setup.tile);
     a_reload_keeps_running_sessions(&setup, &name, replace, "tile reloaded");
 }
 
@@ -460,9 +452,7 @@ fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
         let journals = std::fs::read_dir(setup.state.join(&setup.namespace).join(&name))
             .map(|d| d.count())
             .unwrap_or(0);
-        let ours = format!("lanealign_{}_", setup.namespace);
-        let shm = shm_entries().iter().filter(|e| e.contains(&ours)).count();
-        (fds, journals, shm)
+        (fds, journals, namespace(&setup).files().len())
     };
     let mut counts = Vec::new();
     for k in 0..60 {
@@ -556,20 +546,13 @@ fn a_bad_tile_on_sighup_keeps_the_one_the_daemon_has() {
     let mut flipped = good.clone();
     let middle = flipped.len() / 2;
     flipped[middle] ^= 0x10;
-    let other_geometry = setup.dir.path().join("other-geometry.tile");
     let map = lanealign_core::lane_map::LaneMap::new(&synthetic::town_lanes()).unwrap();
     let geometry = lanealign_core::lane_geometry::LaneGeometry {
         unmarked_offset_scale: Some(1.0),
         ..synthetic::town_geometry()
     };
-    lanealign_core::tile::write(
-        &other_geometry,
-        &map,
-        &synthetic::town_plane(),
-        3.0,
-        &geometry,
-    )
-    .unwrap();
+    let other_geometry =
+        lanealign_core::tile::encode(&map, &synthetic::town_plane(), 3.0, &geometry);
     // What the configured place holds at each reload (`None`: nothing), and what the refusal names.
     let cases = [
         ("a byte flipped", Some(flipped), "checksum mismatch"),
@@ -580,7 +563,7 @@ fn a_bad_tile_on_sighup_keeps_the_one_the_daemon_has() {
         ),
         (
             "another lane geometry",
-            Some(std::fs::read(&other_geometry).unwrap()),
+            Some(other_geometry),
             "unmarked-street offset scale 1,",
         ),
         ("removed", None, "No such file"),
@@ -662,14 +645,19 @@ fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
     assert!(daemon.stop().unwrap());
 }
 
-/// Sends SIGHUP to `daemon` and asserts that its `k`-th (from 0) log line saying `refusal`
-/// comes within 5 s and names `named`.
-fn assert_reload_refused(daemon: &DaemonProcess, k: usize, refusal: &str, what: &str, named: &str) {
+/// Sends SIGHUP to `daemon`: load the map again.
+fn hang_up(daemon: &DaemonProcess) {
     rustix::process::kill_process(
         rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
         rustix::process::Signal::HUP,
     )
     .unwrap();
+}
+
+/// Sends SIGHUP to `daemon` and asserts that its `k`-th (from 0) log line saying `refusal`
+/// comes within 5 s and names `named`.
+fn assert_reload_refused(daemon: &DaemonProcess, k: usize, refusal: &str, what: &str, named: &str) {
+    hang_up(daemon);
     let refusals = || daemon.log().matches(refusal).count();
     let until = Instant::now() + Duration::from_secs(5);
     while refusals() <= k && Instant::now() < until {

@@ -326,9 +326,7 @@ fn a_daemon_restarted_on_another_map_starts_its_sessions_afresh() {
     let (daemon, client, output) = replay_on_town(&t, "800");
     wait_for_files(&t.setup.state, "snapshot");
     daemon.kill().unwrap();
-    let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
-    lanealign_core::tile::write(&t.setup.tile, &town_moved_north(), &plane, 3.0, &geometry)
-        .unwrap();
+    write_town_tile(&town_moved_north(), &t.setup.tile);
     let daemon = DaemonProcess::start_ready(
         &t.setup.config,
         &daemon_log(&t.setup),
@@ -342,16 +340,8 @@ fn a_daemon_restarted_on_another_map_starts_its_sessions_afresh() {
         "the old map's journal is refused: {restart}"
     );
     assert_eq!(fresh_starts(&summary), 1, "{summary}");
-    let k = got
-        .iter()
-        .zip(&on_old_map)
-        .take_while(|(a, b)| a == b)
-        .count();
+    let k = afresh_at(&t, &got, &on_old_map, &summary);
     assert!(0 < k && k < got.len(), "{k}: {summary}");
-    assert!(
-        got[k..] == offline(&t.setup, &t.name, &t.poses[k..])[..],
-        "from the fresh start at pose {k}, as offline on the new map: {summary}"
-    );
 }
 
 /// A journal the disk loses (the session's folder removed while it streams, as a full or failing
@@ -433,20 +423,9 @@ fn a_full_state_disk_ends_the_journal_not_the_daemon() {
     .unwrap_or_else(|e| panic!("the daemon did not start on a full disk: {e}\n{full}"));
     let (summary, log, got) = all_answered(&t, daemon, client, &output);
     let fresh_starts = fresh_starts(&summary);
-    // Up to the pose the restarted daemon started afresh at, answers as offline; after it, as an
-    // offline run that starts there.
-    let expected = offline(&t.setup, &t.name, &t.poses);
-    let k = got
-        .iter()
-        .zip(&expected)
-        .take_while(|(a, b)| a == b)
-        .count();
+    let k = afresh_at(&t, &got, &offline(&t.setup, &t.name, &t.poses), &summary);
     assert!(k > 0, "{summary}");
     assert_eq!(fresh_starts, usize::from(k < got.len()), "{summary}\n{log}");
-    assert!(
-        got[k..] == offline(&t.setup, &t.name, &t.poses[k..])[..],
-        "after the fresh start at pose {k}, as offline from there: {summary}"
-    );
 }
 
 /// A tmpfs of a given size mounted on a folder while it lives.
@@ -536,6 +515,19 @@ fn all_answered(
     let got = read(output, Format::Kitti).unwrap().poses;
     assert_eq!(got.len(), town.poses.len(), "{summary}");
     (summary, log, got)
+}
+
+/// Where the answers `got` of a replay of `town` part from `before` (offline correction as the
+/// session began), asserting that from there on they are offline correction of a run that starts
+/// at that pose on the daemon's tile now: a session started afresh there. `got.len()` when they
+/// never part.
+fn afresh_at(town: &Town, got: &[Pose3], before: &[Pose3], summary: &str) -> usize {
+    let k = got.iter().zip(before).take_while(|(a, b)| a == b).count();
+    assert!(
+        got[k..] == offline(&town.setup, &town.name, &town.poses[k..])[..],
+        "from pose {k} on, as offline from there: {summary}"
+    );
+    k
 }
 
 /// The count of fresh session starts in a replay's summary.

@@ -568,7 +568,8 @@ impl Corrector {
                     self.map_from_anchored = correction * self.map_from_anchored;
                     // A step that changes nothing (a quarter of the steps on KITTI 00, LiDAR,
                     // kiss-icp) leaves the window's positions, and so its spacings, as they are.
-                    if correction != Se2::IDENTITY {
+                    let changed = correction != Se2::IDENTITY;
+                    if changed {
                         for x in self.window.as_mut_slice() {
                             *x = correction.apply(*x);
                         }
@@ -577,7 +578,7 @@ impl Corrector {
                     self.travelled_m = 0.0;
                     // A step that changed nothing closes the gate only if its newest pose was
                     // matched (correspondences come in window order: the newest pose's is last).
-                    if correction != Se2::IDENTITY
+                    if changed
                         || self
                             .correspondences
                             .last()

@@ -168,11 +168,17 @@ pub fn kitti_setup_on(data: &Path, sources: &[(&str, &str)], cell_size_m: Option
     )
 }
 
+/// Writes `map` (in the town's plane, with its lane geometry) as the tile `tile`.
+pub fn write_town_tile(map: &LaneMap, tile: &Path) {
+    let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
+    tile::write(tile, map, &plane, 3.0, &geometry).unwrap();
+}
+
 /// Writes `map` (in the town's plane) as the tile `tile` and, beside it, as the grid `grid`
 /// of 100 m cells.
 pub fn write_town_maps(map: &LaneMap, tile: &Path, grid: &Path) {
+    write_town_tile(map, tile);
     let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
-    tile::write(tile, map, &plane, 3.0, &geometry).unwrap();
     let spec = GridSpec {
         plane: &plane,
         spacing_m: 3.0,
