@@ -10,7 +10,7 @@ use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::pose::Pose3;
 use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Format, Trajectory};
-use lanealign_wire::payload::{OdomPose, FLAG_FRESH_START};
+use lanealign_wire::payload::{OdomPose, FLAG_END_SESSION, FLAG_FRESH_START};
 
 /// Raw OSM: two-way and one-way roads, tagged lane counts, a reversed one-way, a footway, a
 /// relation and a node with tags.
@@ -176,7 +176,8 @@ pub fn odom_pose_bytes(p: &OdomPose) -> Vec<u8> {
     out
 }
 
-/// Two interleaved sessions streaming the drive, the second started afresh mid-way.
+/// Two interleaved sessions streaming the drive, the second started afresh mid-way; then the
+/// first says goodbye and sends one pose more (a session the daemon no longer runs).
 pub fn wire_stream() -> Vec<u8> {
     let drive = drive(24);
     let mut out = Vec::new();
@@ -198,6 +199,21 @@ pub fn wire_stream() -> Vec<u8> {
             };
             out.extend(odom_pose_bytes(&p));
         }
+    }
+    let after = drive.len() as u64 + 1;
+    for (flags, pose) in [
+        (FLAG_END_SESSION, [f64::NAN; 12]),
+        (0, drive[0].to_row_major()),
+    ] {
+        out.extend(odom_pose_bytes(&OdomPose {
+            session: 1,
+            seq: after,
+            stamp_ns: 0,
+            sent_mono_ns: after,
+            pose,
+            flags,
+            reserved: 0,
+        }));
     }
     out
 }

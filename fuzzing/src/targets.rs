@@ -25,7 +25,7 @@ use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
 use lanealign_map::pbf::read_pbf;
 use lanealign_service::config::Config;
 use lanealign_service::session::{self, Session, SessionSetup};
-use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_FRESH_START};
+use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START};
 
 use crate::seeds::{self, ODOM_POSE_BYTES};
 
@@ -443,7 +443,7 @@ fn odom_pose(chunk: &[u8]) -> OdomPose {
 }
 
 /// Serves a byte stream of payloads as the worker does (a session starts at its first pose or
-/// afresh on request), checking what every answer must satisfy.
+/// afresh on request, and ends at a goodbye), checking what every answer must satisfy.
 fn serve(bytes: &[u8]) {
     let setup = SessionSetup {
         map: seed_map(),
@@ -459,6 +459,10 @@ fn serve(bytes: &[u8]) {
     let mut sessions: BTreeMap<u64, Session> = BTreeMap::new();
     for chunk in bytes.chunks_exact(ODOM_POSE_BYTES) {
         let input = odom_pose(chunk);
+        if input.flags & FLAG_END_SESSION != 0 {
+            sessions.remove(&input.session);
+            continue;
+        }
         let fresh = input.flags & FLAG_FRESH_START != 0;
         if fresh || !sessions.contains_key(&input.session) {
             if sessions.len() >= 4 && !sessions.contains_key(&input.session) {

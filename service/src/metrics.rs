@@ -30,6 +30,8 @@ pub struct SourceMetrics {
     pub undelivered: u64,
     /// Sessions started in this interval.
     pub new_sessions: u64,
+    /// Sessions their clients closed in this interval (a goodbye on the wire).
+    pub closed_sessions: u64,
     /// Live sessions at the report.
     pub sessions: u64,
     /// Journal writes that failed in this interval.
@@ -83,6 +85,7 @@ impl Default for SourceMetrics {
             resent: 0,
             undelivered: 0,
             new_sessions: 0,
+            closed_sessions: 0,
             sessions: 0,
             journal_failures: 0,
             uncovered_queries: 0,
@@ -145,8 +148,10 @@ impl SourceMetrics {
                 source,
                 count = 0,
                 sessions = self.sessions,
+                closed_sessions = self.closed_sessions,
                 "no poses in this interval"
             );
+            self.closed_sessions = 0;
             return;
         }
         let [e50, e99, e999, emax] = quantiles(&self.end_to_end);
@@ -167,6 +172,7 @@ impl SourceMetrics {
             undelivered = self.undelivered,
             sessions = self.sessions,
             new_sessions = self.new_sessions,
+            closed_sessions = self.closed_sessions,
             journal_failures = self.journal_failures,
             uncovered_queries = self.uncovered_queries,
             map_swaps = self.map_swaps,
@@ -204,6 +210,7 @@ impl SourceMetrics {
         self.resent = 0;
         self.undelivered = 0;
         self.new_sessions = 0;
+        self.closed_sessions = 0;
         self.journal_failures = 0;
         self.uncovered_queries = 0;
         self.map_swaps = 0;

@@ -17,7 +17,9 @@ use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::plausibility::{rate_warning, RateProbe};
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START};
+use lanealign_wire::payload::{
+    CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START,
+};
 use lanealign_wire::service::{
     Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError, SessionServices,
     DAEMON_NODE,
@@ -302,10 +304,18 @@ impl Worker {
         }
     }
 
-    /// Answers one pose; then readies its session for the next, and does the session's work
-    /// ahead when `queued` (asked after publishing) says no pose waits. A session on a grid
-    /// asks it too, while a map it asked for is pending (`GridView::arrived`).
+    /// Answers one pose (a goodbye, [`FLAG_END_SESSION`], ends its session instead); then
+    /// readies its session for the next, and does the session's work ahead when `queued`
+    /// (asked after publishing) says no pose waits. A session on a grid asks it too, while a
+    /// map it asked for is pending (`GridView::arrived`).
     fn serve(&mut self, input: OdomPose, received: u64, queued: impl Fn() -> bool) {
+        if input.flags & FLAG_END_SESSION != 0 {
+            if self.sessions.contains_key(&input.session) {
+                self.metrics.closed_sessions += 1;
+                self.end_session(input.session, "closed by its client");
+            }
+            return;
+        }
         self.summary.received += 1;
         if !self.ensure_live(&input) {
             return;

@@ -17,6 +17,13 @@ pub const MAX_IN_FLIGHT: u64 = 512;
 /// daemon remembers of it. A client sets it when the daemon asks for poses it no longer has.
 pub const FLAG_FRESH_START: u32 = 1;
 
+/// [`OdomPose::flags`]: the session is over. Not a pose (the client sends its next sequence
+/// number and a NaN pose, so that a daemon that does not know the flag flags it as invalid
+/// input and corrects nothing with it): the daemon ends the session at once (its corrector, the
+/// answers it keeps to send again, its journal) and answers nothing. A goodbye for a session the
+/// daemon does not run changes nothing.
+pub const FLAG_END_SESSION: u32 = 2;
+
 /// A pose from an odometry source.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("lanealign::OdomPose")]
@@ -36,7 +43,7 @@ pub struct OdomPose {
     /// Row-major 3x4 pose `[R | t]` (`world_from_body`) in the source's axis convention
     /// (metres).
     pub pose: [f64; 12],
-    /// [`FLAG_FRESH_START`] or 0.
+    /// [`FLAG_FRESH_START`], [`FLAG_END_SESSION`] or 0.
     pub flags: u32,
     /// Reserved, zero.
     pub reserved: u32,
