@@ -477,6 +477,91 @@ fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
     assert!(daemon.stop().unwrap());
 }
 
+/// Always runs: a client that closes its session (`Connection::close`) gets the answers still in
+/// flight, and the daemon forgets the session at once instead of after `session_timeout_s`: its
+/// journal and its answer service are gone, the metrics count it closed, and a session of the
+/// same source streaming before and after is answered as offline. A goodbye for a session the
+/// daemon does not run starts none.
+#[test]
+fn a_closed_session_is_forgotten_at_once() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("close");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let expected = offline(&setup, &name, &odometry);
+    let journals = || {
+        std::fs::read_dir(setup.state.join(&setup.namespace).join(&name))
+            .map(|d| d.count())
+            .unwrap_or(0)
+    };
+    let answer = |conn: &mut Connection, p: &Pose3| {
+        conn.publish(0, &p.to_row_major()).unwrap();
+        conn.recv(Duration::from_secs(5))
+            .unwrap()
+            .expect("an answer within 5 s")
+    };
+    let until_within = |what: &str, done: &dyn Fn() -> bool| {
+        let until = Instant::now() + Duration::from_secs(5);
+        while !done() && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert!(done(), "{what}\n{}", daemon.log());
+    };
+
+    let mut beside = connect(&setup, &name);
+    wait_for_daemon(&mut beside);
+    let half = odometry.len() / 2;
+    let mut beside_answers: Vec<_> = odometry[..half]
+        .iter()
+        .map(|p| answer(&mut beside, p))
+        .collect();
+    let (files_before, journals_before) = (namespace(&setup).files(), journals());
+
+    let (total, in_flight) = (600, 20);
+    let mut closing = connect(&setup, &name);
+    let mut answered: Vec<u64> = odometry[..total - in_flight]
+        .iter()
+        .map(|p| answer(&mut closing, p).seq)
+        .collect();
+    for p in &odometry[total - in_flight..total] {
+        closing.publish(0, &p.to_row_major()).unwrap();
+    }
+    assert_eq!(
+        journals(),
+        journals_before + 1,
+        "the closing session is journaled"
+    );
+    let closed = closing.close(Duration::from_secs(5)).unwrap();
+    assert!(closed.daemon_told, "the daemon took the goodbye");
+    assert!(closed.unanswered.is_empty(), "{:?}", closed.unanswered);
+    answered.extend(closed.answers.iter().map(|a| a.seq));
+    assert_eq!(
+        answered,
+        (1..=total as u64).collect::<Vec<_>>(),
+        "every pose answered once, the last {in_flight} by close"
+    );
+    until_within("the closed session's journal removed", &|| {
+        journals() == journals_before
+    });
+    until_within("the closed session's shared memory gone", &|| {
+        namespace(&setup).files() == files_before
+    });
+    until_within("the metrics count the closed session", &|| {
+        daemon.log().contains("closed_sessions=1")
+    });
+
+    let stranger = RawClient::new(&setup, &name);
+    assert!(stranger.goodbye(1), "the daemon takes a stranger's goodbye");
+    beside_answers.extend(odometry[half..].iter().map(|p| answer(&mut beside, p)));
+    assert_eq!(journals(), journals_before, "a goodbye starts no session");
+    assert!(
+        poses_of(&beside_answers) == expected,
+        "the session beside answered as offline"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
 /// Always runs: a client that floods its session and never reads an answer (a hung odometry
 /// process, or one on the raw wire that ignores the protocol) holds up no one. A session of
 /// the same source streaming beside it gets every answer, equal to offline correction; the

@@ -39,5 +39,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
+    // The daemon forgets the session now rather than after its `session_timeout_s`.
+    let closed = conn.close(Duration::from_secs(1))?;
+    println!(
+        "closed: {} answers came while closing, {} never did",
+        closed.answers.len(),
+        closed.unanswered.len()
+    );
     Ok(())
 }

@@ -24,7 +24,7 @@ use iceoryx2::port::{ReceiveError as PortReceiveError, SendError};
 use iceoryx2::prelude::ipc;
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{
-    CorrectedPose, OdomPose, StatusCode, FLAG_FRESH_START, MAX_IN_FLIGHT,
+    CorrectedPose, OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START, MAX_IN_FLIGHT,
 };
 use lanealign_wire::service::{
     NameError, Namespace, NodeCreateError, NodeListError, PortCreateError, PoseServices,
@@ -90,6 +90,33 @@ pub enum ReceiveError {
     /// Checking whether the daemon is alive failed.
     #[error(transparent)]
     Liveness(#[from] NodeListError),
+}
+
+/// Closing a connection failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CloseError {
+    /// Waiting for the answers in flight failed.
+    #[error(transparent)]
+    Receive(#[from] ReceiveError),
+    /// The goodbye could not be sent.
+    #[error("sending the session's end failed")]
+    Send(#[source] SendError),
+    /// The daemon could not be woken for the goodbye.
+    #[error("notifying the daemon of the session's end failed")]
+    Notify(#[source] NotifierNotifyError),
+}
+
+/// What a connection still had when it closed ([`Connection::close`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Closed {
+    /// The answers that arrived while it waited, in arrival order: with those received before,
+    /// every pose answered.
+    pub answers: Vec<CorrectedPose>,
+    /// The poses no answer came for within the timeout, oldest first.
+    pub unanswered: Vec<u64>,
+    /// Whether a daemon took the goodbye (none runs: the session ends at its
+    /// `session_timeout_s`, or when a restarted daemon's `max_sessions` needs its place).
+    pub daemon_told: bool,
 }
 
 /// What happened to a connection beyond plain answers: what a caller reports.
@@ -438,6 +465,45 @@ impl Connection {
                 return Err(ReceiveError::Wait(e));
             }
         }
+    }
+
+    /// Ends the session: waits up to `timeout` for the answers of the poses in flight (returned,
+    /// so none is lost), then tells the daemon the session is over, and it forgets the session
+    /// at once (its corrector, its journal) instead of after `session_timeout_s`. A connection
+    /// dropped without closing leaves its session to be resumed ([`Connection::resume`]) until
+    /// then.
+    pub fn close(mut self, timeout: Duration) -> Result<Closed, CloseError> {
+        let deadline = Instant::now() + timeout;
+        let mut answers = Vec::new();
+        while !self.pending.is_empty() {
+            // `recv` comes back empty only at its deadline.
+            match self.recv(deadline.saturating_duration_since(Instant::now()))? {
+                Some(answer) => answers.push(answer),
+                None => break,
+            }
+        }
+        let goodbye = OdomPose {
+            session: self.session,
+            seq: self.next_seq,
+            stamp_ns: 0,
+            sent_mono_ns: monotonic_ns(),
+            pose: [f64::NAN; 12],
+            flags: FLAG_END_SESSION,
+            reserved: 0,
+        };
+        let daemon_told = self
+            .publisher
+            .send_copy(goodbye)
+            .map_err(CloseError::Send)?
+            > 0;
+        if daemon_told {
+            self.notifier.notify().map_err(CloseError::Notify)?;
+        }
+        Ok(Closed {
+            answers,
+            unanswered: self.pending.keys().copied().collect(),
+            daemon_told,
+        })
     }
 
     /// How [`Connection::recv`] waits for answers (default: sleeps until notified). A strategy

@@ -12,10 +12,13 @@
 //! if let Some(corrected) = conn.recv(Duration::from_millis(100))? {
 //!     println!("seq {} corrected to {:?}", corrected.seq, corrected.pose);
 //! }
+//! // Done: the answers still in flight, then the daemon forgets the session at once.
+//! let closed = conn.close(Duration::from_secs(1))?;
+//! println!("{} more answers, {} unanswered", closed.answers.len(), closed.unanswered.len());
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
 pub mod connection;
 
-pub use connection::{ConnectError, Connection, PublishError, ReceiveError};
+pub use connection::{CloseError, Closed, ConnectError, Connection, PublishError, ReceiveError};
 pub use lanealign_wire as wire;

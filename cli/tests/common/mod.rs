@@ -23,7 +23,7 @@ use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::payload::{CorrectedPose, OdomPose};
+use lanealign_wire::payload::{CorrectedPose, OdomPose, FLAG_END_SESSION};
 use lanealign_wire::service::{Namespace, PoseServices, SessionServices};
 use lanealign_wire::wait::WaitStrategy;
 
@@ -330,6 +330,25 @@ impl RawClient {
                 sent_mono_ns: monotonic_ns(),
                 pose,
                 flags: 0,
+                reserved: 0,
+            })
+            .unwrap();
+        self.notifier.notify().unwrap();
+        delivered == 1
+    }
+
+    /// Sends the goodbye of this client's session ([`FLAG_END_SESSION`]) as `seq`, as the client
+    /// library's `close` does; whether the daemon took it.
+    pub fn goodbye(&self, seq: u64) -> bool {
+        let delivered = self
+            .publisher
+            .send_copy(OdomPose {
+                session: self.session,
+                seq,
+                stamp_ns: 0,
+                sent_mono_ns: monotonic_ns(),
+                pose: [f64::NAN; 12],
+                flags: FLAG_END_SESSION,
                 reserved: 0,
             })
             .unwrap();
