@@ -21,7 +21,7 @@ use lanealign_core::trajectory::Trajectory;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
-use lanealign_wire::payload::StatusCode;
+use lanealign_wire::payload::{CorrectedPose, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
@@ -342,7 +342,33 @@ fn synthetic_town<'py>(
 /// iceoryx2 shared memory and its corrected poses back (see `lanealign_client::Connection`).
 #[pyclass(unsendable)]
 struct Client {
-    connection: Connection,
+    /// `None` once closed.
+    connection: Option<Connection>,
+}
+
+/// An answer as a dict: `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom`
+/// (x, y, yaw) and `covariance` (3, 3).
+fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
+    let [xx, xy, xt, yy, yt, tt] = answer.covariance;
+    let d = PyDict::new(py);
+    d.set_item("seq", answer.seq)?;
+    d.set_item("stamp_ns", answer.stamp_ns)?;
+    let pose =
+        numpy::ndarray::Array2::from_shape_vec((3, 4), answer.pose.to_vec()).map_err(error)?;
+    d.set_item("pose", pose.into_pyarray(py))?;
+    d.set_item(
+        "status",
+        StatusCode::from_code(answer.status).map_or("unknown", StatusCode::name),
+    )?;
+    d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
+    let covariance = numpy::ndarray::arr2(&[[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]);
+    d.set_item("covariance", covariance.into_pyarray(py))?;
+    Ok(d)
+}
+
+fn seconds(what: &str, s: f64) -> PyResult<Duration> {
+    Duration::try_from_secs_f64(s)
+        .map_err(|_| PyValueError::new_err(format!("{what} must be a number of seconds")))
 }
 
 #[pymethods]
@@ -357,12 +383,14 @@ impl Client {
         let mut connection =
             Connection::connect_in(&namespace, &source, new_session_id()).map_err(error)?;
         connection.set_wait_strategy(parsed::<WaitStrategy>("wait", wait)?);
-        Ok(Client { connection })
+        Ok(Client {
+            connection: Some(connection),
+        })
     }
 
     /// True when a daemon serves the source.
-    fn daemon_connected(&mut self) -> bool {
-        self.connection.daemon_connected()
+    fn daemon_connected(&mut self) -> PyResult<bool> {
+        Ok(self.open()?.daemon_connected())
     }
 
     /// Publishes one pose ((3, 4) or (4, 4), the source's axis convention) stamped `stamp_ns`;
@@ -379,7 +407,7 @@ impl Client {
         for (k, value) in v.iter_mut().enumerate() {
             *value = array[IxDyn(&[k / 4, k % 4])];
         }
-        self.connection.publish(stamp_ns, &v).map_err(error)
+        self.open()?.publish(stamp_ns, &v).map_err(error)
     }
 
     /// The next answer of this session, waiting up to `timeout_s` seconds: `None`, or a dict
@@ -390,26 +418,42 @@ impl Client {
         py: Python<'py>,
         timeout_s: f64,
     ) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let timeout = Duration::try_from_secs_f64(timeout_s)
-            .map_err(|_| PyValueError::new_err("timeout_s must be a number of seconds"))?;
-        let Some(answer) = self.connection.recv(timeout).map_err(error)? else {
-            return Ok(None);
-        };
-        let [xx, xy, xt, yy, yt, tt] = answer.covariance;
+        let timeout = seconds("timeout_s", timeout_s)?;
+        match self.open()?.recv(timeout).map_err(error)? {
+            Some(answer) => Ok(Some(answer_dict(py, &answer)?)),
+            None => Ok(None),
+        }
+    }
+
+    /// Ends the session: waits up to `timeout_s` seconds for the answers still in flight, then
+    /// tells the daemon, which forgets the session at once. Returns a dict: `answers` (those
+    /// that arrived, as `recv` gives them), `unanswered` (sequence numbers) and `daemon_told`.
+    /// The client cannot be used after.
+    #[pyo3(signature = (timeout_s=1.0))]
+    fn close<'py>(&mut self, py: Python<'py>, timeout_s: f64) -> PyResult<Bound<'py, PyDict>> {
+        let timeout = seconds("timeout_s", timeout_s)?;
+        let connection = self.connection.take().ok_or_else(closed_error)?;
+        let closed = connection.close(timeout).map_err(error)?;
         let d = PyDict::new(py);
-        d.set_item("seq", answer.seq)?;
-        d.set_item("stamp_ns", answer.stamp_ns)?;
-        let pose =
-            numpy::ndarray::Array2::from_shape_vec((3, 4), answer.pose.to_vec()).map_err(error)?;
-        d.set_item("pose", pose.into_pyarray(py))?;
-        d.set_item(
-            "status",
-            StatusCode::from_code(answer.status).map_or("unknown", StatusCode::name),
-        )?;
-        d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
-        let covariance = numpy::ndarray::arr2(&[[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]);
-        d.set_item("covariance", covariance.into_pyarray(py))?;
-        Ok(Some(d))
+        let answers = closed
+            .answers
+            .iter()
+            .map(|a| answer_dict(py, a))
+            .collect::<PyResult<Vec<_>>>()?;
+        d.set_item("answers", answers)?;
+        d.set_item("unanswered", closed.unanswered)?;
+        d.set_item("daemon_told", closed.daemon_told)?;
+        Ok(d)
+    }
+}
+
+fn closed_error() -> PyErr {
+    PyValueError::new_err("the client is closed")
+}
+
+impl Client {
+    fn open(&mut self) -> PyResult<&mut Connection> {
+        self.connection.as_mut().ok_or_else(closed_error)
     }
 }
 

@@ -240,11 +240,24 @@ preset = "kiss-icp"
             time.sleep(0.05)
         poses = np.loadtxt(DATA / "odometry" / "lidar" / "00.txt").reshape(-1, 3, 4)[:600]
         answers = []
-        for i, pose in enumerate(poses):
+        for i, pose in enumerate(poses[:590]):
             assert client.publish(i, pose) == i + 1
             answer = client.recv(10.0)
             assert answer is not None and answer["seq"] == i + 1
             answers.append(answer)
+        for i, pose in enumerate(poses[590:], start=590):
+            assert client.publish(i, pose) == i + 1
+        closed = client.close(10.0)
+        assert closed["daemon_told"] and closed["unanswered"] == []
+        answers += closed["answers"]
+        assert [a["seq"] for a in answers] == list(range(1, 601))
+        with pytest.raises(ValueError, match="closed"):
+            client.recv(0.0)
+        journals = tmp_path / "state" / namespace / source
+        deadline = time.monotonic() + 5
+        while any(journals.iterdir()) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not any(journals.iterdir()), "the daemon forgot the closed session"
     finally:
         daemon.terminate()
         daemon.wait(20)
