@@ -60,10 +60,12 @@ fn daemon_log(setup: &Setup) -> PathBuf {
 }
 
 /// Kills `lanealign replay` clients at random moments, three times; then a replay runs to its
-/// end. The killed sessions leave no trace in its output, and the daemon cleans up after them.
+/// end. The killed sessions leave no trace in its output, the daemon cleans up after them, and
+/// the replays that finished closed their sessions.
 fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], seed: u64) {
     let daemon = start(setup);
     let mut rng = Lcg(seed);
+    let mut finished = 0;
     for k in 0..3 {
         let mut doomed = spawn_replay(
             setup,
@@ -74,7 +76,7 @@ fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], se
         );
         std::thread::sleep(between(&mut rng, 0.2, 1.2));
         doomed.kill().unwrap();
-        doomed.wait().unwrap();
+        finished += usize::from(doomed.wait().unwrap().success());
     }
     let output = setup.dir.path().join("after-kills.txt");
     let summary = finish(spawn_replay(setup, source, input, &output, "max"));
@@ -83,6 +85,19 @@ fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], se
     assert!(
         got == offline(setup, source, poses),
         "bit for bit after killed clients: {summary}"
+    );
+    // The replays that ran to their end closed their sessions (a doomed one may have finished
+    // before its kill, or been killed after its goodbye).
+    let until = Instant::now() + Duration::from_secs(5);
+    let closed = || daemon.log().matches("closed by its client").count();
+    while closed() < finished + 1 && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        (finished + 1..=4).contains(&closed()),
+        "{} closed, {finished} of the doomed replays finished\n{}",
+        closed(),
+        daemon.log()
     );
     // The killed clients' nodes are cleaned up (by the daemon's supervisor or the next node
     // iceoryx2 creates): none is left dead.

@@ -124,6 +124,10 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         .map(|path| (path, status_csv(&result.answers)));
     let status = status.as_ref().map(|(path, csv)| (*path, csv.as_str()));
     status_file::write_run(&args.output, &output, args.format, status)?;
+    // Every pose is answered: the daemon may forget the session now rather than at its timeout.
+    if let Err(e) = conn.close(Duration::ZERO) {
+        eprintln!("warning: the session was not closed: {e}");
+    }
     let mut rt = result.round_trip_ns.clone();
     rt.sort_unstable();
     let accepted = result
