@@ -4,9 +4,10 @@
 //! The connection numbers the session's poses 1, 2, 3, ... and keeps every pose until its answer
 //! arrives. It keeps at most [`MAX_IN_FLIGHT`] in flight (so no buffer on the way can overflow):
 //! beyond that [`Connection::publish`] says the connection is full instead of blocking the
-//! odometry thread. While it waits for answers it checks every 100 ms that the daemon is alive
-//! (iceoryx2 sees a killed process at once); when a daemon comes back (or another replaces it)
-//! it sends every unanswered pose again, in order. The daemon answers each pose of a session
+//! odometry thread. When the answers it waits for are silent for 100 ms, or come from another
+//! daemon run than before, it checks which daemon is alive (iceoryx2 sees a killed process at
+//! once); when a daemon comes back (or another replaces it) it sends every unanswered pose
+//! again, in order. The daemon answers each pose of a session
 //! once and sends the same answer again for a pose sent twice; answers the connection already
 //! has are dropped, so each pose is answered exactly once.
 
@@ -35,7 +36,8 @@ use lanealign_wire::wait::WaitStrategy;
 /// Shortest wait handed to iceoryx2: a shorter remainder is not waited for at all (a wait that
 /// rounds to zero at the socket would block until the next event).
 const MIN_WAIT: Duration = Duration::from_micros(10);
-/// How often the daemon's liveness is checked while waiting for answers.
+/// How long answers in flight may be silent before the daemon's liveness is checked, and how
+/// often it is checked at most.
 const LIVENESS_PERIOD: Duration = Duration::from_millis(100);
 
 /// Connecting failed.
@@ -134,6 +136,11 @@ pub struct ConnectionEvents {
     pub fresh_starts: u64,
     /// Answers received twice (dropped).
     pub duplicate_answers: u64,
+    /// Times the connection listed the namespace's nodes to find its daemon: when it was made,
+    /// when answers in flight were silent for 100 ms, when answers came from another daemon run
+    /// than before (or the first), and for [`Connection::daemon_connected`] (at most every
+    /// 100 ms).
+    pub liveness_checks: u64,
 }
 
 /// A fresh session id: non-zero, random per call (from the standard library's per-process
@@ -195,6 +202,10 @@ pub struct Connection {
     /// The last daemon process seen alive: a different one appearing is a restart.
     last_daemon: Option<i32>,
     last_check: Option<Instant>,
+    /// When the last answer of this session arrived (or the connection was made).
+    last_answer: Instant,
+    /// The daemon run (`daemon_epoch`) the last answer came from.
+    epoch: Option<u64>,
     events: ConnectionEvents,
     // Ports first: they must be dropped before the services and the node that own them.
     publisher: Publisher<ipc::Service, OdomPose, ()>,
@@ -248,7 +259,12 @@ impl Connection {
             daemon,
             last_daemon: daemon,
             last_check: Some(Instant::now()),
-            events: ConnectionEvents::default(),
+            last_answer: Instant::now(),
+            epoch: None,
+            events: ConnectionEvents {
+                liveness_checks: 1,
+                ..ConnectionEvents::default()
+            },
             wait: WaitStrategy::Event,
             publisher: poses.publisher()?,
             notifier: poses.notifier()?,
@@ -365,6 +381,17 @@ impl Connection {
         };
     }
 
+    /// Checks which daemon is alive when there is reason to: poses in flight and no answer for
+    /// [`LIVENESS_PERIOD`] (a daemon killed holding them). While answers come the daemon is
+    /// alive, and listing the namespace's nodes is file-system work (a few hundred
+    /// microseconds to milliseconds per call here) that delayed the answers arriving meanwhile.
+    fn check_daemon_if_silent(&mut self) -> Result<(), ReceiveError> {
+        if self.pending.is_empty() || self.last_answer.elapsed() < LIVENESS_PERIOD {
+            return Ok(());
+        }
+        self.check_daemon()
+    }
+
     /// Checks (at most every 100 ms) which daemon is alive; when one appeared or replaced
     /// another, everything unanswered goes to it again.
     fn check_daemon(&mut self) -> Result<(), ReceiveError> {
@@ -375,6 +402,7 @@ impl Connection {
             return Ok(());
         }
         self.last_check = Some(Instant::now());
+        self.events.liveness_checks += 1;
         let now = self.namespace.daemons()?.first().map(|d| d.pid);
         if now.is_some() && now != self.daemon {
             if self.last_daemon.is_some() && now != self.last_daemon {
@@ -398,6 +426,13 @@ impl Connection {
             drop(sample);
             if answer.session != self.session {
                 continue;
+            }
+            self.last_answer = Instant::now();
+            if self.epoch.replace(answer.daemon_epoch) != Some(answer.daemon_epoch) {
+                // Another daemon run answers (or the first): find out at once whether it
+                // replaced the one that had the poses in flight.
+                self.last_check = None;
+                self.check_daemon()?;
             }
             if answer.status() == Some(StatusCode::Gap) {
                 self.events.gaps += 1;
@@ -436,7 +471,7 @@ impl Connection {
             if let Some(answer) = self.try_recv()? {
                 return Ok(Some(answer));
             }
-            self.check_daemon()?;
+            self.check_daemon_if_silent()?;
             self.flush()?;
             let left = deadline.saturating_duration_since(Instant::now());
             if left < MIN_WAIT {
