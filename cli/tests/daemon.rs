@@ -593,6 +593,33 @@ fn a_closed_session_is_forgotten_at_once() {
     assert!(daemon.stop().unwrap());
 }
 
+/// Always runs: a client that closes while its daemon is dead (killed with poses in flight)
+/// loses none without saying so: `close` names exactly the poses no answer came for, and says
+/// no daemon took the goodbye.
+#[test]
+fn closing_without_a_daemon_names_what_was_not_answered() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("orphan");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    for p in &odometry[..100] {
+        conn.publish(0, &p.to_row_major()).unwrap();
+        assert!(conn.recv(Duration::from_secs(5)).unwrap().is_some());
+    }
+    daemon.kill().unwrap();
+    for p in &odometry[100..110] {
+        conn.publish(0, &p.to_row_major()).unwrap();
+    }
+    let closed = conn.close(Duration::from_millis(300)).unwrap();
+    assert!(closed.answers.is_empty(), "{:?}", closed.answers);
+    assert_eq!(closed.unanswered, (101..=110).collect::<Vec<u64>>());
+    assert!(!closed.daemon_told, "no daemon took the goodbye");
+    remove_namespace_files(&setup.namespace);
+}
+
 /// Always runs: a client that floods its session and never reads an answer (a hung odometry
 /// process, or one on the raw wire that ignores the protocol) holds up no one. A session of
 /// the same source streaming beside it gets every answer, equal to offline correction; the

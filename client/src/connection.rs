@@ -526,12 +526,17 @@ impl Connection {
             flags: FLAG_END_SESSION,
             reserved: 0,
         };
-        let daemon_told = self
+        // A killed daemon's subscriber takes samples until its node is cleaned up: ask which
+        // daemon lives.
+        self.last_check = None;
+        self.check_daemon()?;
+        let taken = self
             .publisher
             .send_copy(goodbye)
             .map_err(CloseError::Send)?
             > 0;
-        if daemon_told {
+        let daemon_told = taken && self.daemon.is_some();
+        if taken {
             self.notifier.notify().map_err(CloseError::Notify)?;
         }
         Ok(Closed {
