@@ -3,13 +3,12 @@
 //!
 //! The connection numbers the session's poses 1, 2, 3, ... and keeps every pose until its answer
 //! arrives. It keeps at most [`MAX_IN_FLIGHT`] in flight (so no buffer on the way can overflow):
-//! beyond that [`Connection::publish`] says the connection is full instead of blocking the
-//! odometry thread. When the answers it waits for are silent for 100 ms, or come from another
-//! daemon run than before, it checks which daemon is alive (iceoryx2 sees a killed process at
-//! once); when a daemon comes back (or another replaces it) it sends every unanswered pose
-//! again, in order. The daemon answers each pose of a session
-//! once and sends the same answer again for a pose sent twice; answers the connection already
-//! has are dropped, so each pose is answered exactly once.
+//! beyond that [`Connection::publish`] says the connection is full instead of blocking the odometry
+//! thread. When the answers it waits for are silent for 100 ms, or come from another daemon run
+//! than before, it checks which daemon is alive (iceoryx2 sees a killed process at once); when a
+//! daemon comes back (or another replaces it) it sends every unanswered pose again, in order. The
+//! daemon answers each pose of a session once and sends the same answer again for a pose sent
+//! twice; answers the connection already has are dropped, so each pose is answered exactly once.
 
 use std::collections::hash_map::RandomState;
 use std::collections::BTreeMap;
@@ -517,6 +516,10 @@ impl Connection {
                 None => break,
             }
         }
+        // A killed daemon's subscriber takes samples until its node is cleaned up: ask which
+        // daemon lives.
+        self.last_check = None;
+        self.check_daemon()?;
         let goodbye = OdomPose {
             session: self.session,
             seq: self.next_seq,
@@ -526,10 +529,6 @@ impl Connection {
             flags: FLAG_END_SESSION,
             reserved: 0,
         };
-        // A killed daemon's subscriber takes samples until its node is cleaned up: ask which
-        // daemon lives.
-        self.last_check = None;
-        self.check_daemon()?;
         let taken = self
             .publisher
             .send_copy(goodbye)
