@@ -321,6 +321,16 @@ impl RawClient {
 
     /// Sends `pose` as `seq` and wakes the daemon, reading nothing; whether the daemon took it.
     pub fn send_only(&self, seq: u64, pose: [f64; 12]) -> bool {
+        self.send_flagged(seq, pose, 0)
+    }
+
+    /// Sends the goodbye of this client's session ([`FLAG_END_SESSION`]) as `seq`, as the client
+    /// library's `close` does; whether the daemon took it.
+    pub fn goodbye(&self, seq: u64) -> bool {
+        self.send_flagged(seq, [f64::NAN; 12], FLAG_END_SESSION)
+    }
+
+    fn send_flagged(&self, seq: u64, pose: [f64; 12], flags: u32) -> bool {
         let delivered = self
             .publisher
             .send_copy(OdomPose {
@@ -329,26 +339,7 @@ impl RawClient {
                 stamp_ns: 0,
                 sent_mono_ns: monotonic_ns(),
                 pose,
-                flags: 0,
-                reserved: 0,
-            })
-            .unwrap();
-        self.notifier.notify().unwrap();
-        delivered == 1
-    }
-
-    /// Sends the goodbye of this client's session ([`FLAG_END_SESSION`]) as `seq`, as the client
-    /// library's `close` does; whether the daemon took it.
-    pub fn goodbye(&self, seq: u64) -> bool {
-        let delivered = self
-            .publisher
-            .send_copy(OdomPose {
-                session: self.session,
-                seq,
-                stamp_ns: 0,
-                sent_mono_ns: monotonic_ns(),
-                pose: [f64::NAN; 12],
-                flags: FLAG_END_SESSION,
+                flags,
                 reserved: 0,
             })
             .unwrap();
