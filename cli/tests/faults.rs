@@ -201,6 +201,61 @@ fn killed_clients_leave_no_trace_on_the_town() {
     killed_clients(&t.setup, &t.name, &t.input, &t.poses, 11);
 }
 
+/// Always runs: the daemon killed and restarted while its client has nothing in flight. The
+/// idle client does not look for it (nothing is waiting for an answer); its next pose is
+/// answered by the new daemon, which restored the session from its journal, and the client
+/// sees the restart in that answer's daemon run: counted once, nothing sent again, every
+/// answer equal to offline correction.
+#[test]
+fn a_daemon_restarted_between_poses_is_seen_in_its_answers() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("idle");
+    let setup = town_setup(&[&name]);
+    let mut daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let poses = &odometry[..600];
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    let mut answers = Vec::new();
+    let mut answer = |conn: &mut lanealign_client::Connection, p: &Pose3| {
+        conn.publish(0, &p.to_row_major()).unwrap();
+        let a = conn.recv(Duration::from_secs(5)).unwrap();
+        answers.push(a.expect("an answer within 5 s"));
+    };
+    for p in &poses[..300] {
+        answer(&mut conn, p);
+    }
+    let idle = conn.events();
+    daemon.kill().unwrap();
+    daemon =
+        DaemonProcess::start_ready(&setup.config, &daemon_log(&setup), Duration::from_secs(20))
+            .unwrap();
+    assert!(
+        daemon.log().contains("session restored"),
+        "{}",
+        daemon.log()
+    );
+    assert_eq!(conn.events(), idle, "an idle client does nothing");
+    for p in &poses[300..] {
+        answer(&mut conn, p);
+    }
+    let events = conn.events();
+    assert!(
+        poses_of(&answers) == offline(&setup, &name, poses),
+        "{events:?}"
+    );
+    assert_eq!(
+        (
+            events.daemon_restarts,
+            events.resent,
+            events.duplicate_answers
+        ),
+        (1, 0, 0),
+        "{events:?}"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
 #[test]
 fn killed_daemons_lose_nothing_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());

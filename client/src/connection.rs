@@ -205,6 +205,9 @@ pub struct Connection {
     last_answer: Instant,
     /// The daemon run (`daemon_epoch`) the last answer came from.
     epoch: Option<u64>,
+    /// Looking for the daemon after an answer from another daemon run failed: look again
+    /// before the next wait.
+    look_again: bool,
     events: ConnectionEvents,
     // Ports first: they must be dropped before the services and the node that own them.
     publisher: Publisher<ipc::Service, OdomPose, ()>,
@@ -260,6 +263,7 @@ impl Connection {
             last_check: Some(Instant::now()),
             last_answer: Instant::now(),
             epoch: None,
+            look_again: false,
             events: ConnectionEvents {
                 liveness_checks: 1,
                 ..ConnectionEvents::default()
@@ -380,12 +384,15 @@ impl Connection {
         };
     }
 
-    /// Checks which daemon is alive when there is reason to: poses in flight and no answer for
-    /// [`LIVENESS_PERIOD`] (a daemon killed holding them). While answers come the daemon is
-    /// alive, and listing the namespace's nodes is file-system work (a few hundred
-    /// microseconds to milliseconds per call here) that delayed the answers arriving meanwhile.
-    fn check_daemon_if_silent(&mut self) -> Result<(), ReceiveError> {
-        if self.pending.is_empty() || self.last_answer.elapsed() < LIVENESS_PERIOD {
+    /// Checks which daemon is alive when there is reason to: an answer from another daemon run
+    /// than before, or poses in flight and no answer for [`LIVENESS_PERIOD`] (a daemon killed
+    /// holding them). While answers come the daemon is alive, and listing the namespace's nodes
+    /// is file-system work (a few hundred microseconds to milliseconds per call here) that
+    /// delayed the answers arriving meanwhile.
+    fn check_daemon_if_due(&mut self) -> Result<(), ReceiveError> {
+        if std::mem::take(&mut self.look_again) {
+            self.last_check = None;
+        } else if self.pending.is_empty() || self.last_answer.elapsed() < LIVENESS_PERIOD {
             return Ok(());
         }
         self.check_daemon()
@@ -427,13 +434,14 @@ impl Connection {
                 continue;
             }
             self.last_answer = Instant::now();
-            if self.epoch.replace(answer.daemon_epoch) != Some(answer.daemon_epoch) {
-                // Another daemon run answers (or the first): find out at once whether it
-                // replaced the one that had the poses in flight.
-                self.last_check = None;
-                self.check_daemon()?;
-            }
+            // Another daemon run answers (or the first): did it replace the one that had the
+            // poses in flight? For a gap before acting on it; for an answer once it is taken.
+            let new_run = self.epoch.replace(answer.daemon_epoch) != Some(answer.daemon_epoch);
             if answer.status() == Some(StatusCode::Gap) {
+                if new_run {
+                    self.last_check = None;
+                    self.check_daemon()?;
+                }
                 self.events.gaps += 1;
                 if self.rewound.covers(&answer) {
                     // Sent before the last rewind, which already covers what it asks for.
@@ -453,7 +461,14 @@ impl Connection {
                 self.flush()?;
                 continue;
             }
-            if self.pending.remove(&answer.seq).is_some() {
+            let answered = self.pending.remove(&answer.seq).is_some();
+            if new_run {
+                // Before anything more is sent. A failed look is tried again (and reported)
+                // before the next wait: the answer is not lost to it.
+                self.last_check = None;
+                self.look_again = self.check_daemon().is_err();
+            }
+            if answered {
                 return Ok(Some(answer));
             }
             self.events.duplicate_answers += 1;
@@ -470,7 +485,7 @@ impl Connection {
             if let Some(answer) = self.try_recv()? {
                 return Ok(Some(answer));
             }
-            self.check_daemon_if_silent()?;
+            self.check_daemon_if_due()?;
             self.flush()?;
             let left = deadline.saturating_duration_since(Instant::now());
             if left < MIN_WAIT {
