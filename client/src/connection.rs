@@ -93,18 +93,36 @@ pub enum ReceiveError {
     Liveness(#[from] NodeListError),
 }
 
-/// Closing a connection failed.
+/// Closing a connection failed; each case keeps the answers that arrived before it did.
 #[derive(Debug, thiserror::Error)]
 pub enum CloseError {
-    /// Waiting for the answers in flight failed.
-    #[error(transparent)]
-    Receive(#[from] ReceiveError),
+    /// Waiting for the answers in flight failed (no goodbye was sent).
+    #[error("waiting for the answers in flight failed ({} arrived before)", answers.len())]
+    Receive {
+        /// What failed.
+        #[source]
+        source: ReceiveError,
+        /// The answers that arrived while closing, before the failure.
+        answers: Vec<CorrectedPose>,
+    },
     /// The goodbye could not be sent.
     #[error("sending the session's end failed")]
-    Send(#[source] SendError),
+    Send {
+        /// What failed.
+        #[source]
+        source: SendError,
+        /// What the connection had (no daemon told).
+        closed: Closed,
+    },
     /// The daemon could not be woken for the goodbye.
     #[error("notifying the daemon of the session's end failed")]
-    Notify(#[source] NotifierNotifyError),
+    Notify {
+        /// What failed.
+        #[source]
+        source: NotifierNotifyError,
+        /// What the connection had (no daemon told).
+        closed: Closed,
+    },
 }
 
 /// What a connection still had when it closed ([`Connection::close`]).
@@ -115,7 +133,7 @@ pub struct Closed {
     pub answers: Vec<CorrectedPose>,
     /// The poses no answer came for within the timeout, oldest first.
     pub unanswered: Vec<u64>,
-    /// Whether a daemon took the goodbye (none runs: the session ends at its
+    /// Whether a daemon known to be alive took the goodbye (if none: the session ends at its
     /// `session_timeout_s`, or when a restarted daemon's `max_sessions` needs its place).
     pub daemon_told: bool,
 }
@@ -526,15 +544,21 @@ impl Connection {
         let mut answers = Vec::new();
         while !self.pending.is_empty() {
             // `recv` comes back empty only at its deadline.
-            match self.recv(deadline.saturating_duration_since(Instant::now()))? {
-                Some(answer) => answers.push(answer),
-                None => break,
+            match self.recv(deadline.saturating_duration_since(Instant::now())) {
+                Ok(Some(answer)) => answers.push(answer),
+                Ok(None) => break,
+                Err(source) => return Err(CloseError::Receive { source, answers }),
             }
         }
         // A killed daemon's subscriber takes samples until its node is cleaned up: ask which
-        // daemon lives.
+        // daemon lives (a failed look tells no one).
         self.last_check = None;
-        self.check_daemon()?;
+        let looked = self.check_daemon().is_ok();
+        let mut closed = Closed {
+            answers,
+            unanswered: self.pending.keys().copied().collect(),
+            daemon_told: false,
+        };
         let goodbye = OdomPose {
             session: self.session,
             seq: self.next_seq,
@@ -544,20 +568,17 @@ impl Connection {
             flags: FLAG_END_SESSION,
             reserved: 0,
         };
-        let taken = self
-            .publisher
-            .send_copy(goodbye)
-            .map_err(CloseError::Send)?
-            > 0;
-        let daemon_told = taken && self.daemon.is_some();
+        let taken = match self.publisher.send_copy(goodbye) {
+            Ok(receivers) => receivers > 0,
+            Err(source) => return Err(CloseError::Send { source, closed }),
+        };
         if taken {
-            self.notifier.notify().map_err(CloseError::Notify)?;
+            if let Err(source) = self.notifier.notify() {
+                return Err(CloseError::Notify { source, closed });
+            }
         }
-        Ok(Closed {
-            answers,
-            unanswered: self.pending.keys().copied().collect(),
-            daemon_told,
-        })
+        closed.daemon_told = taken && looked && self.daemon.is_some();
+        Ok(closed)
     }
 
     /// How [`Connection::recv`] waits for answers (default: sleeps until notified). A strategy
