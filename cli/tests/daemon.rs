@@ -480,10 +480,11 @@ fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
         let fds = std::fs::read_dir(format!("/proc/{}/fd", daemon.id()))
             .unwrap()
             .count();
-        let journals = std::fs::read_dir(setup.state.join(&setup.namespace).join(&name))
-            .map(|d| d.count())
-            .unwrap_or(0);
-        (fds, journals, namespace(&setup).files().len())
+        (
+            fds,
+            journal_count(&setup, &name),
+            namespace(&setup).files().len(),
+        )
     };
     let mut counts = Vec::new();
     for k in 0..60 {
@@ -521,17 +522,7 @@ fn a_closed_session_is_forgotten_at_once() {
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
     let expected = offline(&setup, &name, &odometry);
-    let journals = || {
-        std::fs::read_dir(setup.state.join(&setup.namespace).join(&name))
-            .map(|d| d.count())
-            .unwrap_or(0)
-    };
-    let answer = |conn: &mut Connection, p: &Pose3| {
-        conn.publish(0, &p.to_row_major()).unwrap();
-        conn.recv(Duration::from_secs(5))
-            .unwrap()
-            .expect("an answer within 5 s")
-    };
+    let journals = || journal_count(&setup, &name);
     let until_within = |what: &str, done: &dyn Fn() -> bool| {
         let until = Instant::now() + Duration::from_secs(5);
         while !done() && Instant::now() < until {
@@ -545,7 +536,7 @@ fn a_closed_session_is_forgotten_at_once() {
     let half = odometry.len() / 2;
     let mut beside_answers: Vec<_> = odometry[..half]
         .iter()
-        .map(|p| answer(&mut beside, p))
+        .map(|p| answer_of(&mut beside, p))
         .collect();
     let (files_before, journals_before) = (namespace(&setup).files(), journals());
 
@@ -553,7 +544,7 @@ fn a_closed_session_is_forgotten_at_once() {
     let mut closing = connect(&setup, &name);
     let mut answered: Vec<u64> = odometry[..total - in_flight]
         .iter()
-        .map(|p| answer(&mut closing, p).seq)
+        .map(|p| answer_of(&mut closing, p).seq)
         .collect();
     for p in &odometry[total - in_flight..total] {
         closing.publish(0, &p.to_row_major()).unwrap();
@@ -584,7 +575,7 @@ fn a_closed_session_is_forgotten_at_once() {
 
     let stranger = RawClient::new(&setup, &name);
     assert!(stranger.goodbye(1), "the daemon takes a stranger's goodbye");
-    beside_answers.extend(odometry[half..].iter().map(|p| answer(&mut beside, p)));
+    beside_answers.extend(odometry[half..].iter().map(|p| answer_of(&mut beside, p)));
     assert_eq!(journals(), journals_before, "a goodbye starts no session");
     assert!(
         poses_of(&beside_answers) == expected,
@@ -606,8 +597,7 @@ fn closing_without_a_daemon_names_what_was_not_answered() {
     let mut conn = connect(&setup, &name);
     wait_for_daemon(&mut conn);
     for p in &odometry[..100] {
-        conn.publish(0, &p.to_row_major()).unwrap();
-        assert!(conn.recv(Duration::from_secs(5)).unwrap().is_some());
+        answer_of(&mut conn, p);
     }
     daemon.kill().unwrap();
     for p in &odometry[100..110] {

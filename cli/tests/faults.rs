@@ -216,15 +216,10 @@ fn a_daemon_restarted_between_poses_is_seen_in_its_answers() {
     let poses = &odometry[..600];
     let mut conn = connect(&setup, &name);
     wait_for_daemon(&mut conn);
-    let mut answers = Vec::new();
-    let mut answer = |conn: &mut lanealign_client::Connection, p: &Pose3| {
-        conn.publish(0, &p.to_row_major()).unwrap();
-        let a = conn.recv(Duration::from_secs(5)).unwrap();
-        answers.push(a.expect("an answer within 5 s"));
-    };
-    for p in &poses[..300] {
-        answer(&mut conn, p);
-    }
+    let mut answers: Vec<_> = poses[..300]
+        .iter()
+        .map(|p| answer_of(&mut conn, p))
+        .collect();
     let idle = conn.events();
     daemon.kill().unwrap();
     daemon =
@@ -236,9 +231,7 @@ fn a_daemon_restarted_between_poses_is_seen_in_its_answers() {
         daemon.log()
     );
     assert_eq!(conn.events(), idle, "an idle client does nothing");
-    for p in &poses[300..] {
-        answer(&mut conn, p);
-    }
+    answers.extend(poses[300..].iter().map(|p| answer_of(&mut conn, p)));
     let events = conn.events();
     assert!(
         poses_of(&answers) == offline(&setup, &name, poses),

@@ -409,15 +409,15 @@ impl Connection {
     /// delayed the answers arriving meanwhile.
     fn check_daemon_if_due(&mut self) -> Result<(), ReceiveError> {
         if std::mem::take(&mut self.look_again) {
-            self.last_check = None;
-        } else if self.pending.is_empty() || self.last_answer.elapsed() < LIVENESS_PERIOD {
+            return self.look_for_daemon();
+        }
+        if self.pending.is_empty() || self.last_answer.elapsed() < LIVENESS_PERIOD {
             return Ok(());
         }
         self.check_daemon()
     }
 
-    /// Checks (at most every 100 ms) which daemon is alive; when one appeared or replaced
-    /// another, everything unanswered goes to it again.
+    /// [`Connection::look_for_daemon`], at most every 100 ms.
     fn check_daemon(&mut self) -> Result<(), ReceiveError> {
         if self
             .last_check
@@ -425,6 +425,12 @@ impl Connection {
         {
             return Ok(());
         }
+        self.look_for_daemon()
+    }
+
+    /// Checks which daemon is alive; when one appeared or replaced another, everything
+    /// unanswered goes to it again.
+    fn look_for_daemon(&mut self) -> Result<(), ReceiveError> {
         self.last_check = Some(Instant::now());
         self.events.liveness_checks += 1;
         let now = self.namespace.daemons()?.first().map(|d| d.pid);
@@ -457,8 +463,7 @@ impl Connection {
             let new_run = self.epoch.replace(answer.daemon_epoch) != Some(answer.daemon_epoch);
             if answer.status() == Some(StatusCode::Gap) {
                 if new_run {
-                    self.last_check = None;
-                    self.check_daemon()?;
+                    self.look_for_daemon()?;
                 }
                 self.events.gaps += 1;
                 if self.rewound.covers(&answer) {
@@ -483,8 +488,7 @@ impl Connection {
             if new_run {
                 // Before anything more is sent. A failed look is tried again (and reported)
                 // before the next wait: the answer is not lost to it.
-                self.last_check = None;
-                self.look_again = self.check_daemon().is_err();
+                self.look_again = self.look_for_daemon().is_err();
             }
             if answered {
                 return Ok(Some(answer));
@@ -552,8 +556,7 @@ impl Connection {
         }
         // A killed daemon's subscriber takes samples until its node is cleaned up: ask which
         // daemon lives (a failed look tells no one).
-        self.last_check = None;
-        let looked = self.check_daemon().is_ok();
+        let looked = self.look_for_daemon().is_ok();
         let mut closed = Closed {
             answers,
             unanswered: self.pending.keys().copied().collect(),

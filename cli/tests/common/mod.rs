@@ -281,6 +281,21 @@ pub fn wait_for_daemon(conn: &mut Connection) {
     assert!(conn.daemon_connected(), "the daemon did not come up");
 }
 
+/// Publishes `pose` as the session's next and returns its answer, which must come within 5 s.
+pub fn answer_of(conn: &mut Connection, pose: &Pose3) -> CorrectedPose {
+    conn.publish(0, &pose.to_row_major()).unwrap();
+    conn.recv(Duration::from_secs(5))
+        .unwrap()
+        .expect("an answer within 5 s")
+}
+
+/// How many session journals the daemon of `setup` holds for `source`.
+pub fn journal_count(setup: &Setup, source: &str) -> usize {
+    std::fs::read_dir(setup.state.join(&setup.namespace).join(source))
+        .map(|d| d.count())
+        .unwrap_or(0)
+}
+
 /// The poses of `answers`.
 pub fn poses_of(answers: &[CorrectedPose]) -> Vec<Pose3> {
     answers
