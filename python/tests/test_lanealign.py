@@ -206,7 +206,7 @@ def remove_namespace_files(namespace):
     """iceoryx2 keeps a namespace's files after its last process has left (the root folder and
     the shared-memory files, named as `Namespace::remove_files` in wire/src/service.rs removes
     them); a test's namespace goes with the test."""
-    shutil.rmtree(f"/tmp/lanealign-{namespace}", ignore_errors=True)
+    shutil.rmtree(f"/dev/shm/lanealign-{namespace}", ignore_errors=True)
     ours = re.compile(rf"lanealign_{re.escape(namespace)}_[0-9a-fA-F]{{40}}.*")
     for f in Path("/dev/shm").iterdir():
         if ours.fullmatch(f.name):

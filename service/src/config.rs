@@ -521,6 +521,10 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
             ),
             (GOOD.replace("\"lidar\"", &format!("\"{}\"", "x".repeat(300))), "longer than 64"),
             (format!("namespace = \"a b\"\n{GOOD}"), "namespace"),
+            (
+                format!("namespace = \"{}\"\n{GOOD}", "n".repeat(16)),
+                "namespace 'nnnnnnnnnnnnnnnn': longer than 15 characters",
+            ),
             (format!("max_sessions = 0\n{GOOD}"), "max_sessions"),
             (format!("session_timeout_s = -1\n{GOOD}"), "session_timeout_s"),
             (

@@ -44,8 +44,32 @@ pub const MAX_NODES: usize = 64;
 pub const MAX_EVENT_PORTS: usize = 32;
 /// Longest source name (characters).
 pub const MAX_SOURCE_NAME_LEN: usize = 64;
-/// Longest namespace (characters).
-pub const MAX_NAMESPACE_LEN: usize = 32;
+/// Longest namespace (characters): the longest whose iceoryx2 event sockets always fit in a
+/// Unix socket's path (below), however many ports a long-running daemon has made.
+pub const MAX_NAMESPACE_LEN: usize = (SOCKET_PATH_MAX
+    - NAMESPACES_FOLDER.len()
+    - ROOT_PREFIX.len()
+    - "/".len()
+    - FILE_PREFIX.len()
+    - "_".len()
+    - EVENT_SOCKET_NAME_MAX)
+    / 2;
+
+/// The folder below which each namespace has its iceoryx2 folder: the shared-memory file
+/// system, which age-based cleaners of temporary files (systemd-tmpfiles' stock rule for
+/// `/tmp` removes what nobody touched for 10 days) leave alone, and which processes with a
+/// private `/tmp` (systemd's `PrivateTmp=`) share with the daemon.
+const NAMESPACES_FOLDER: &str = "/dev/shm/";
+/// A namespace's folder is `lanealign-<namespace>/` in [`NAMESPACES_FOLDER`].
+const ROOT_PREFIX: &str = "lanealign-";
+/// A namespace's iceoryx2 files begin `lanealign_<namespace>_`.
+const FILE_PREFIX: &str = "lanealign_";
+/// The longest path of a Unix socket (bytes): `sun_path` holds 108 with its terminating NUL.
+const SOCKET_PATH_MAX: usize = 107;
+/// The longest name of an iceoryx2 event socket after the file prefix: a listener's id, a
+/// `u128` in decimal (39 digits at most; it grows with the ports a process has made), and
+/// `.event`. The socket lies in the namespace's folder.
+const EVENT_SOCKET_NAME_MAX: usize = 39 + ".event".len();
 
 /// A name that cannot be a source name or a namespace.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -126,10 +150,11 @@ impl SourceName {
     }
 }
 
-/// A deployment's namespace: 1 to 32 ASCII letters, digits, `-` and `_`; `default` unless
-/// configured. Its iceoryx2 files live in a folder of its own, `/tmp/lanealign-<namespace>/`,
-/// with the file prefix `lanealign_<namespace>_` in `/dev/shm`: deployments of different users
-/// or purposes never share or see each other's files.
+/// A deployment's namespace: 1 to [`MAX_NAMESPACE_LEN`] ASCII letters, digits, `-` and `_`;
+/// `default` unless configured. Its iceoryx2 files live in a folder of its own,
+/// `/dev/shm/lanealign-<namespace>/`, with the file prefix `lanealign_<namespace>_` in
+/// `/dev/shm`: deployments of different users or purposes never share or see each other's
+/// files.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct Namespace(String);
 
@@ -175,12 +200,13 @@ impl Namespace {
 
     /// The iceoryx2 file prefix of this namespace.
     pub fn prefix(&self) -> String {
-        format!("lanealign_{}_", self.0)
+        format!("{FILE_PREFIX}{}_", self.0)
     }
 
-    /// The namespace's iceoryx2 root folder (node and service records).
+    /// The namespace's iceoryx2 root folder (node and service records, event sockets):
+    /// `/dev/shm/lanealign-<namespace>/`.
     pub fn root_path(&self) -> String {
-        format!("/tmp/lanealign-{}/", self.0)
+        format!("{NAMESPACES_FOLDER}{ROOT_PREFIX}{}/", self.0)
     }
 
     /// The namespace's iceoryx2 files that exist: its root folder and its shared-memory files
@@ -626,7 +652,7 @@ mod tests {
 
     #[test]
     fn a_namespace_removes_its_own_files_and_not_those_of_a_name_it_begins() {
-        let name = format!("files-test-{}", std::process::id());
+        let name = format!("f{}", std::process::id());
         let (a, a_b): (Namespace, Namespace) =
             (name.parse().unwrap(), format!("{name}_b").parse().unwrap());
         let hash = "9204dd183d1c4d8e1ff592a30766ffa6765aa8b5";
@@ -666,5 +692,28 @@ mod tests {
         assert!(e.contains("longer than 64") && e.len() < 200, "{e}");
         assert_eq!(Namespace::default().prefix(), "lanealign_default_");
         assert!("a b".parse::<Namespace>().is_err());
+    }
+
+    /// The socket of an iceoryx2 listener whose id has as many digits as a `u128` can, in a
+    /// namespace of the longest name, fits in a Unix socket's path; one character more would
+    /// not, so the bound is the longest that always works.
+    #[test]
+    fn the_longest_namespace_fits_every_event_socket() {
+        let socket = |n: &Namespace| format!("{}{}{}.event", n.root_path(), n.prefix(), u128::MAX);
+        let longest: Namespace = "n".repeat(MAX_NAMESPACE_LEN).parse().unwrap();
+        assert!(socket(&longest).len() <= 107, "{}", socket(&longest));
+        let e = "n"
+            .repeat(MAX_NAMESPACE_LEN + 1)
+            .parse::<Namespace>()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(&format!("longer than {MAX_NAMESPACE_LEN}")),
+            "{e}"
+        );
+        let beyond = Namespace("n".repeat(MAX_NAMESPACE_LEN + 1));
+        assert!(socket(&beyond).len() > 107, "{}", socket(&beyond));
+        // Kept off /tmp, which age-based cleaners empty.
+        assert!(longest.root_path().starts_with("/dev/shm/lanealign-"));
     }
 }

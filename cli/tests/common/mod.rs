@@ -24,7 +24,7 @@ use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{CorrectedPose, OdomPose, FLAG_END_SESSION};
-use lanealign_wire::service::{Namespace, PoseServices, SessionServices};
+use lanealign_wire::service::{Namespace, PoseServices, SessionServices, MAX_NAMESPACE_LEN};
 use lanealign_wire::wait::WaitStrategy;
 
 /// A tile, a config with the given sources (name, anchor), and what offline correction needs.
@@ -44,6 +44,14 @@ pub fn unique(name: &str) -> String {
         std::process::id(),
         monotonic_ns() % 1_000_000
     )
+}
+
+/// A namespace of its own for one test, as long as a namespace may be
+/// ([`MAX_NAMESPACE_LEN`]): `<tag>`, zeros, `<pid>-<n>`. Every daemon test runs in the
+/// longest namespace, whose iceoryx2 sockets have the longest paths.
+pub fn unique_namespace(tag: char) -> String {
+    let id = format!("{}-{}", std::process::id(), monotonic_ns() % 1_000_000);
+    format!("{tag}{id:0>width$}", width = MAX_NAMESPACE_LEN - 1)
 }
 
 /// Removes a test's namespace files ([`lanealign_wire::service::Namespace::remove_files`]).
@@ -89,7 +97,7 @@ fn write_setup(
     convention: AxisConvention,
     sources: Vec<(String, Anchor)>,
 ) -> Setup {
-    let namespace = unique("test");
+    let namespace = unique_namespace('t');
     let state = dir.path().join("state");
     let entries: Vec<daemon_config::Source> = sources
         .iter()
@@ -377,19 +385,17 @@ impl RawClient {
     }
 }
 
-/// Every entry of /dev/shm and the iceoryx2 root folder.
+/// Every entry of /dev/shm, the namespaces' iceoryx2 folders included.
 pub fn shm_entries() -> std::collections::BTreeSet<String> {
     let mut out = std::collections::BTreeSet::new();
-    for root in ["/dev/shm", "/tmp/iceoryx2"] {
-        let mut stack = vec![PathBuf::from(root)];
-        while let Some(dir) = stack.pop() {
-            for e in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
-                let p = e.path();
-                if p.is_dir() {
-                    stack.push(p.clone());
-                }
-                out.insert(p.display().to_string());
+    let mut stack = vec![PathBuf::from("/dev/shm")];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).into_iter().flatten().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p.clone());
             }
+            out.insert(p.display().to_string());
         }
     }
     out
