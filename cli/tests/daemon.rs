@@ -1111,6 +1111,259 @@ fn a_client_with_a_private_tmp_is_served() {
     assert!(daemon.stop().unwrap());
 }
 
+/// A full `/dev/shm` is an error, never a crash. iceoryx2 sizes its files with `ftruncate`,
+/// which succeeds on a full tmpfs, and the first write to a page without room is a SIGBUS: a
+/// client and a daemon died so before. The daemon runs in a mount namespace with a `/dev/shm`
+/// of 8 MiB, its clients enter it (`nsenter`), and a filler file takes the room:
+/// - 64 KiB left: the client says how much room there is and how much a session needs, and
+///   exits with an error; the daemon is unharmed;
+/// - a client that connected while there was room, and then the room is gone before the daemon
+///   opens its session (the daemon stopped meanwhile): the daemon says it cannot answer the
+///   session, once per metrics interval, counts the poses as `unserved`, starts no journal, and
+///   goes on;
+/// - the room back: a client is served, byte for byte as the first.
+///
+/// Needs root (the mount namespace), `unshare`, `nsenter` and `fallocate`: visibly skipped
+/// otherwise.
+#[test]
+fn a_full_shared_memory_is_an_error_not_a_crash() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let tools = ["unshare", "nsenter", "fallocate"];
+    if !rustix::process::geteuid().is_root()
+        || tools
+            .iter()
+            .any(|t| Command::new(t).arg("--help").output().is_err())
+    {
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIPPED a_full_shared_memory_is_an_error_not_a_crash: needs root, unshare, nsenter and fallocate"
+        );
+        return;
+    }
+    let name = unique("full");
+    let setup = town_setup(&[&name]);
+    let log = setup.dir.path().join("daemon.log");
+    let mut daemon = KillOnDrop(
+        Command::new("unshare")
+            .args(["--mount", "--propagation", "private", "sh", "-c"])
+            .arg("mount -t tmpfs -o size=8m tmpfs /dev/shm && exec \"$0\" \"$@\"")
+            .arg(daemon_binary().unwrap())
+            .arg("--config")
+            .arg(&setup.config)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    let daemon_log = || std::fs::read_to_string(&log).unwrap_or_default();
+    let until = Instant::now() + Duration::from_secs(20);
+    while !daemon_log().contains(" ready") {
+        assert!(Instant::now() < until, "{}", daemon_log());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // Commands in the daemon's mount namespace.
+    let inside = |args: &[&str]| {
+        let mut c = Command::new("nsenter");
+        c.arg(format!("--mount=/proc/{}/ns/mnt", daemon.0.id()))
+            .arg("--")
+            .args(args);
+        c
+    };
+    let free = || -> u64 {
+        let out = inside(&["stat", "-f", "-c", "%a %S", "/dev/shm"])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        let v: Vec<u64> = text
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        v[0] * v[1]
+    };
+    let fill_to = |left: u64| {
+        let _ = inside(&["rm", "-f", "/dev/shm/filler"]).status();
+        let size = free().saturating_sub(left).to_string();
+        assert!(inside(&["fallocate", "-l", &size, "/dev/shm/filler"])
+            .status()
+            .unwrap()
+            .success());
+    };
+    let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    let input = dir.path().join("in.txt");
+    let (_, odometry) = synthetic::drive(1, 5);
+    lanealign_core::trajectory::write(
+        &input,
+        &lanealign_core::trajectory::Trajectory {
+            stamps: None,
+            poses: odometry[..200].to_vec(),
+        },
+        Format::Kitti,
+    )
+    .unwrap();
+    let replay_in = |out: &str| {
+        let output = dir.path().join(out);
+        let mut c = inside(&[env!("CARGO_BIN_EXE_lanealign"), "replay", "--source", &name]);
+        c.args(["--namespace", &setup.namespace, "--wait-for-daemon", "3"])
+            .arg(&input)
+            .arg("-o")
+            .arg(&output);
+        c
+    };
+    let read_out = |f: &str| std::fs::read_to_string(dir.path().join(f)).unwrap_or_default();
+
+    let first = replay_in("first.txt").output().unwrap();
+    assert!(first.status.success(), "{first:?}");
+    assert_eq!(read_out("first.txt").lines().count(), 200);
+
+    fill_to(64 << 10);
+    let refused = replay_in("refused.txt").output().unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr).to_string();
+    assert_eq!(refused.status.code(), Some(1), "{refused:?}");
+    assert!(
+        stderr.contains("/dev/shm has") && stderr.contains("a session needs up to 2600000"),
+        "{stderr}"
+    );
+
+    // Room for the client, then none for the daemon's side.
+    let _ = inside(&["rm", "-f", "/dev/shm/filler"]).status();
+    rustix::process::kill_process(
+        rustix::process::Pid::from_child(&daemon.0),
+        rustix::process::Signal::STOP,
+    )
+    .unwrap();
+    let before = free();
+    let unserved = replay_in("unserved.txt")
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let until = Instant::now() + Duration::from_secs(10);
+    while free() > before - 500_000 {
+        assert!(Instant::now() < until, "the client made no files");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    fill_to(200 << 10);
+    rustix::process::kill_process(
+        rustix::process::Pid::from_child(&daemon.0),
+        rustix::process::Signal::CONT,
+    )
+    .unwrap();
+    let out = unserved.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("not answered"),
+        "{out:?}"
+    );
+    let unserved_poses = |text: &str| -> u64 {
+        text.split("unserved=")
+            .skip(1)
+            .filter_map(|rest| rest.split_whitespace().next()?.parse::<u64>().ok())
+            .sum()
+    };
+    let until = Instant::now() + Duration::from_secs(5);
+    while unserved_poses(&daemon_log()) == 0 && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let text = daemon_log();
+    assert!(unserved_poses(&text) > 0, "{text}");
+    assert!(
+        text.contains("cannot answer a session") && text.contains("/dev/shm has"),
+        "{text}"
+    );
+    let warnings = text.matches("cannot answer a session").count();
+    let intervals = text.matches("unserved=").count();
+    assert!(
+        warnings <= intervals,
+        "{warnings} warnings in {intervals} intervals"
+    );
+    assert_eq!(
+        journal_count(&setup, &name),
+        0,
+        "no journal for a session never served"
+    );
+
+    let _ = inside(&["rm", "-f", "/dev/shm/filler"]).status();
+    let again = replay_in("again.txt").output().unwrap();
+    assert!(again.status.success(), "{again:?}");
+    assert_eq!(read_out("again.txt"), read_out("first.txt"));
+
+    rustix::process::kill_process(
+        rustix::process::Pid::from_child(&daemon.0),
+        rustix::process::Signal::TERM,
+    )
+    .unwrap();
+    let status = daemon.0.wait().unwrap();
+    assert!(status.success(), "{status:?}: {}", daemon_log());
+}
+
+/// Always runs: a session's files stay within what the client and the daemon check for before
+/// they make them (`lanealign_wire::shm`), and come near it (the bounds are the measured sizes
+/// with a margin, not guesses). The daemon is stopped while the client connects, so that the
+/// client's side is measured apart from the daemon's.
+#[test]
+fn a_session_needs_no_more_shared_memory_than_is_checked_for() {
+    use lanealign_wire::shm::{CLIENT_SESSION_BYTES, DAEMON_SESSION_BYTES};
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("room");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let bytes = || -> u64 {
+        let mut stack = namespace(&setup).files();
+        let mut sum = 0;
+        while let Some(path) = stack.pop() {
+            match std::fs::symlink_metadata(&path) {
+                Ok(m) if m.is_dir() => stack.extend(
+                    std::fs::read_dir(&path)
+                        .into_iter()
+                        .flatten()
+                        .flatten()
+                        .map(|e| e.path()),
+                ),
+                Ok(m) if m.is_file() => sum += m.len(),
+                _ => {}
+            }
+        }
+        sum
+    };
+    let signal = |s| {
+        rustix::process::kill_process(
+            rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
+            s,
+        )
+        .unwrap()
+    };
+    let alone = bytes();
+    signal(rustix::process::Signal::STOP);
+    let mut client = connect(&setup, &name);
+    let with_client = bytes();
+    signal(rustix::process::Signal::CONT);
+    wait_for_daemon(&mut client);
+    let (_, odometry) = synthetic::drive(1, 9);
+    answer_of(&mut client, &odometry[0]);
+    let served = bytes();
+    let (client_side, daemon_side) = (with_client - alone, served - with_client);
+    assert!(
+        client_side <= CLIENT_SESSION_BYTES && client_side > CLIENT_SESSION_BYTES / 2,
+        "client: {client_side} bytes"
+    );
+    assert!(
+        daemon_side <= DAEMON_SESSION_BYTES && daemon_side > DAEMON_SESSION_BYTES / 2,
+        "daemon: {daemon_side} bytes"
+    );
+    drop(client);
+    assert!(daemon.stop().unwrap());
+}
+
+/// A child process killed when dropped: a failed assertion leaves no daemon running.
+struct KillOnDrop(std::process::Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// Always runs: a daemon and its clients leave nothing in shared memory behind them, in the
 /// namespace's folder (`/dev/shm/lanealign-<namespace>/`) neither.
 #[test]

@@ -30,6 +30,7 @@ use lanealign_wire::service::{
     NameError, Namespace, NodeCreateError, NodeListError, PortCreateError, PoseServices,
     ServiceOpenError, SessionServices, SourceName,
 };
+use lanealign_wire::shm::{self, ShmError};
 use lanealign_wire::wait::WaitStrategy;
 
 /// Shortest wait handed to iceoryx2: a shorter remainder is not waited for at all (a wait that
@@ -57,6 +58,9 @@ pub enum ConnectError {
     /// Looking for the daemon failed.
     #[error(transparent)]
     Liveness(#[from] NodeListError),
+    /// Shared memory has no room for a session.
+    #[error(transparent)]
+    SharedMemory(#[from] ShmError),
 }
 
 /// Publishing a pose failed.
@@ -262,11 +266,17 @@ impl Connection {
         session: u64,
         next_seq: u64,
     ) -> Result<Self, ConnectError> {
+        // Room first: iceoryx2 writes to a session's files as it makes them, and a write to a
+        // full /dev/shm is a SIGBUS, not an error (`lanealign_wire::shm`).
+        shm::check_room(shm::SESSION_BYTES)?;
         let node = namespace.node()?;
         let poses = PoseServices::open(&node, source)?;
         let session = session.max(1);
         let answers = SessionServices::open(&node, source, session)?;
         let daemon = namespace.daemons()?.first().map(|d| d.pid);
+        let (publisher, notifier) = (poses.publisher()?, poses.notifier()?);
+        let (subscriber, listener) = (answers.subscriber()?, answers.listener()?);
+        shm::reserve(namespace)?;
         Ok(Connection {
             namespace: namespace.clone(),
             session,
@@ -287,10 +297,10 @@ impl Connection {
                 ..ConnectionEvents::default()
             },
             wait: WaitStrategy::Event,
-            publisher: poses.publisher()?,
-            notifier: poses.notifier()?,
-            subscriber: answers.subscriber()?,
-            listener: answers.listener()?,
+            publisher,
+            notifier,
+            subscriber,
+            listener,
             poses,
             _answers: answers,
             _node: node,

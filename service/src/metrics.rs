@@ -32,6 +32,9 @@ pub struct SourceMetrics {
     pub new_sessions: u64,
     /// Sessions their clients closed in this interval (a goodbye on the wire).
     pub closed_sessions: u64,
+    /// Poses not answered in this interval because their session's ports could not be made
+    /// (no room in shared memory, too few file descriptors).
+    pub unserved: u64,
     /// Live sessions at the report.
     pub sessions: u64,
     /// Journal writes that failed in this interval.
@@ -86,6 +89,7 @@ impl Default for SourceMetrics {
             undelivered: 0,
             new_sessions: 0,
             closed_sessions: 0,
+            unserved: 0,
             sessions: 0,
             journal_failures: 0,
             uncovered_queries: 0,
@@ -149,9 +153,11 @@ impl SourceMetrics {
                 count = 0,
                 sessions = self.sessions,
                 closed_sessions = self.closed_sessions,
+                unserved = self.unserved,
                 "no poses in this interval"
             );
             self.closed_sessions = 0;
+            self.unserved = 0;
             return;
         }
         let [e50, e99, e999, emax] = quantiles(&self.end_to_end);
@@ -173,6 +179,7 @@ impl SourceMetrics {
             sessions = self.sessions,
             new_sessions = self.new_sessions,
             closed_sessions = self.closed_sessions,
+            unserved = self.unserved,
             journal_failures = self.journal_failures,
             uncovered_queries = self.uncovered_queries,
             map_swaps = self.map_swaps,
@@ -211,6 +218,7 @@ impl SourceMetrics {
         self.undelivered = 0;
         self.new_sessions = 0;
         self.closed_sessions = 0;
+        self.unserved = 0;
         self.journal_failures = 0;
         self.uncovered_queries = 0;
         self.map_swaps = 0;

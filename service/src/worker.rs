@@ -24,6 +24,7 @@ use lanealign_wire::service::{
     Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError, SessionServices,
     DAEMON_NODE,
 };
+use lanealign_wire::shm::{self, ShmError};
 
 use crate::config::ResolvedSource;
 use crate::grid_loader::GridLoader;
@@ -71,6 +72,15 @@ pub enum WorkerError {
         /// What failed.
         #[source]
         source: lanealign_wire::wait::WaitError,
+    },
+    /// Shared memory has no room for its ports.
+    #[error("source {name}")]
+    SharedMemory {
+        /// The source.
+        name: String,
+        /// What failed.
+        #[source]
+        source: ShmError,
     },
     /// Its journal folder could not be made.
     #[error("source {name}: creating the journal folder {dir}")]
@@ -175,10 +185,13 @@ struct Worker {
 impl Worker {
     fn open_session(&self, id: u64, session: Option<Session>) -> Result<Live, String> {
         let chain = |e: &(dyn std::error::Error + 'static)| lanealign_core::report::error_chain(e);
+        // Room first: iceoryx2 writes to the session's files as it makes them.
+        shm::check_room(shm::DAEMON_SESSION_BYTES).map_err(|e| chain(&e))?;
         let services = SessionServices::open(&self.node, &self.setup.source.name, id)
             .map_err(|e| chain(&e))?;
         let publisher = services.publisher().map_err(|e| chain(&e))?;
         let notifier = services.notifier().map_err(|e| chain(&e))?;
+        shm::reserve(&self.setup.namespace).map_err(|e| chain(&e))?;
         Ok(Live {
             session,
             publisher,
@@ -283,6 +296,17 @@ impl Worker {
                 self.end_session(oldest, "more sessions than max_sessions");
             }
         }
+        // The ports first: a session that cannot be answered starts no corrector or journal.
+        let live = match self.open_session(input.session, None) {
+            Ok(live) => live,
+            Err(e) => {
+                if self.metrics.unserved == 0 {
+                    tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), error = %e, "cannot answer a session (said once per metrics interval; `unserved` counts the poses)");
+                }
+                self.metrics.unserved += 1;
+                return false;
+            }
+        };
         let session = if self.setup.source.pass_through {
             None
         } else {
@@ -291,17 +315,10 @@ impl Worker {
             self.journal_failed(failure);
             Some(session)
         };
-        match self.open_session(input.session, session) {
-            Ok(live) => {
-                self.metrics.new_sessions += 1;
-                self.sessions.insert(input.session, live);
-                true
-            }
-            Err(e) => {
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), error = %e, "cannot answer a session");
-                false
-            }
-        }
+        self.metrics.new_sessions += 1;
+        self.sessions
+            .insert(input.session, Live { session, ..live });
+        true
     }
 
     /// Answers one pose (a goodbye, [`FLAG_END_SESSION`], ends its session instead); then
@@ -432,6 +449,10 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         };
         let subscriber = services.subscriber().map_err(port)?;
         let listener = services.listener().map_err(port)?;
+        shm::reserve(&setup.namespace).map_err(|source| WorkerError::SharedMemory {
+            name: name.clone(),
+            source,
+        })?;
         Ok((node, services, subscriber, listener))
     };
     let (node, _services, subscriber, listener) = match start() {

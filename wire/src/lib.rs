@@ -1,6 +1,7 @@
 //! The contract between odometry processes and `lanealignd`: what travels over shared memory
 //! ([`payload`]), under which service names and with which limits ([`service`]), and the clock
-//! both sides time it with ([`clock`]), and how either side waits for the other ([`wait`]). An odometry process links this crate and
+//! both sides time it with ([`clock`]), how either side waits for the other ([`wait`]), and the
+//! room both need in shared memory ([`shm`]). An odometry process links this crate and
 //! `lanealign-client`, nothing else of lanealign; processes in other languages follow
 //! `docs/wire.md`, which this crate's tests pin.
 //!
@@ -16,4 +17,5 @@
 pub mod clock;
 pub mod payload;
 pub mod service;
+pub mod shm;
 pub mod wait;

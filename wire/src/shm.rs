@@ -1,0 +1,99 @@
+//! Room in the shared-memory file system, `/dev/shm` (a tmpfs). iceoryx2 sizes its files with
+//! `ftruncate`, which succeeds on a full tmpfs; the first write to a page that then finds no
+//! room kills the writing process with SIGBUS (measured: a client replaying into a `/dev/shm`
+//! of 240 KiB died so, and the daemon beside it in another run). So a process checks for room
+//! before it makes a session's files ([`check_room`]) and reserves the pages of its namespace's
+//! files after ([`reserve`], `fallocate`): a full `/dev/shm` becomes an error it reports, and a
+//! page it reserved can no longer fail it.
+
+use std::os::unix::fs::MetadataExt;
+use std::path::PathBuf;
+
+use crate::service::Namespace;
+
+/// The shared-memory file system.
+pub const SHM_DIR: &str = "/dev/shm";
+
+/// What a client's side of a session adds to [`SHM_DIR`] at most (bytes, the sizes of its
+/// files): 810 KB measured with iceoryx2 0.10 and this crate's service settings, most of it
+/// the data segment of its pose publisher; `cli/tests/daemon.rs` checks that a session stays
+/// within it.
+pub const CLIENT_SESSION_BYTES: u64 = 1_000_000;
+/// What the daemon's side of a session adds to [`SHM_DIR`] at most (bytes): 1.35 MB measured,
+/// most of it the data segment of its answer publisher; checked with the client's.
+pub const DAEMON_SESSION_BYTES: u64 = 1_600_000;
+/// What a whole session adds to [`SHM_DIR`] at most (bytes): a client checks for room for both
+/// sides before it connects, so that it hears of a full [`SHM_DIR`] at once rather than from a
+/// daemon that cannot answer it.
+pub const SESSION_BYTES: u64 = CLIENT_SESSION_BYTES + DAEMON_SESSION_BYTES;
+
+/// The shared-memory file system has no room.
+#[derive(Debug, thiserror::Error)]
+pub enum ShmError {
+    /// Too little room for a session.
+    #[error("{SHM_DIR} has {available} bytes free and a session needs up to {needed} there: make it larger (a tmpfs size, `docker run --shm-size`) or end sessions (docs/operations.md, \"Shared memory\")")]
+    Full {
+        /// Free bytes.
+        available: u64,
+        /// Bytes needed.
+        needed: u64,
+    },
+    /// A file's pages could not be reserved.
+    #[error("reserving the pages of {} in {SHM_DIR} failed: it is full (docs/operations.md, \"Shared memory\")", path.display())]
+    Reserve {
+        /// The file.
+        path: PathBuf,
+        /// What failed.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The free room could not be read.
+    #[error("reading the free room of {SHM_DIR} failed")]
+    Stat(#[source] std::io::Error),
+}
+
+/// Free bytes in [`SHM_DIR`] for an unprivileged process.
+pub fn available_bytes() -> Result<u64, ShmError> {
+    let stat = rustix::fs::statvfs(SHM_DIR).map_err(|e| ShmError::Stat(e.into()))?;
+    Ok(stat.f_bavail.saturating_mul(stat.f_frsize))
+}
+
+/// `Ok` when [`SHM_DIR`] has at least `needed` bytes free.
+pub fn check_room(needed: u64) -> Result<(), ShmError> {
+    let available = available_bytes()?;
+    if available < needed {
+        return Err(ShmError::Full { available, needed });
+    }
+    Ok(())
+}
+
+/// Reserves every page of the namespace's files in [`SHM_DIR`] that is not backed yet, so that
+/// writing to them can never fail with SIGBUS. Returns how many files it reserved pages of.
+/// A file that vanished meanwhile (a session ended) or that this process may not write (the
+/// namespace's files belong to one user) is passed over; a file system without `fallocate`
+/// too (there the pages were never sparse). Costs a `stat` per file when all are reserved.
+pub fn reserve(namespace: &Namespace) -> Result<usize, ShmError> {
+    let mut reserved = 0;
+    for path in namespace.files() {
+        let Ok(meta) = std::fs::symlink_metadata(&path) else {
+            continue;
+        };
+        if !meta.is_file() || meta.blocks().saturating_mul(512) >= meta.size() {
+            continue;
+        }
+        let Ok(file) = std::fs::OpenOptions::new().write(true).open(&path) else {
+            continue;
+        };
+        match rustix::fs::fallocate(&file, rustix::fs::FallocateFlags::empty(), 0, meta.size()) {
+            Ok(()) => reserved += 1,
+            Err(rustix::io::Errno::NOSPC) => {
+                return Err(ShmError::Reserve {
+                    path,
+                    source: rustix::io::Errno::NOSPC.into(),
+                })
+            }
+            Err(_) => {}
+        }
+    }
+    Ok(reserved)
+}
