@@ -1121,7 +1121,9 @@ fn a_client_with_a_private_tmp_is_served() {
 ///   opens its session (the daemon stopped meanwhile): the daemon says it cannot answer the
 ///   session, once per metrics interval, counts the poses as `unserved`, starts no journal, and
 ///   goes on;
-/// - the room back: a client is served, byte for byte as the first.
+/// - the room back: a client is served, byte for byte as the first;
+/// - a daemon starting in a `/dev/shm` of 16 to 48 KiB says there is no room for a source and
+///   exits with an error (at 24 and 32 KiB it died of SIGBUS before).
 ///
 /// Needs root (the mount namespace), `unshare`, `nsenter` and `fallocate`: visibly skipped
 /// otherwise.
@@ -1294,6 +1296,33 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
     .unwrap();
     let status = daemon.0.wait().unwrap();
     assert!(status.success(), "{status:?}: {}", daemon_log());
+
+    for size in ["16k", "24k", "32k", "48k"] {
+        let out = Command::new("timeout")
+            .args([
+                "20",
+                "unshare",
+                "--mount",
+                "--propagation",
+                "private",
+                "sh",
+                "-c",
+            ])
+            .arg(format!(
+                "mount -t tmpfs -o size={size} tmpfs /dev/shm && exec \"$0\" \"$@\""
+            ))
+            .arg(daemon_binary().unwrap())
+            .arg("--config")
+            .arg(&setup.config)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{size}: {out:?}");
+        assert!(
+            stderr.contains("/dev/shm has") || stderr.contains("creating an iceoryx2 node"),
+            "{size}: {stderr}"
+        );
+    }
 }
 
 /// Always runs: a session's files stay within what the client and the daemon check for before

@@ -268,7 +268,7 @@ impl Connection {
     ) -> Result<Self, ConnectError> {
         // Room first: iceoryx2 writes to a session's files as it makes them, and a write to a
         // full /dev/shm is a SIGBUS, not an error (`lanealign_wire::shm`).
-        shm::check_room(shm::SESSION_BYTES)?;
+        shm::check_room("a session", shm::SESSION_BYTES)?;
         let node = namespace.node()?;
         let poses = PoseServices::open(&node, source)?;
         let session = session.max(1);

@@ -186,7 +186,7 @@ impl Worker {
     fn open_session(&self, id: u64, session: Option<Session>) -> Result<Live, String> {
         let chain = |e: &(dyn std::error::Error + 'static)| lanealign_core::report::error_chain(e);
         // Room first: iceoryx2 writes to the session's files as it makes them.
-        shm::check_room(shm::DAEMON_SESSION_BYTES).map_err(|e| chain(&e))?;
+        shm::check_room("a session", shm::DAEMON_SESSION_BYTES).map_err(|e| chain(&e))?;
         let services = SessionServices::open(&self.node, &self.setup.source.name, id)
             .map_err(|e| chain(&e))?;
         let publisher = services.publisher().map_err(|e| chain(&e))?;
@@ -430,6 +430,12 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
                 source,
             })?;
         }
+        // Room first: iceoryx2 writes to the source's files as it makes them.
+        let no_room = |source| WorkerError::SharedMemory {
+            name: name.clone(),
+            source,
+        };
+        shm::check_room("a source", shm::SOURCE_BYTES).map_err(no_room)?;
         let node = setup
             .namespace
             .named_node(DAEMON_NODE)
@@ -449,10 +455,7 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         };
         let subscriber = services.subscriber().map_err(port)?;
         let listener = services.listener().map_err(port)?;
-        shm::reserve(&setup.namespace).map_err(|source| WorkerError::SharedMemory {
-            name: name.clone(),
-            source,
-        })?;
+        shm::reserve(&setup.namespace).map_err(no_room)?;
         Ok((node, services, subscriber, listener))
     };
     let (node, _services, subscriber, listener) = match start() {

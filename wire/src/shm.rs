@@ -27,12 +27,19 @@ pub const DAEMON_SESSION_BYTES: u64 = 1_600_000;
 /// daemon that cannot answer it.
 pub const SESSION_BYTES: u64 = CLIENT_SESSION_BYTES + DAEMON_SESSION_BYTES;
 
+/// What the daemon's side of one source takes in [`SHM_DIR`] before any session (bytes, in
+/// the file system's blocks: its pose services' records and the worker's ports): 52 KiB
+/// measured, with a margin.
+pub const SOURCE_BYTES: u64 = 100_000;
+
 /// The shared-memory file system has no room.
 #[derive(Debug, thiserror::Error)]
 pub enum ShmError {
-    /// Too little room for a session.
-    #[error("{SHM_DIR} has {available} bytes free and a session needs up to {needed} there: make it larger (a tmpfs size, `docker run --shm-size`) or end sessions (docs/operations.md, \"Shared memory\")")]
+    /// Too little room for what is to be made.
+    #[error("{SHM_DIR} has {available} bytes free and {what} needs up to {needed} there: make it larger (a tmpfs size, `docker run --shm-size`) or end sessions (docs/operations.md, \"Shared memory\")")]
     Full {
+        /// What is to be made: `a session`, `a source`.
+        what: &'static str,
         /// Free bytes.
         available: u64,
         /// Bytes needed.
@@ -58,11 +65,16 @@ pub fn available_bytes() -> Result<u64, ShmError> {
     Ok(stat.f_bavail.saturating_mul(stat.f_frsize))
 }
 
-/// `Ok` when [`SHM_DIR`] has at least `needed` bytes free.
-pub fn check_room(needed: u64) -> Result<(), ShmError> {
+/// `Ok` when [`SHM_DIR`] has at least `needed` bytes free for `what` (`a session`, named in
+/// the error).
+pub fn check_room(what: &'static str, needed: u64) -> Result<(), ShmError> {
     let available = available_bytes()?;
     if available < needed {
-        return Err(ShmError::Full { available, needed });
+        return Err(ShmError::Full {
+            what,
+            available,
+            needed,
+        });
     }
     Ok(())
 }
