@@ -27,6 +27,35 @@ use lanealign_wire::payload::StatusCode;
 /// The tests start daemons and count shared-memory files: one at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
 
+/// True when this process runs as root and has each of `tools`; otherwise says on stderr that
+/// `test` is skipped and why, so that it is visible.
+fn root_with(test: &str, tools: &[&str]) -> bool {
+    let missing: Vec<&str> = tools
+        .iter()
+        .copied()
+        .filter(|t| Command::new(t).arg("--help").output().is_err())
+        .collect();
+    if rustix::process::geteuid().is_root() && missing.is_empty() {
+        return true;
+    }
+    use std::io::Write;
+    let _ = writeln!(
+        std::io::stderr(),
+        "SKIPPED {test}: needs root and {}",
+        tools.join(", ")
+    );
+    false
+}
+
+/// Writes `poses` to `path` as a KITTI trajectory.
+fn write_kitti(path: &std::path::Path, poses: &[Pose3]) {
+    let trajectory = lanealign_core::trajectory::Trajectory {
+        stamps: None,
+        poses: poses.to_vec(),
+    };
+    lanealign_core::trajectory::write(path, &trajectory, Format::Kitti).unwrap();
+}
+
 fn run_replay(setup: &Setup, source: &str, poses: &[Pose3], rate: Rate) -> Vec<Pose3> {
     let mut conn = connect(setup, source);
     let r = replay(
@@ -868,14 +897,10 @@ fn a_tile_changed_under_the_daemon_changes_nothing_but_the_log() {
 #[test]
 fn a_client_of_another_user_is_told_whose_namespace_it_is() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    if !rustix::process::geteuid().is_root()
-        || Command::new("runuser").arg("--help").output().is_err()
-    {
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED a_client_of_another_user...: needs root and runuser"
-        );
+    if !root_with(
+        "a_client_of_another_user_is_told_whose_namespace_it_is",
+        &["runuser"],
+    ) {
         return;
     }
     let name = unique("access");
@@ -893,15 +918,7 @@ fn a_client_of_another_user_is_told_whose_namespace_it_is() {
     .unwrap();
     let input = shared.path().join("in.txt");
     let (_, odometry) = synthetic::drive(1, 1);
-    lanealign_core::trajectory::write(
-        &input,
-        &lanealign_core::trajectory::Trajectory {
-            stamps: None,
-            poses: odometry[..10].to_vec(),
-        },
-        Format::Kitti,
-    )
-    .unwrap();
+    write_kitti(&input, &odometry[..10]);
     std::fs::set_permissions(&input, std::os::unix::fs::PermissionsExt::from_mode(0o644)).unwrap();
     let as_nobody = |namespace: &str| {
         let out = Command::new("runuser")
@@ -1044,14 +1061,7 @@ fn a_cleaner_of_tmp_cuts_no_client_off() {
 #[test]
 fn a_client_with_a_private_tmp_is_served() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    if !rustix::process::geteuid().is_root()
-        || Command::new("unshare").arg("--help").output().is_err()
-    {
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED a_client_with_a_private_tmp_is_served: needs root and unshare"
-        );
+    if !root_with("a_client_with_a_private_tmp_is_served", &["unshare"]) {
         return;
     }
     let name = unique("private");
@@ -1061,15 +1071,7 @@ fn a_client_with_a_private_tmp_is_served() {
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
     let input = dir.path().join("in.txt");
     let (_, odometry) = synthetic::drive(1, 3);
-    lanealign_core::trajectory::write(
-        &input,
-        &lanealign_core::trajectory::Trajectory {
-            stamps: None,
-            poses: odometry[..200].to_vec(),
-        },
-        Format::Kitti,
-    )
-    .unwrap();
+    write_kitti(&input, &odometry[..200]);
     let replay_args = |out: &str| {
         vec![
             env!("CARGO_BIN_EXE_lanealign").to_string(),
@@ -1130,17 +1132,10 @@ fn a_client_with_a_private_tmp_is_served() {
 #[test]
 fn a_full_shared_memory_is_an_error_not_a_crash() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let tools = ["unshare", "nsenter", "fallocate"];
-    if !rustix::process::geteuid().is_root()
-        || tools
-            .iter()
-            .any(|t| Command::new(t).arg("--help").output().is_err())
-    {
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED a_full_shared_memory_is_an_error_not_a_crash: needs root, unshare, nsenter and fallocate"
-        );
+    if !root_with(
+        "a_full_shared_memory_is_an_error_not_a_crash",
+        &["unshare", "nsenter", "fallocate"],
+    ) {
         return;
     }
     let name = unique("full");
@@ -1194,15 +1189,7 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
     let input = dir.path().join("in.txt");
     let (_, odometry) = synthetic::drive(1, 5);
-    lanealign_core::trajectory::write(
-        &input,
-        &lanealign_core::trajectory::Trajectory {
-            stamps: None,
-            poses: odometry[..200].to_vec(),
-        },
-        Format::Kitti,
-    )
-    .unwrap();
+    write_kitti(&input, &odometry[..200]);
     let replay_in = |out: &str| {
         let output = dir.path().join(out);
         let mut c = inside(&[env!("CARGO_BIN_EXE_lanealign"), "replay", "--source", &name]);
