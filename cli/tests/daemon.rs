@@ -1067,25 +1067,34 @@ fn a_client_with_a_private_tmp_is_served() {
     let name = unique("private");
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
-    // Files outside /tmp, which the private /tmp hides.
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
     let input = dir.path().join("in.txt");
     let (_, odometry) = synthetic::drive(1, 3);
     write_kitti(&input, &odometry[..200]);
-    let replay_args = |out: &str| {
+    // The checkout, and so the binary and these files, may lie in /tmp, which the private /tmp
+    // hides: inside, the host's /tmp stays reachable at `view` (a folder outside /tmp).
+    let view = tempfile::tempdir_in("/dev/shm").unwrap();
+    let seen = |path: &std::path::Path, inside: bool| match path.strip_prefix("/tmp") {
+        Ok(rest) if inside => view.path().join(rest).display().to_string(),
+        _ => path.display().to_string(),
+    };
+    let replay_args = |out: &str, inside: bool| {
         vec![
-            env!("CARGO_BIN_EXE_lanealign").to_string(),
+            seen(
+                std::path::Path::new(env!("CARGO_BIN_EXE_lanealign")),
+                inside,
+            ),
             "replay".into(),
             "--source".into(),
             name.clone(),
             "--namespace".into(),
             setup.namespace.clone(),
-            input.display().to_string(),
+            seen(&input, inside),
             "-o".into(),
-            dir.path().join(out).display().to_string(),
+            seen(&dir.path().join(out), inside),
         ]
     };
-    let beside = replay_args("beside.txt");
+    let beside = replay_args("beside.txt", false);
     let out = Command::new(&beside[0])
         .args(&beside[1..])
         .output()
@@ -1097,9 +1106,12 @@ fn a_client_with_a_private_tmp_is_served() {
     );
     let out = Command::new("unshare")
         .args(["--mount", "--propagation", "private", "sh", "-c"])
-        .arg("mount -t tmpfs tmpfs /tmp && [ -z \"$(ls -A /tmp)\" ] && exec \"$@\"")
-        .arg("sh")
-        .args(replay_args("private.txt"))
+        .arg(
+            "mount --bind /tmp \"$0\" && mount -t tmpfs tmpfs /tmp && [ -z \"$(ls -A /tmp)\" ] \
+             && exec \"$@\"",
+        )
+        .arg(view.path())
+        .args(replay_args("private.txt", true))
         .output()
         .unwrap();
     assert!(
