@@ -56,7 +56,7 @@ pub const MAX_NAMESPACE_LEN: usize = (SOCKET_PATH_MAX
     / 2;
 
 /// The folder below which each namespace has its iceoryx2 folder: the shared-memory file
-/// system, which age-based cleaners of temporary files (systemd-tmpfiles' stock rule for
+/// system ([`crate::shm::SHM_DIR`]), which age-based cleaners of temporary files (systemd-tmpfiles' stock rule for
 /// `/tmp` removes what nobody touched for 10 days) leave alone, and which processes with a
 /// private `/tmp` (systemd's `PrivateTmp=`) share with the daemon.
 const NAMESPACES_FOLDER: &str = "/dev/shm/";
@@ -221,7 +221,7 @@ impl Namespace {
                 rest.len() >= 40 && rest.bytes().take(40).all(|b| b.is_ascii_hexdigit())
             })
         };
-        let shm = std::fs::read_dir("/dev/shm")
+        let shm = std::fs::read_dir(crate::shm::SHM_DIR)
             .into_iter()
             .flatten()
             .flatten();

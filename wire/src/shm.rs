@@ -11,7 +11,8 @@ use std::path::PathBuf;
 
 use crate::service::Namespace;
 
-/// The shared-memory file system.
+/// The shared-memory file system: iceoryx2's shared memory, and each namespace's folder
+/// ([`crate::service::Namespace::root_path`]).
 pub const SHM_DIR: &str = "/dev/shm";
 
 /// What a client's side of a session adds to [`SHM_DIR`] at most (bytes, the sizes of its
