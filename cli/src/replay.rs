@@ -46,10 +46,13 @@ pub enum ReplayError {
     #[error("no daemon is serving source '{0}' (waited {1:?})")]
     NoDaemon(String, Duration),
     /// Some poses never came back: which, and everything that did.
-    #[error("{} of {sent} poses were not answered within {timeout:?} of the last answer (sequence numbers {})", missing.len(), summarize(missing))]
+    #[error("{} of {sent} poses were not answered within {timeout:?} of the last answer (sequence numbers {}){}", missing.len(), summarize(missing), if *unopened { NOT_OPENED } else { "" })]
     Lost {
         /// The poses not answered.
         missing: Vec<u64>,
+        /// True when a living daemon served the source but had not opened the session when
+        /// the replay gave up ([`Connection::session_opened`]).
+        unopened: bool,
         /// How many were published.
         sent: usize,
         /// How long the replay waited without progress.
@@ -58,6 +61,9 @@ pub enum ReplayError {
         partial: Box<Replay>,
     },
 }
+
+/// What a lost replay adds when the daemon never opened its session.
+pub const NOT_OPENED: &str = "; the daemon never opened this session: its log says why (`cannot answer a session`, e.g. no room in /dev/shm)";
 
 /// The first few of a list of sequence numbers.
 fn summarize(seqs: &[u64]) -> String {
@@ -174,7 +180,7 @@ fn lost(
     answers: &[Option<CorrectedPose>],
     first_seq: u64,
     round_trip_ns: &[u64],
-    conn: &Connection,
+    conn: &mut Connection,
     timeout: Duration,
 ) -> ReplayError {
     let missing = answers
@@ -185,6 +191,7 @@ fn lost(
         .collect();
     ReplayError::Lost {
         missing,
+        unopened: conn.daemon_connected() && !conn.session_opened(),
         sent: answers.len(),
         timeout,
         partial: Box::new(Replay {

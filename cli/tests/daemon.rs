@@ -1251,9 +1251,10 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
     .unwrap();
     let out = unserved.wait_with_output().unwrap();
     assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
-        String::from_utf8_lossy(&out.stderr).contains("not answered"),
-        "{out:?}"
+        stderr.contains("not answered") && stderr.contains("the daemon never opened this session"),
+        "{stderr}"
     );
     let unserved_poses = |text: &str| -> u64 {
         text.split("unserved=")

@@ -327,6 +327,13 @@ impl Connection {
         self.events
     }
 
+    /// True when the daemon has opened this session (it has a publisher of the session's
+    /// answers). A daemon that serves the source but cannot open a session (no room in shared
+    /// memory) says why in its log (`cannot answer a session`).
+    pub fn session_opened(&self) -> bool {
+        self._answers.publishers() > 0
+    }
+
     /// True when a living daemon serves this source.
     pub fn daemon_connected(&mut self) -> bool {
         let _ = self.check_daemon();

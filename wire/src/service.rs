@@ -598,6 +598,11 @@ impl SessionServices {
         })
     }
 
+    /// Publishers of the session's answers: the daemon's, once it has opened the session.
+    pub fn publishers(&self) -> usize {
+        self.answers.dynamic_config().number_of_publishers()
+    }
+
     /// Daemon side: publishes the session's answers.
     pub fn publisher(&self) -> Result<Publisher<ipc::Service, CorrectedPose, ()>, PortCreateError> {
         self.answers

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
-use lanealign_cli::replay::{replay, Rate, ReplayError};
+use lanealign_cli::replay::{replay, Rate, ReplayError, NOT_OPENED};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::pose::Pose3;
@@ -96,16 +96,18 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         Ok(r) => r,
         Err(ReplayError::Lost {
             missing,
+            unopened,
             sent,
             timeout,
             partial,
         }) => {
             anyhow::bail!(
-                "{} of {sent} poses were not answered (no answer for {timeout:?}; first missing: {:?}); {} answered, {} daemon restarts; nothing written",
+                "{} of {sent} poses were not answered (no answer for {timeout:?}; first missing: {:?}); {} answered, {} daemon restarts; nothing written{}",
                 missing.len(),
                 &missing[..missing.len().min(10)],
                 partial.answers.len(),
-                partial.events.daemon_restarts
+                partial.events.daemon_restarts,
+                if unopened { NOT_OPENED } else { "" }
             )
         }
         Err(e) => return Err(e.into()),
