@@ -393,6 +393,13 @@ impl Client {
         Ok(self.open()?.daemon_connected())
     }
 
+    /// True when the daemon has opened this session (it does at the session's first pose). A
+    /// living daemon that has not opened it after the first pose could not (its log says why,
+    /// for example no room in /dev/shm).
+    fn session_opened(&mut self) -> PyResult<bool> {
+        Ok(self.open()?.session_opened())
+    }
+
     /// Publishes one pose ((3, 4) or (4, 4), the source's axis convention) stamped `stamp_ns`;
     /// returns its sequence number.
     fn publish(&mut self, stamp_ns: i64, pose: PyReadonlyArrayDyn<'_, f64>) -> PyResult<u64> {

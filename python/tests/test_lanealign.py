@@ -239,11 +239,13 @@ preset = "kiss-icp"
             assert time.monotonic() < deadline and daemon.poll() is None, "the daemon did not come up"
             time.sleep(0.05)
         poses = np.loadtxt(DATA / "odometry" / "lidar" / "00.txt").reshape(-1, 3, 4)[:600]
+        assert not client.session_opened(), "the daemon opens a session at its first pose"
         answers = []
         for i, pose in enumerate(poses[:590]):
             assert client.publish(i, pose) == i + 1
             answer = client.recv(10.0)
             assert answer is not None and answer["seq"] == i + 1
+            assert client.session_opened()
             answers.append(answer)
         for i, pose in enumerate(poses[590:], start=590):
             assert client.publish(i, pose) == i + 1
