@@ -1383,6 +1383,59 @@ fn a_session_needs_no_more_shared_memory_than_is_checked_for() {
     assert!(daemon.stop().unwrap());
 }
 
+/// Always runs: a daemon out of file descriptors (its limit lowered to what it has open, with
+/// `prlimit` from outside) goes on answering the session it serves, says once that it cannot
+/// list nodes rather than every half second, says when it can again once the limit is back,
+/// and then serves a new session.
+#[test]
+fn a_daemon_out_of_file_descriptors_says_so_once_and_recovers() {
+    use rustix::process::{getrlimit, prlimit, Pid, Resource, Rlimit};
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("fds");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 11);
+    let mut before = connect(&setup, &name);
+    wait_for_daemon(&mut before);
+    answer_of(&mut before, &odometry[0]);
+    let pid = Pid::from_raw(daemon.id() as i32).unwrap();
+    let open = std::fs::read_dir(format!("/proc/{}/fd", daemon.id()))
+        .unwrap()
+        .count() as u64;
+    let limit = getrlimit(Resource::Nofile);
+    prlimit(
+        Some(pid),
+        Resource::Nofile,
+        Rlimit {
+            current: Some(open),
+            maximum: limit.maximum,
+        },
+    )
+    .unwrap();
+    // Two seconds: four supervision periods.
+    let until = Instant::now() + Duration::from_secs(2);
+    let mut answered = 1;
+    while Instant::now() < until {
+        answer_of(&mut before, &odometry[answered]);
+        answered += 1;
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    prlimit(Some(pid), Resource::Nofile, limit).unwrap();
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("listing nodes works again") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let log = daemon.log();
+    assert_eq!(log.matches("listing nodes failed").count(), 1, "{log}");
+    assert!(log.contains("listing nodes works again"), "{log}");
+    let mut after = connect(&setup, &name);
+    wait_for_daemon(&mut after);
+    answer_of(&mut after, &odometry[0]);
+    answer_of(&mut before, &odometry[answered]);
+    drop((before, after));
+    assert!(daemon.stop().unwrap());
+}
+
 /// A child process killed when dropped: a failed assertion leaves no daemon running.
 struct KillOnDrop(std::process::Child);
 

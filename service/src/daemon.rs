@@ -12,7 +12,7 @@ use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
 use crate::tile_watch::TileWatch;
-use iceoryx2::node::{NodeView, NodeWaitFailure};
+use iceoryx2::node::{NodeListFailure, NodeView, NodeWaitFailure};
 use iceoryx2::prelude::*;
 use lanealign_core::grid::{self, Grid};
 use lanealign_core::input::InputError;
@@ -210,8 +210,9 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     })
 }
 
-/// Removes the resources of nodes in `namespace` whose process died; returns how many.
-pub fn remove_dead_nodes(namespace: &Namespace) -> usize {
+/// Removes the resources of nodes in `namespace` whose process died; returns how many, or why
+/// the nodes could not be listed (too few file descriptors, for one).
+pub fn remove_dead_nodes(namespace: &Namespace) -> Result<usize, NodeListFailure> {
     let mut removed = 0;
     let listed = Node::<ipc::Service>::list(&namespace.config(), |state| {
         if let NodeState::Dead(view) = state {
@@ -228,10 +229,33 @@ pub fn remove_dead_nodes(namespace: &Namespace) -> usize {
         }
         CallbackProgression::Continue
     });
-    if let Err(e) = listed {
-        tracing::warn!(error = ?e, "listing nodes failed");
+    listed.map(|_| removed)
+}
+
+/// Says when listing the namespace's nodes starts failing and when it works again, not at
+/// every supervision period in between.
+#[derive(Default)]
+struct ListingHealth {
+    /// Listings failed in a row.
+    failures: u64,
+}
+
+impl ListingHealth {
+    fn record(&mut self, listed: Result<usize, NodeListFailure>) {
+        match listed {
+            Ok(_) if self.failures > 0 => {
+                tracing::info!(failures = self.failures, "listing nodes works again");
+                self.failures = 0;
+            }
+            Ok(_) => {}
+            Err(e) => {
+                if self.failures == 0 {
+                    tracing::warn!(error = ?e, "listing nodes failed: dead clients' resources stay until it works again (said when it does)");
+                }
+                self.failures += 1;
+            }
+        }
     }
-    removed
 }
 
 /// Sources of `namespace` that have a pose service but no configured worker.
@@ -423,9 +447,12 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
             Some(loader)
         }
     };
-    let cleaned = remove_dead_nodes(&namespace);
-    if cleaned > 0 {
-        tracing::info!(cleaned, "removed stale resources left by earlier processes");
+    let mut listing = ListingHealth::default();
+    match remove_dead_nodes(&namespace) {
+        Ok(cleaned) if cleaned > 0 => {
+            tracing::info!(cleaned, "removed stale resources left by earlier processes")
+        }
+        listed => listing.record(listed),
     }
     let node = namespace.named_node(DAEMON_NODE)?;
     let hangup = Arc::new(AtomicBool::new(false));
@@ -540,7 +567,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         if let Some(change) = tile_watch.check() {
             tracing::warn!(tile = %watched.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions; a grid's cells changed since are refused)");
         }
-        remove_dead_nodes(&namespace);
+        listing.record(remove_dead_nodes(&namespace));
         for source in unknown_sources(&namespace, &known) {
             if refused.insert(source.clone()) {
                 tracing::warn!(
