@@ -47,6 +47,15 @@ fn root_with(test: &str, tools: &[&str]) -> bool {
     false
 }
 
+/// A new session on `source` of the daemon of `setup`, once the daemon serves it and has
+/// answered `first`.
+fn served(setup: &Setup, source: &str, first: &Pose3) -> Connection {
+    let mut client = connect(setup, source);
+    wait_for_daemon(&mut client);
+    answer_of(&mut client, first);
+    client
+}
+
 /// Writes `poses` to `path` as a KITTI trajectory.
 fn write_kitti(path: &std::path::Path, poses: &[Pose3]) {
     let trajectory = lanealign_core::trajectory::Trajectory {
@@ -1028,9 +1037,7 @@ fn a_cleaner_of_tmp_cuts_no_client_off() {
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 7);
-    let mut before = connect(&setup, &name);
-    wait_for_daemon(&mut before);
-    answer_of(&mut before, &odometry[0]);
+    let mut before = served(&setup, &name, &odometry[0]);
     let files = namespace(&setup).files();
     assert!(
         !files.is_empty() && files.iter().all(|f| f.starts_with("/dev/shm")),
@@ -1046,9 +1053,7 @@ fn a_cleaner_of_tmp_cuts_no_client_off() {
             let _ = std::fs::remove_dir_all(&path).or_else(|_| std::fs::remove_file(&path));
         }
     }
-    let mut after = connect(&setup, &name);
-    wait_for_daemon(&mut after);
-    answer_of(&mut after, &odometry[0]);
+    let after = served(&setup, &name, &odometry[0]);
     answer_of(&mut before, &odometry[1]);
     drop((before, after));
     assert!(daemon.stop().unwrap());
@@ -1395,9 +1400,7 @@ fn a_daemon_out_of_file_descriptors_says_so_once_and_recovers() {
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 11);
-    let mut before = connect(&setup, &name);
-    wait_for_daemon(&mut before);
-    answer_of(&mut before, &odometry[0]);
+    let mut before = served(&setup, &name, &odometry[0]);
     let pid = Pid::from_raw(daemon.id() as i32).unwrap();
     let open = std::fs::read_dir(format!("/proc/{}/fd", daemon.id()))
         .unwrap()
@@ -1428,9 +1431,7 @@ fn a_daemon_out_of_file_descriptors_says_so_once_and_recovers() {
     let log = daemon.log();
     assert_eq!(log.matches("listing nodes failed").count(), 1, "{log}");
     assert!(log.contains("listing nodes works again"), "{log}");
-    let mut after = connect(&setup, &name);
-    wait_for_daemon(&mut after);
-    answer_of(&mut after, &odometry[0]);
+    let after = served(&setup, &name, &odometry[0]);
     answer_of(&mut before, &odometry[answered]);
     drop((before, after));
     assert!(daemon.stop().unwrap());
