@@ -23,6 +23,7 @@ use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 use lanealign_wire::payload::StatusCode;
+use rustix::process::Signal;
 
 /// The tests start daemons and count shared-memory files: one at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
@@ -54,6 +55,12 @@ fn served(setup: &Setup, source: &str, first: &Pose3) -> Connection {
     wait_for_daemon(&mut client);
     answer_of(&mut client, first);
     client
+}
+
+/// Sends `sig` to process `pid`.
+fn signal(pid: u32, sig: Signal) {
+    let pid = rustix::process::Pid::from_raw(pid as i32).expect("a child's pid is positive");
+    rustix::process::kill_process(pid, sig).unwrap();
 }
 
 /// Writes `poses` to `path` as a KITTI trajectory.
@@ -820,11 +827,7 @@ fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
 
 /// Sends SIGHUP to `daemon`: load the map again.
 fn hang_up(daemon: &DaemonProcess) {
-    rustix::process::kill_process(
-        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
-        rustix::process::Signal::HUP,
-    )
-    .unwrap();
+    signal(daemon.id(), Signal::HUP);
 }
 
 /// Sends SIGHUP to `daemon` and asserts that its `k`-th (from 0) log line saying `refusal`
@@ -994,11 +997,7 @@ fn systemd_hears_ready_watchdog_and_stopping() {
         heard[0].contains("READY=1") && heard[0].contains("STATUS=serving 1 sources"),
         "{heard:?}"
     );
-    rustix::process::kill_process(
-        rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
-        rustix::process::Signal::TERM,
-    )
-    .unwrap();
+    signal(daemon.id(), Signal::TERM);
     loop {
         let n = socket.recv(&mut buf).expect("STOPPING=1 within 10 s");
         if String::from_utf8_lossy(&buf[..n]).contains("STOPPING=1") {
@@ -1233,11 +1232,7 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
 
     // Room for the client, then none for the daemon's side.
     let _ = inside(&["rm", "-f", "/dev/shm/filler"]).status();
-    rustix::process::kill_process(
-        rustix::process::Pid::from_child(&daemon.0),
-        rustix::process::Signal::STOP,
-    )
-    .unwrap();
+    signal(daemon.0.id(), Signal::STOP);
     let before = free();
     let unserved = replay_in("unserved.txt")
         .stderr(Stdio::piped())
@@ -1249,11 +1244,7 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
         std::thread::sleep(Duration::from_millis(20));
     }
     fill_to(200 << 10);
-    rustix::process::kill_process(
-        rustix::process::Pid::from_child(&daemon.0),
-        rustix::process::Signal::CONT,
-    )
-    .unwrap();
+    signal(daemon.0.id(), Signal::CONT);
     let out = unserved.wait_with_output().unwrap();
     assert_eq!(out.status.code(), Some(1), "{out:?}");
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -1294,11 +1285,7 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
     assert!(again.status.success(), "{again:?}");
     assert_eq!(read_out("again.txt"), read_out("first.txt"));
 
-    rustix::process::kill_process(
-        rustix::process::Pid::from_child(&daemon.0),
-        rustix::process::Signal::TERM,
-    )
-    .unwrap();
+    signal(daemon.0.id(), Signal::TERM);
     let status = daemon.0.wait().unwrap();
     assert!(status.success(), "{status:?}: {}", daemon_log());
 
@@ -1342,35 +1329,18 @@ fn a_session_needs_no_more_shared_memory_than_is_checked_for() {
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
     let bytes = || -> u64 {
-        let mut stack = namespace(&setup).files();
-        let mut sum = 0;
-        while let Some(path) = stack.pop() {
-            match std::fs::symlink_metadata(&path) {
-                Ok(m) if m.is_dir() => stack.extend(
-                    std::fs::read_dir(&path)
-                        .into_iter()
-                        .flatten()
-                        .flatten()
-                        .map(|e| e.path()),
-                ),
-                Ok(m) if m.is_file() => sum += m.len(),
-                _ => {}
-            }
-        }
-        sum
-    };
-    let signal = |s| {
-        rustix::process::kill_process(
-            rustix::process::Pid::from_raw(daemon.id() as i32).unwrap(),
-            s,
-        )
-        .unwrap()
+        let entries = namespace(&setup).entries();
+        entries
+            .iter()
+            .filter(|(_, m)| m.is_file())
+            .map(|(_, m)| m.len())
+            .sum()
     };
     let alone = bytes();
-    signal(rustix::process::Signal::STOP);
+    signal(daemon.id(), Signal::STOP);
     let mut client = connect(&setup, &name);
     let with_client = bytes();
-    signal(rustix::process::Signal::CONT);
+    signal(daemon.id(), Signal::CONT);
     wait_for_daemon(&mut client);
     let (_, odometry) = synthetic::drive(1, 9);
     answer_of(&mut client, &odometry[0]);

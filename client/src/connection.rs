@@ -238,7 +238,7 @@ pub struct Connection {
     listener: Listener<ipc::Service>,
     wait: WaitStrategy,
     poses: PoseServices,
-    _answers: SessionServices,
+    answers: SessionServices,
     _node: Node<ipc::Service>,
 }
 
@@ -302,7 +302,7 @@ impl Connection {
             subscriber,
             listener,
             poses,
-            _answers: answers,
+            answers,
             _node: node,
         })
     }
@@ -331,7 +331,7 @@ impl Connection {
     /// answers). A daemon that serves the source but cannot open a session (no room in shared
     /// memory) says why in its log (`cannot answer a session`).
     pub fn session_opened(&self) -> bool {
-        self._answers.publishers() > 0
+        self.answers.publishers() > 0
     }
 
     /// True when a living daemon serves this source.

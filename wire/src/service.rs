@@ -235,6 +235,25 @@ impl Namespace {
             .collect()
     }
 
+    /// Every file and folder of the namespace ([`Namespace::files`] and what its folder holds,
+    /// at any depth), with its metadata (not following links). An entry that vanishes while
+    /// being listed is left out.
+    pub fn entries(&self) -> Vec<(std::path::PathBuf, std::fs::Metadata)> {
+        let mut out = Vec::new();
+        let mut stack = self.files();
+        while let Some(path) = stack.pop() {
+            let Ok(meta) = std::fs::symlink_metadata(&path) else {
+                continue;
+            };
+            if meta.is_dir() {
+                let entries = std::fs::read_dir(&path).into_iter().flatten().flatten();
+                stack.extend(entries.map(|e| e.path()));
+            }
+            out.push((path, meta));
+        }
+        out
+    }
+
     /// Removes the namespace's iceoryx2 files ([`Namespace::files`]). iceoryx2 keeps a
     /// namespace's management state after its last process has left, by design; a namespace
     /// made for one run (`lanealign demo`, `lanealign soak`, a test) should go with the run.
@@ -462,20 +481,12 @@ impl Namespace {
 /// nothing can be said.
 fn ownership_hint(namespace: &Namespace) -> String {
     let me = rustix::process::geteuid().as_raw();
-    let mut owners = std::collections::BTreeSet::new();
-    let mut stack = namespace.files();
-    while let Some(path) = stack.pop() {
-        let Ok(meta) = std::fs::symlink_metadata(&path) else {
-            continue;
-        };
-        if meta.is_dir() {
-            let entries = std::fs::read_dir(&path).into_iter().flatten().flatten();
-            stack.extend(entries.map(|e| e.path()));
-        }
-        if std::os::unix::fs::MetadataExt::uid(&meta) != me {
-            owners.insert(std::os::unix::fs::MetadataExt::uid(&meta));
-        }
-    }
+    let owners: std::collections::BTreeSet<u32> = namespace
+        .entries()
+        .iter()
+        .map(|(_, meta)| std::os::unix::fs::MetadataExt::uid(meta))
+        .filter(|&uid| uid != me)
+        .collect();
     if owners.is_empty() {
         return String::new();
     }
