@@ -1007,6 +1007,99 @@ fn systemd_hears_ready_watchdog_and_stopping() {
     assert!(daemon.wait().unwrap().success());
 }
 
+/// Always runs: a request to stop is not lost to the signal after it. systemd stops a service
+/// with SIGTERM and at once SIGCONT (so that a stopped process can act on it), and a shell's
+/// `kill -INT` then `fg` does the same. iceoryx2 kept one "last signal" for both: when the
+/// request reached a thread other than the one waiting to read it (the kernel picks any thread
+/// of a busy process), SIGCONT overwrote it and the daemon served on until systemd killed it at
+/// `TimeoutStopSec`. Injected deterministically: the request sent to a worker's thread
+/// (`tgkill`), then SIGCONT to the process. Each time it shuts down cleanly within 5 s. The
+/// daemon catches no signal but those it acts on (iceoryx2's handlers swallowed SIGCONT, SIGTSTP,
+/// SIGQUIT, SIGUSR1 and more).
+#[test]
+fn a_stop_request_followed_by_sigcont_stops_the_daemon() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("sigcont");
+    let setup = town_setup(&[&name]);
+    let (_, odometry) = synthetic::drive(1, 8);
+    for request in [Signal::TERM, Signal::INT] {
+        let log = setup.dir.path().join("sigcont.log");
+        let mut daemon = Command::new(daemon_binary().unwrap())
+            .arg("--config")
+            .arg(&setup.config)
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        let client = served(&setup, &name, &odometry[0]);
+        let caught = caught_signals(daemon.id());
+        for (number, what) in [
+            (18, "SIGCONT"),
+            (20, "SIGTSTP"),
+            (3, "SIGQUIT"),
+            (10, "SIGUSR1"),
+        ] {
+            assert!(
+                !caught.contains(&number),
+                "the daemon catches {what}: {caught:?}"
+            );
+        }
+        let worker = thread_named(daemon.id(), "worker-");
+        // SAFETY: tgkill takes plain integers and touches no memory of this process.
+        let sent = unsafe {
+            libc::syscall(
+                libc::SYS_tgkill,
+                daemon.id() as libc::pid_t,
+                worker,
+                request.as_raw(),
+            )
+        };
+        assert_eq!(sent, 0, "tgkill {request:?}");
+        signal(daemon.id(), Signal::CONT);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        let status = loop {
+            if let Some(status) = daemon.try_wait().unwrap() {
+                break status;
+            }
+            if Instant::now() > deadline {
+                let _ = daemon.kill();
+                let _ = daemon.wait();
+                panic!(
+                    "{request:?} then SIGCONT: the daemon still runs after 5 s\n{}",
+                    std::fs::read_to_string(&log).unwrap_or_default()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        let text = std::fs::read_to_string(&log).unwrap();
+        assert!(status.success(), "{request:?}: {status}\n{text}");
+        assert!(text.contains("shutting down"), "{request:?}:\n{text}");
+        drop(client);
+    }
+}
+
+/// The numbers of the signals process `pid` has handlers for (`SigCgt` in `/proc`).
+fn caught_signals(pid: u32) -> Vec<u32> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let mask = status
+        .lines()
+        .find_map(|line| line.strip_prefix("SigCgt:"))
+        .and_then(|hex| u64::from_str_radix(hex.trim(), 16).ok())
+        .expect("/proc/PID/status has SigCgt");
+    (1..=64).filter(|n| mask >> (n - 1) & 1 == 1).collect()
+}
+
+/// The id of the first thread of process `pid` whose name starts with `prefix`.
+fn thread_named(pid: u32, prefix: &str) -> libc::pid_t {
+    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).unwrap();
+    tasks
+        .map(|task| task.unwrap().path())
+        .find(|task| {
+            std::fs::read_to_string(task.join("comm")).is_ok_and(|name| name.starts_with(prefix))
+        })
+        .and_then(|task| task.file_name()?.to_str()?.parse().ok())
+        .unwrap_or_else(|| panic!("process {pid} has no thread named {prefix}..."))
+}
+
 /// Always runs: a client publishing far faster than the daemon corrects (a million poses a
 /// second asked for) is held back by the connection, not dropped: every pose answered once,
 /// equal to offline correction.

@@ -12,7 +12,7 @@ use std::sync::{mpsc, Arc};
 use std::time::Duration;
 
 use crate::tile_watch::TileWatch;
-use iceoryx2::node::{NodeListFailure, NodeView, NodeWaitFailure};
+use iceoryx2::node::{NodeListFailure, NodeView};
 use iceoryx2::prelude::*;
 use lanealign_core::grid::{self, Grid};
 use lanealign_core::input::InputError;
@@ -459,6 +459,14 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
         tracing::warn!(error = %e, "SIGHUP cannot reload the tile");
     }
+    // A flag of its own per request, not a "last signal" that the next one (systemd sends
+    // SIGCONT right after SIGTERM) overwrites.
+    let stop = Arc::new(AtomicBool::new(false));
+    for request in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        if let Err(e) = signal_hook::flag::register(request, stop.clone()) {
+            tracing::warn!(error = %e, signal = request, "the signal stops the daemon without a clean shutdown");
+        }
+    }
     let (persistence, persistence_thread) = if state_dir.is_some() {
         let (tx, handle) = crate::persistence::spawn().map_err(DaemonError::Persistence)?;
         (Some(tx), Some(handle))
@@ -551,18 +559,18 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     ]);
     let mut refused = BTreeSet::new();
     loop {
-        // SIGINT and SIGTERM end the wait as a termination request (at once, or on the next
-        // wait when they interrupted this one); SIGHUP asks for a reload. Any other interruption
-        // is a wake-up: a process stopped and continued (SIGSTOP, SIGCONT) has its sleep
-        // interrupted without any request.
-        let waited = node.wait(SUPERVISION_PERIOD);
+        // A signal handled by this thread ends the sleep early (SIGINT or SIGTERM: a request
+        // to stop; SIGHUP: to reload); one handled by another thread is seen when it ends. An
+        // interrupted sleep is no request by itself: a process stopped and continued (SIGSTOP,
+        // SIGCONT) has its sleep interrupted too.
+        let _ = node.wait(SUPERVISION_PERIOD);
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
         if hangup.swap(false, Ordering::Relaxed)
             && reload(&config, &path, &sources, &workers, &mut loader_threads)
         {
             tile_watch = TileWatch::new(&watched);
-        }
-        if matches!(waited, Err(NodeWaitFailure::TerminationRequest)) {
-            break;
         }
         if let Some(change) = tile_watch.check() {
             tracing::warn!(tile = %watched.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions; a grid's cells changed since are refused)");

@@ -17,6 +17,7 @@ use iceoryx2::port::listener::{Listener, ListenerCreateError};
 use iceoryx2::port::notifier::{Notifier, NotifierCreateError};
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
+use iceoryx2::prelude::SignalHandlingMode;
 use iceoryx2::prelude::{
     ipc, CallbackProgression, FileName, NodeName, Path as IoxPath, SemanticString, ServiceName,
 };
@@ -438,14 +439,19 @@ pub struct NodeListError {
 }
 
 impl Namespace {
-    /// A new node in this namespace, named `name`.
+    /// A new node in this namespace, named `name`. It handles no signal: iceoryx2's handlers
+    /// would replace a client process's own (its Ctrl-C), and they keep one "last signal" for
+    /// all, so that a SIGCONT after a SIGTERM (systemd's stop) erased the request. The daemon
+    /// handles SIGINT and SIGTERM itself.
     pub fn named_node(&self, name: &str) -> Result<Node<ipc::Service>, NodeCreateError> {
         let error = |source| NodeCreateError {
             namespace: self.0.clone(),
             hint: ownership_hint(self),
             source,
         };
-        let builder = NodeBuilder::new().config(&self.config());
+        let builder = NodeBuilder::new()
+            .config(&self.config())
+            .signal_handling_mode(SignalHandlingMode::Disabled);
         match NodeName::new(name) {
             Ok(n) => builder.name(&n).create::<ipc::Service>().map_err(error),
             Err(_) => builder.create::<ipc::Service>().map_err(error),
