@@ -97,17 +97,22 @@ pub enum ReceiveError {
     Liveness(#[from] NodeListError),
 }
 
-/// Closing a connection failed; each case keeps the answers that arrived before it did.
+/// Closing a connection failed; each case keeps what the connection had: the answers that
+/// arrived before the failure and the poses still unanswered ([`CloseError::closed`]).
 #[derive(Debug, thiserror::Error)]
 pub enum CloseError {
     /// Waiting for the answers in flight failed (no goodbye was sent).
-    #[error("waiting for the answers in flight failed ({} arrived before)", answers.len())]
+    #[error(
+        "waiting for the answers in flight failed ({} arrived before, {} unanswered)",
+        closed.answers.len(),
+        closed.unanswered.len()
+    )]
     Receive {
         /// What failed.
         #[source]
         source: ReceiveError,
-        /// The answers that arrived while closing, before the failure.
-        answers: Vec<CorrectedPose>,
+        /// What the connection had (no daemon told).
+        closed: Closed,
     },
     /// The goodbye could not be sent.
     #[error("sending the session's end failed")]
@@ -127,6 +132,18 @@ pub enum CloseError {
         /// What the connection had (no daemon told).
         closed: Closed,
     },
+}
+
+impl CloseError {
+    /// What the connection had when closing failed: the answers that arrived while it closed
+    /// and the poses still unanswered.
+    pub fn closed(&self) -> &Closed {
+        match self {
+            CloseError::Receive { closed, .. }
+            | CloseError::Send { closed, .. }
+            | CloseError::Notify { closed, .. } => closed,
+        }
+    }
 }
 
 /// What a connection still had when it closed ([`Connection::close`]).
@@ -568,17 +585,16 @@ impl Connection {
             match self.recv(deadline.saturating_duration_since(Instant::now())) {
                 Ok(Some(answer)) => answers.push(answer),
                 Ok(None) => break,
-                Err(source) => return Err(CloseError::Receive { source, answers }),
+                Err(source) => {
+                    let closed = self.closed_with(answers);
+                    return Err(CloseError::Receive { source, closed });
+                }
             }
         }
         // A killed daemon's subscriber takes samples until its node is cleaned up: ask which
         // daemon lives (a failed look tells no one).
         let looked = self.look_for_daemon().is_ok();
-        let mut closed = Closed {
-            answers,
-            unanswered: self.pending.keys().copied().collect(),
-            daemon_told: false,
-        };
+        let mut closed = self.closed_with(answers);
         let goodbye = OdomPose {
             session: self.session,
             seq: self.next_seq,
@@ -599,6 +615,16 @@ impl Connection {
         }
         closed.daemon_told = taken && looked && self.daemon.is_some();
         Ok(closed)
+    }
+
+    /// What the connection has when it closes: `answers` and the poses still unanswered, no
+    /// daemon told yet.
+    fn closed_with(&self, answers: Vec<CorrectedPose>) -> Closed {
+        Closed {
+            answers,
+            unanswered: self.pending.keys().copied().collect(),
+            daemon_told: false,
+        }
     }
 
     /// How [`Connection::recv`] waits for answers (default: sleeps until notified). A strategy

@@ -4,7 +4,8 @@
 results); ``eval`` reports what ``lanealign eval --json`` reports; ``compile_map`` writes the
 tile ``lanealign-map compile`` writes; ``Client`` publishes poses to a running ``lanealignd``
 and receives the corrected ones over shared memory. Errors are ``ValueError``
-with the command line's messages.
+with the command line's messages; a ``Client.close`` that fails raises ``CloseError`` (a
+``ValueError``) holding the answers that arrived and the poses that got none.
 """
 
 import os
@@ -13,7 +14,7 @@ from typing import NamedTuple, Optional, Tuple
 import numpy as np
 
 from . import _lanealign
-from ._lanealign import Client
+from ._lanealign import Client, CloseError
 
 #: The status names; ``Corrected.status`` holds indices into this tuple.
 STATUS_NAMES: Tuple[str, ...] = tuple(_lanealign.STATUS_NAMES)
@@ -134,6 +135,7 @@ def synthetic_town(tile: str, *, laps: int = 3, seed: int = 42) -> Tuple[np.ndar
 __all__ = [
     "STATUS_NAMES",
     "Client",
+    "CloseError",
     "Corrected",
     "compile_map",
     "correct",

@@ -32,6 +32,13 @@ def compile_map(
 ) -> Dict[str, Union[float, int]]: ...
 def synthetic_town(tile: str, *, laps: int = ..., seed: int = ...) -> Tuple[np.ndarray, np.ndarray]: ...
 
+class CloseError(ValueError):
+    """Closing a client failed: what it had, as ``Client.close`` returns it."""
+
+    answers: List[Dict[str, object]]
+    unanswered: List[int]
+    daemon_told: bool
+
 class Client:
     """A connection to one source of a running lanealignd: one session."""
 

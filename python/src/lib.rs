@@ -8,7 +8,7 @@ use lanealign_cli::evaluation;
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
-use lanealign_client::Connection;
+use lanealign_client::{Closed, Connection};
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
@@ -26,9 +26,10 @@ use lanealign_wire::service::{Namespace, SourceName};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
+use pyo3::create_exception;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyString};
 
 /// An error as Python sees it: the message and its causes, as the command line prints them.
 fn error(e: impl Into<anyhow::Error>) -> PyErr {
@@ -435,23 +436,46 @@ impl Client {
     /// Ends the session: waits up to `timeout_s` seconds for the answers still in flight, then
     /// tells the daemon, which forgets the session at once. Returns a dict: `answers` (those
     /// that arrived, as `recv` gives them), `unanswered` (sequence numbers) and `daemon_told`.
-    /// The client cannot be used after.
+    /// The client cannot be used after. When closing fails it raises `CloseError`, which
+    /// holds the same three as attributes: no answer that arrived is lost.
     #[pyo3(signature = (timeout_s=1.0))]
     fn close<'py>(&mut self, py: Python<'py>, timeout_s: f64) -> PyResult<Bound<'py, PyDict>> {
         let timeout = seconds("timeout_s", timeout_s)?;
         let connection = self.connection.take().ok_or_else(closed_error)?;
-        let closed = connection.close(timeout).map_err(error)?;
-        let d = PyDict::new(py);
-        let answers = closed
-            .answers
-            .iter()
-            .map(|a| answer_dict(py, a))
-            .collect::<PyResult<Vec<_>>>()?;
-        d.set_item("answers", answers)?;
-        d.set_item("unanswered", closed.unanswered)?;
-        d.set_item("daemon_told", closed.daemon_told)?;
-        Ok(d)
+        match connection.close(timeout) {
+            Ok(closed) => closed_dict(py, &closed),
+            Err(e) => {
+                let items = closed_dict(py, e.closed())?;
+                let raised = CloseError::new_err(format!("{:#}", anyhow::Error::from(e)));
+                for (name, value) in items.iter() {
+                    raised.value(py).setattr(name.cast::<PyString>()?, value)?;
+                }
+                Err(raised)
+            }
+        }
     }
+}
+
+create_exception!(
+    lanealign,
+    CloseError,
+    PyValueError,
+    "Closing a client failed: `answers`, `unanswered` and `daemon_told` hold what it had, as \
+     `Client.close` returns them."
+);
+
+/// What a connection had when it closed, as `Client.close` returns it.
+fn closed_dict<'py>(py: Python<'py>, closed: &Closed) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let answers = closed
+        .answers
+        .iter()
+        .map(|a| answer_dict(py, a))
+        .collect::<PyResult<Vec<_>>>()?;
+    d.set_item("answers", answers)?;
+    d.set_item("unanswered", closed.unanswered.clone())?;
+    d.set_item("daemon_told", closed.daemon_told)?;
+    Ok(d)
 }
 
 fn closed_error() -> PyErr {
@@ -471,6 +495,7 @@ fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compile_map, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_town, m)?)?;
     m.add_class::<Client>()?;
+    m.add("CloseError", m.py().get_type::<CloseError>())?;
     m.add("STATUS_NAMES", STATUS_NAMES.to_vec())?;
     Ok(())
 }

@@ -4,10 +4,13 @@ Needs the `lanealign` binary (LANEALIGN_BIN, else the workspace's target/release
 `cargo test --release --workspace` builds it and runs these tests (tests/tests/python.rs).
 """
 
+import contextlib
 import json
 import os
 import re
+import resource
 import shutil
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -213,32 +216,54 @@ def remove_namespace_files(namespace):
             f.unlink(missing_ok=True)
 
 
-def test_client_through_the_daemon_equals_correct(tmp_path):
-    needs_data()
-    osm = DATA / "osm" / "kitti_00.osm"
-    lanealign.compile_map(osm, tmp_path / "00.tile", origin=(48.9825452359, 8.3903661),
-                          projection="kitti")
-    namespace, source = f"py-{os.getpid()}", "lidar"
+ANCHOR_00 = (48.9825452359, 8.3903661, 59.5584, 0.806, 0.365)
+
+
+@contextlib.contextmanager
+def kitti_00_daemon(tmp_path, namespace):
+    """A `lanealignd` serving source `lidar` (KITTI 00, kiss-icp preset) in `namespace`; yields
+    the daemon's process and a client connected to it."""
+    lanealign.compile_map(DATA / "osm" / "kitti_00.osm", tmp_path / "00.tile",
+                          origin=ANCHOR_00[:2], projection="kitti")
+    lat, lon, yaw, east, north = ANCHOR_00
     (tmp_path / "d.toml").write_text(f"""
 tile = "00.tile"
 namespace = "{namespace}"
 state_dir = "{tmp_path / 'state'}"
 [[source]]
-name = "{source}"
+name = "lidar"
 frame = "kitti-camera"
-anchor = {{ lat = 48.9825452359, lon = 8.3903661, yaw_deg = 59.5584, east_m = 0.806, north_m = 0.365 }}
+anchor = {{ lat = {lat}, lon = {lon}, yaw_deg = {yaw}, east_m = {east}, north_m = {north} }}
 [source.corrector]
 preset = "kiss-icp"
 """)
     daemon = subprocess.Popen([str(BIN.with_name("lanealignd")), "--config", str(tmp_path / "d.toml")],
                               stderr=subprocess.PIPE, text=True)
+    client = None
     try:
-        client = lanealign.Client(source, namespace=namespace)
+        client = lanealign.Client("lidar", namespace=namespace)
         deadline = time.monotonic() + 20
         while not client.daemon_connected():
             assert time.monotonic() < deadline and daemon.poll() is None, "the daemon did not come up"
             time.sleep(0.05)
-        poses = np.loadtxt(DATA / "odometry" / "lidar" / "00.txt").reshape(-1, 3, 4)[:600]
+        yield daemon, client
+    finally:
+        daemon.send_signal(signal.SIGCONT)
+        daemon.terminate()
+        daemon.wait(20)
+        client = None  # its iceoryx2 node goes before the namespace's files
+        remove_namespace_files(namespace)
+
+
+def kitti_00_lidar(n):
+    return np.loadtxt(DATA / "odometry" / "lidar" / "00.txt").reshape(-1, 3, 4)[:n]
+
+
+def test_client_through_the_daemon_equals_correct(tmp_path):
+    needs_data()
+    namespace = f"py-{os.getpid()}"
+    poses = kitti_00_lidar(600)
+    with kitti_00_daemon(tmp_path, namespace) as (daemon, client):
         assert not client.session_opened(), "the daemon opens a session at its first pose"
         answers = []
         for i, pose in enumerate(poses[:590]):
@@ -255,19 +280,59 @@ preset = "kiss-icp"
         assert [a["seq"] for a in answers] == list(range(1, 601))
         with pytest.raises(ValueError, match="closed"):
             client.recv(0.0)
-        journals = tmp_path / "state" / namespace / source
+        journals = tmp_path / "state" / namespace / "lidar"
         deadline = time.monotonic() + 5
         while any(journals.iterdir()) and time.monotonic() < deadline:
             time.sleep(0.02)
         assert not any(journals.iterdir()), "the daemon forgot the closed session"
-    finally:
-        daemon.terminate()
-        daemon.wait(20)
-        client = None  # its iceoryx2 node goes before the namespace's files
-        remove_namespace_files(namespace)
-    offline = lanealign.correct(poses, osm=str(osm), anchor=(48.9825452359, 8.3903661, 59.5584,
-                                0.806, 0.365), projection="kitti", preset="kiss-icp",
-                                frame="kitti-camera")
+    offline = lanealign.correct(poses, osm=str(DATA / "osm" / "kitti_00.osm"), anchor=ANCHOR_00,
+                                projection="kitti", preset="kiss-icp", frame="kitti-camera")
     assert np.array_equal(np.stack([a["pose"] for a in answers]), offline.poses)
     assert [a["status"] for a in answers] == [lanealign.STATUS_NAMES[c] for c in offline.status]
     assert answers[-1]["covariance"].shape == (3, 3)
+
+
+def freeze(pid):
+    """Stops process `pid` (SIGSTOP) and returns once every thread of it has stopped."""
+    os.kill(pid, signal.SIGSTOP)
+    tasks = Path(f"/proc/{pid}/task")
+    deadline = time.monotonic() + 5
+    while not all((t / "stat").read_text().rsplit(")", 1)[1].split()[0] == "T" for t in tasks.iterdir()):
+        assert time.monotonic() < deadline, "the daemon did not stop"
+        time.sleep(0.001)
+
+
+def test_a_close_that_fails_keeps_the_answers_it_received(tmp_path):
+    """Closing fails when the client cannot tell whether the daemon lives (injected: the daemon
+    frozen with a pose in flight, the client out of file descriptors, so that listing the
+    namespace's nodes fails); the error holds every answer that arrived while closing and names
+    the pose that got none: each pose published is counted out once."""
+    needs_data()
+    poses = kitti_00_lidar(40)
+    with kitti_00_daemon(tmp_path, f"py-{os.getpid()}") as (daemon, client):
+        for i, pose in enumerate(poses[:10]):
+            client.publish(i, pose)
+            assert client.recv(10.0)["seq"] == i + 1
+        for i, pose in enumerate(poses[10:39], start=10):
+            client.publish(i, pose)
+        time.sleep(1.0)  # the daemon answers them meanwhile; the client takes none yet
+        freeze(daemon.pid)
+        client.publish(39, poses[39])
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        lowest_free = os.dup(0)
+        os.close(lowest_free)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (lowest_free, hard))
+        try:
+            with pytest.raises(lanealign.CloseError) as raised:
+                client.close(10.0)
+        finally:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+        failed = raised.value
+        assert isinstance(failed, ValueError)
+        assert "waiting for the answers in flight failed" in str(failed), str(failed)
+        answered = [a["seq"] for a in failed.answers]
+        assert sorted(answered + failed.unanswered) == list(range(11, 41)), str(failed)
+        assert answered and 40 in failed.unanswered and failed.daemon_told is False
+        assert failed.answers[-1]["pose"].shape == (3, 4)
+        with pytest.raises(ValueError, match="closed"):
+            client.recv(0.0)
