@@ -472,7 +472,11 @@ fn a_full_state_disk_ends_the_journal_not_the_daemon() {
                 "the journal's end is logged (a daemon the full disk killed logs nothing): {full}"
             )
         });
-    assert!(full.contains("No space left on device"), "{full}");
+    let record = full.lines().find(|l| l.contains("journal write failed"));
+    assert!(
+        record.is_some_and(|l| l.contains("No space left on device")),
+        "one log line says what failed and why: {full}"
+    );
     assert!(
         !after.contains("journal write failed") && after.contains("latency source"),
         "logged once, and the daemon serves on: {full}"

@@ -10,17 +10,36 @@ use std::process::ExitCode;
 /// whose text its parent already shows is not repeated).
 pub fn error_chain(error: &(dyn Error + 'static)) -> String {
     let mut out = format!("error: {error}");
+    for cause in causes(error) {
+        let _ = write!(out, "\n  caused by: {cause}");
+    }
+    out
+}
+
+/// `<message>: <cause>: <cause>` on one line, the causes as [`error_chain`] shows them: for a
+/// log, where a record is a line and its level already says it is an error.
+pub fn error_line(error: &(dyn Error + 'static)) -> String {
+    let mut out = error.to_string();
+    for cause in causes(error) {
+        let _ = write!(out, ": {cause}");
+    }
+    out
+}
+
+/// The texts of `error`'s sources, each unless its parent's text already shows it.
+fn causes(error: &(dyn Error + 'static)) -> Vec<String> {
     let mut shown = error.to_string();
+    let mut texts = Vec::new();
     let mut cause = error.source();
     while let Some(e) = cause {
         let text = e.to_string();
         if !shown.contains(&text) {
-            let _ = write!(out, "\n  caused by: {text}");
+            texts.push(text.clone());
         }
         shown = text;
         cause = e.source();
     }
-    out
+    texts
 }
 
 /// True when the person asked for backtraces with `LANEALIGN_BACKTRACE=1`.
@@ -76,5 +95,13 @@ mod tests {
         assert_eq!(error_chain(&e), "error: outer\n  caused by: inner");
         let e = Shows(std::io::Error::other("inner"));
         assert_eq!(error_chain(&e), "error: file.txt: inner");
+    }
+
+    #[test]
+    fn a_log_line_holds_every_cause_once() {
+        let e = Outer(std::io::Error::other("inner"));
+        assert_eq!(error_line(&e), "outer: inner");
+        let e = Shows(std::io::Error::other("inner"));
+        assert_eq!(error_line(&e), "file.txt: inner");
     }
 }

@@ -17,6 +17,7 @@ use iceoryx2::prelude::*;
 use lanealign_core::grid::{self, Grid};
 use lanealign_core::input::InputError;
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
 use lanealign_wire::clock::monotonic_ns;
@@ -136,9 +137,7 @@ fn prepare_grid(
         path: config.tile.clone(),
         message,
     };
-    let grid = Arc::new(
-        Grid::open(&config.tile).map_err(|e| bad(lanealign_core::report::error_chain(&e)))?,
-    );
+    let grid = Arc::new(Grid::open(&config.tile).map_err(|e| bad(error_line(&e)))?);
     let trusted = config.trusted_keys();
     let mut starts = Vec::with_capacity(sources.len());
     for source in sources {
@@ -223,7 +222,7 @@ pub fn remove_dead_nodes(namespace: &Namespace) -> Result<usize, NodeListFailure
                     tracing::info!(node = ?id, "removed the resources of a dead node");
                 }
                 Err(e) => {
-                    tracing::warn!(node = ?id, error = ?e, "could not remove a dead node's resources")
+                    tracing::warn!(node = ?id, error = %error_line(&e), "could not remove a dead node's resources")
                 }
             }
         }
@@ -250,7 +249,7 @@ impl ListingHealth {
             Ok(_) => {}
             Err(e) => {
                 if self.failures == 0 {
-                    tracing::warn!(error = ?e, "listing nodes failed: dead clients' resources stay until it works again (said when it does)");
+                    tracing::warn!(error = %error_line(&e), "listing nodes failed: dead clients' resources stay until it works again (said when it does)");
                 }
                 self.failures += 1;
             }
@@ -323,7 +322,7 @@ fn source_fingerprint(source: &ResolvedSource, tile: &TileInfo) -> u64 {
 /// Tells systemd (when it started the daemon with `Type=notify`) how things stand.
 fn notify(states: &[sd_notify::NotifyState<'_>]) {
     if let Err(e) = sd_notify::notify(states) {
-        tracing::debug!(error = %e, "sd_notify failed");
+        tracing::debug!(error = %error_line(&e), "sd_notify failed");
     }
 }
 
@@ -348,11 +347,11 @@ fn reload(
             }
         };
     }
-    let loaded = tile::load(&config.tile).map_err(|e| lanealign_core::report::error_chain(&e));
+    let loaded = tile::load(&config.tile).map_err(|e| error_line(&e));
     let checked = loaded.and_then(|(map, info)| {
         config
             .check_tile(path, sources, &info)
-            .map_err(|e| lanealign_core::report::error_chain(&e))
+            .map_err(|e| error_line(&e))
             .map(|()| (Arc::new(map), info))
     });
     match checked {
@@ -390,17 +389,16 @@ fn reload_grid(
     sources: &[ResolvedSource],
     workers: &[Worker],
 ) -> Result<std::thread::JoinHandle<()>, String> {
-    use lanealign_core::report::error_chain;
-    let (lanes, info) = prepare_grid(config, sources).map_err(|e| error_chain(&e))?;
+    let (lanes, info) = prepare_grid(config, sources).map_err(|e| error_line(&e))?;
     config
         .check_geometry(path, sources, &info)
-        .map_err(|e| error_chain(&e))?;
+        .map_err(|e| error_line(&e))?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());
     };
     let interval = Duration::from_secs_f64(config.metrics_interval_s);
     let (loader, handle) = GridLoader::spawn(grid, config.grid, config.trusted_keys(), interval)
-        .map_err(|e| error_chain(&e))?;
+        .map_err(|e| error_line(&e))?;
     for (((_, _, tx), source), map) in workers.iter().zip(sources).zip(starts) {
         let _ = tx.send(Reload {
             map,
@@ -457,14 +455,14 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
     let node = namespace.named_node(DAEMON_NODE)?;
     let hangup = Arc::new(AtomicBool::new(false));
     if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
-        tracing::warn!(error = %e, "SIGHUP cannot reload the tile");
+        tracing::warn!(error = %error_line(&e), "SIGHUP cannot reload the tile");
     }
     // A flag of its own per request, not a "last signal" that the next one (systemd sends
     // SIGCONT right after SIGTERM) overwrites.
     let stop = Arc::new(AtomicBool::new(false));
     for request in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
         if let Err(e) = signal_hook::flag::register(request, stop.clone()) {
-            tracing::warn!(error = %e, signal = request, "the signal stops the daemon without a clean shutdown");
+            tracing::warn!(error = %error_line(&e), signal = request, "the signal stops the daemon without a clean shutdown");
         }
     }
     let (persistence, persistence_thread) = if state_dir.is_some() {

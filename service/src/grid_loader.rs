@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use hdrhistogram::Histogram;
 use lanealign_core::grid::{self, CellKey, CellNeeds, Grid, GridCell, LoadPolicy};
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::report::error_line;
 
 /// Longest a session that is behind waits for the map it asked for (see
 /// [`GridView::arrived`]); a loader slower than this leaves it on the map it has, as before.
@@ -192,9 +193,7 @@ pub(crate) fn load_trusted(
     key: CellKey,
     trusted: &Trusted,
 ) -> Result<GridCell, String> {
-    let cell = grid
-        .load_cell(key)
-        .map_err(|e| lanealign_core::report::error_chain(&e))?;
+    let cell = grid.load_cell(key).map_err(|e| error_line(&e))?;
     if let Some(keys) = trusted {
         if !cell.signer().is_some_and(|s| keys.contains(&s)) {
             return Err(format!(
@@ -313,7 +312,7 @@ impl Loader {
             }
             Err(e) => {
                 self.failures += 1;
-                tracing::warn!(error = %lanealign_core::report::error_chain(&e), "grid cells not assembled: sessions near them keep the map they have");
+                tracing::warn!(error = %error_line(&e), "grid cells not assembled: sessions near them keep the map they have");
                 None
             }
         }

@@ -5,6 +5,7 @@
 //! segments themselves are never synced (crate::journal: a sync would fault the worker's next
 //! copy on its latency path).
 
+use lanealign_core::report::error_line;
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
@@ -31,7 +32,7 @@ fn sync(dir: &std::path::Path, copier: &mut SegmentCopier) -> bool {
     match copier.sync() {
         Ok(()) => true,
         Err(e) => {
-            tracing::warn!(dir = %dir.display(), error = %e, "syncing a journal segment's copy failed; this segment is no longer copied (the session's next segment is)");
+            tracing::warn!(dir = %dir.display(), error = %error_line(&e), "syncing a journal segment's copy failed; this segment is no longer copied (the session's next segment is)");
             false
         }
     }
@@ -70,20 +71,20 @@ fn run(rx: Receiver<PersistJob>) {
                     for n in segments(&dir).unwrap_or_default() {
                         if n < keep_from {
                             if let Err(e) = remove_segment(&dir, n) {
-                                tracing::warn!(error = %e, "removing an old journal segment failed");
+                                tracing::warn!(error = %error_line(&e), "removing an old journal segment failed");
                             }
                         }
                     }
                 }
                 Err(e) => {
-                    tracing::warn!(error = %lanealign_core::report::error_chain(&e), "writing a snapshot failed; the journal keeps its segments")
+                    tracing::warn!(error = %error_line(&e), "writing a snapshot failed; the journal keeps its segments")
                 }
             },
             Ok(PersistJob::Remove { dir }) => {
                 tracked.remove(&dir);
                 if let Err(e) = std::fs::remove_dir_all(&dir) {
                     if e.kind() != std::io::ErrorKind::NotFound {
-                        tracing::warn!(dir = %dir.display(), error = %e, "removing an ended session's journal failed");
+                        tracing::warn!(dir = %dir.display(), error = %error_line(&e), "removing an ended session's journal failed");
                     }
                 }
             }

@@ -16,6 +16,7 @@ use iceoryx2::prelude::ipc;
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::plausibility::{rate_warning, RateProbe};
+use lanealign_core::report::error_line;
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{
     CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START,
@@ -184,14 +185,13 @@ struct Worker {
 
 impl Worker {
     fn open_session(&self, id: u64, session: Option<Session>) -> Result<Live, String> {
-        let chain = |e: &(dyn std::error::Error + 'static)| lanealign_core::report::error_chain(e);
         // Room first: iceoryx2 writes to the session's files as it makes them.
-        shm::check_room("a session", shm::DAEMON_SESSION_BYTES).map_err(|e| chain(&e))?;
+        shm::check_room("a session", shm::DAEMON_SESSION_BYTES).map_err(|e| error_line(&e))?;
         let services = SessionServices::open(&self.node, &self.setup.source.name, id)
-            .map_err(|e| chain(&e))?;
-        let publisher = services.publisher().map_err(|e| chain(&e))?;
-        let notifier = services.notifier().map_err(|e| chain(&e))?;
-        shm::reserve(&self.setup.namespace).map_err(|e| chain(&e))?;
+            .map_err(|e| error_line(&e))?;
+        let publisher = services.publisher().map_err(|e| error_line(&e))?;
+        let notifier = services.notifier().map_err(|e| error_line(&e))?;
+        shm::reserve(&self.setup.namespace).map_err(|e| error_line(&e))?;
         Ok(Live {
             session,
             publisher,
@@ -207,7 +207,7 @@ impl Worker {
             self.metrics.journal_failures += 1;
             if !self.journal_warned {
                 self.journal_warned = true;
-                tracing::error!(source = %self.name, error = %lanealign_core::report::error_chain(&e), "journal write failed: sessions go on without crash recovery");
+                tracing::error!(source = %self.name, error = %error_line(&e), "journal write failed: sessions go on without crash recovery");
             }
         }
     }
@@ -253,7 +253,7 @@ impl Worker {
                     }
                 }
                 Err(e) => {
-                    tracing::warn!(source = %self.name, dir = %dir.display(), error = %e, "a journal was not restored; its session starts afresh");
+                    tracing::warn!(source = %self.name, dir = %dir.display(), error = %error_line(&e), "a journal was not restored; its session starts afresh");
                     self.remove_journal(dir);
                 }
             }
@@ -370,12 +370,12 @@ impl Worker {
             Ok(0) => false,
             Ok(_) => {
                 if let Err(e) = live.notifier.notify() {
-                    tracing::warn!(source = %self.name, error = %e, "notify failed");
+                    tracing::warn!(source = %self.name, error = %error_line(&e), "notify failed");
                 }
                 true
             }
             Err(e) => {
-                tracing::warn!(source = %self.name, seq = answer.seq, error = %e, "publish failed");
+                tracing::warn!(source = %self.name, seq = answer.seq, error = %error_line(&e), "publish failed");
                 false
             }
         };
@@ -514,7 +514,7 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
                 Ok(Some(sample)) => sample,
                 Ok(None) => break,
                 Err(e) => {
-                    tracing::warn!(source = %name, error = %e, "receive failed");
+                    tracing::warn!(source = %name, error = %error_line(&e), "receive failed");
                     break;
                 }
             };
