@@ -3,7 +3,8 @@
 //! flagged and changes nothing, a client that never reads holds up no one, one daemon per
 //! namespace, a source that cannot start stops the daemon, SIGHUP reloads the tile for new
 //! sessions (and refuses a bad one), nothing is left in shared memory, neither a cleaner of
-//! `/tmp` nor a private `/tmp` cuts a client off. Every test's namespace is as long as a
+//! `/tmp` nor a private `/tmp` cuts a client off, a stop request survives the SIGCONT after it,
+//! a log nobody reads holds up no answer. Every test's namespace is as long as a
 //! namespace may be. On the synthetic town always; on real KITTI data where `../shared/data` is
 //! present.
 
@@ -1024,14 +1025,16 @@ fn a_stop_request_followed_by_sigcont_stops_the_daemon() {
     let (_, odometry) = synthetic::drive(1, 8);
     for request in [Signal::TERM, Signal::INT] {
         let log = setup.dir.path().join("sigcont.log");
-        let mut daemon = Command::new(daemon_binary().unwrap())
-            .arg("--config")
-            .arg(&setup.config)
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .unwrap();
+        let mut daemon = KillOnDrop(
+            Command::new(daemon_binary().unwrap())
+                .arg("--config")
+                .arg(&setup.config)
+                .stderr(std::fs::File::create(&log).unwrap())
+                .spawn()
+                .unwrap(),
+        );
         let client = served(&setup, &name, &odometry[0]);
-        let caught = caught_signals(daemon.id());
+        let caught = caught_signals(daemon.0.id());
         for (number, what) in [
             (18, "SIGCONT"),
             (20, "SIGTSTP"),
@@ -1043,26 +1046,24 @@ fn a_stop_request_followed_by_sigcont_stops_the_daemon() {
                 "the daemon catches {what}: {caught:?}"
             );
         }
-        let worker = thread_named(daemon.id(), "worker-");
+        let worker = thread_named(daemon.0.id(), "worker-");
         // SAFETY: tgkill takes plain integers and touches no memory of this process.
         let sent = unsafe {
             libc::syscall(
                 libc::SYS_tgkill,
-                daemon.id() as libc::pid_t,
+                daemon.0.id() as libc::pid_t,
                 worker,
                 request.as_raw(),
             )
         };
         assert_eq!(sent, 0, "tgkill {request:?}");
-        signal(daemon.id(), Signal::CONT);
+        signal(daemon.0.id(), Signal::CONT);
         let deadline = Instant::now() + Duration::from_secs(5);
         let status = loop {
-            if let Some(status) = daemon.try_wait().unwrap() {
+            if let Some(status) = daemon.0.try_wait().unwrap() {
                 break status;
             }
             if Instant::now() > deadline {
-                let _ = daemon.kill();
-                let _ = daemon.wait();
                 panic!(
                     "{request:?} then SIGCONT: the daemon still runs after 5 s\n{}",
                     std::fs::read_to_string(&log).unwrap_or_default()
@@ -1098,6 +1099,50 @@ fn thread_named(pid: u32, prefix: &str) -> libc::pid_t {
         })
         .and_then(|task| task.file_name()?.to_str()?.parse().ok())
         .unwrap_or_else(|| panic!("process {pid} has no thread named {prefix}..."))
+}
+
+/// Always runs: a log nobody reads holds up no answer. The daemon's stderr is a pipe of one
+/// page, filled before it starts and not read (a stalled journald, a paused terminal, a `| less`
+/// left alone): every pose of a session is answered as offline, and the daemon stops cleanly
+/// when asked. The records it made meanwhile come out once the pipe is read. (Writing them on
+/// the workers' threads, it never became ready: its first record blocked.)
+#[test]
+fn a_log_nobody_reads_holds_up_no_answer() {
+    use std::io::{Read, Write};
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("logpipe");
+    let setup = town_setup(&[&name]);
+    let (reader, writer) = rustix::pipe::pipe().unwrap();
+    let room = rustix::pipe::fcntl_setpipe_size(&writer, 4096).unwrap();
+    let mut writer = std::fs::File::from(writer);
+    writer.write_all(&vec![b'#'; room]).unwrap();
+    let mut daemon = KillOnDrop(
+        Command::new(daemon_binary().unwrap())
+            .arg("--config")
+            .arg(&setup.config)
+            .stderr(writer)
+            .spawn()
+            .unwrap(),
+    );
+    let (_, odometry) = synthetic::drive(1, 9);
+    let got = run_replay(&setup, &name, &odometry, Rate::Hz(1000.0));
+    assert!(got == offline(&setup, &name, &odometry));
+    let reading = std::thread::spawn(move || {
+        let mut text = String::new();
+        std::fs::File::from(reader)
+            .read_to_string(&mut text)
+            .unwrap();
+        text
+    });
+    signal(daemon.0.id(), Signal::TERM);
+    assert!(daemon.0.wait().unwrap().success());
+    let log = reading.join().unwrap();
+    for record in ["ready", "worker started", "shutting down"] {
+        assert!(
+            log.contains(record),
+            "'{record}' in the log once read:\n{log}"
+        );
+    }
 }
 
 /// Always runs: a client publishing far faster than the daemon corrects (a million poses a

@@ -9,7 +9,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use crate::tile_watch::TileWatch;
 use iceoryx2::node::{NodeListFailure, NodeView};
@@ -231,6 +231,45 @@ pub fn remove_dead_nodes(namespace: &Namespace) -> Result<usize, NodeListFailure
     listed.map(|_| removed)
 }
 
+/// Says that log records were dropped (their reader did not keep up), with the total, at most
+/// once per metrics interval: while the log is blocked the saying waits or is dropped too, and
+/// the next one after it flows again tells how many were lost.
+struct LogDrops {
+    /// Dropped records said so far.
+    said: u64,
+    /// When it was last said.
+    last: Option<Instant>,
+    /// The least time between two sayings.
+    every: Duration,
+}
+
+impl LogDrops {
+    fn new(every: Duration) -> Self {
+        LogDrops {
+            said: 0,
+            last: None,
+            every,
+        }
+    }
+
+    /// `dropped`: records dropped since the start; returns whether it said so now.
+    fn record(&mut self, dropped: u64, now: Instant) -> bool {
+        let due = self
+            .last
+            .is_none_or(|t| now.duration_since(t) >= self.every);
+        if dropped <= self.said || !due {
+            return false;
+        }
+        tracing::warn!(
+            dropped_log_lines = dropped,
+            "log records were dropped: the log's reader did not keep up (the daemon never waits for it)"
+        );
+        self.said = dropped;
+        self.last = Some(now);
+        true
+    }
+}
+
 /// Says when listing the namespace's nodes starts failing and when it works again, not at
 /// every supervision period in between.
 #[derive(Default)]
@@ -412,7 +451,10 @@ fn reload_grid(
 
 /// Runs until SIGINT or SIGTERM: returns each source's summary. Fails, stopping every worker,
 /// if another daemon serves the namespace or any source's worker cannot start.
-pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonError> {
+pub fn run(
+    prepared: Prepared,
+    dropped_log_lines: impl Fn() -> u64,
+) -> Result<Vec<(String, WorkerSummary)>, DaemonError> {
     let Prepared {
         config,
         path,
@@ -446,6 +488,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
         }
     };
     let mut listing = ListingHealth::default();
+    let mut log_drops = LogDrops::new(interval);
     match remove_dead_nodes(&namespace) {
         Ok(cleaned) if cleaned > 0 => {
             tracing::info!(cleaned, "removed stale resources left by earlier processes")
@@ -574,6 +617,7 @@ pub fn run(prepared: Prepared) -> Result<Vec<(String, WorkerSummary)>, DaemonErr
             tracing::warn!(tile = %watched.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions; a grid's cells changed since are refused)");
         }
         listing.record(remove_dead_nodes(&namespace));
+        log_drops.record(dropped_log_lines(), Instant::now());
         for source in unknown_sources(&namespace, &known) {
             if refused.insert(source.clone()) {
                 tracing::warn!(
@@ -622,5 +666,23 @@ fn watched_file(tile: &Path) -> PathBuf {
         tile.join(grid::MANIFEST)
     } else {
         tile.to_path_buf()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dropped_log_records_are_said_with_their_total_at_most_once_per_interval() {
+        let mut drops = LogDrops::new(Duration::from_secs(5));
+        let t0 = Instant::now();
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        assert!(!drops.record(0, at(0)), "nothing dropped, nothing said");
+        assert!(drops.record(3, at(0)));
+        assert!(!drops.record(7, at(1)), "within the interval");
+        assert!(drops.record(7, at(5)));
+        assert_eq!(drops.said, 7);
+        assert!(!drops.record(7, at(20)), "no more dropped since");
     }
 }

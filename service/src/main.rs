@@ -31,6 +31,9 @@ enum Command {
     Check,
 }
 
+/// Log records waiting for stderr before newer ones are dropped (a few MB at most).
+const LOG_LINES_BUFFERED: usize = 4096;
+
 fn main() -> std::process::ExitCode {
     lanealign_core::report::exit_code(run(Cli::parse()))
 }
@@ -43,9 +46,18 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     let prepared = daemon::prepare(&path)?;
     let format = cli.log_format.unwrap_or(prepared.config.log_format);
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    // Records go to stderr from a thread of their own: a log nobody reads (a full pipe, a
+    // stalled journald, a paused terminal) must never hold up a worker. When LOG_LINES_BUFFERED
+    // wait, newer ones are dropped and counted; the guard flushes at exit, waiting 1.1 s at most.
+    let (writer, _flushed_at_exit) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+        .lossy(true)
+        .buffered_lines_limit(LOG_LINES_BUFFERED)
+        .thread_name("log")
+        .finish(std::io::stderr());
+    let dropped = writer.error_counter();
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+        .with_writer(writer)
         .with_ansi(std::io::stderr().is_terminal());
     match format {
         LogFormat::Json => builder.json().init(),
@@ -69,7 +81,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             );
         }
         None => {
-            let summaries = daemon::run(prepared)?;
+            let summaries = daemon::run(prepared, move || dropped.dropped_lines() as u64)?;
             for (name, s) in summaries {
                 tracing::info!(source = %name, received = s.received, published = s.published, "final");
             }
