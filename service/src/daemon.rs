@@ -80,7 +80,7 @@ pub enum DaemonError {
         detail: String,
     },
     /// The state folder or its lock could not be set up.
-    #[error("{path}: {source}")]
+    #[error("{path}: {source} (state_dir holds the sessions' journals and the daemon's lock: set one this user may write, or journal = false)")]
     State {
         /// The folder or file.
         path: PathBuf,
@@ -169,6 +169,9 @@ fn prepare_grid(
 pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     let config = Config::load(path)?;
     let resolved = config.resolve(path)?;
+    if let Some(dir) = &resolved.state_dir {
+        check_state_dir(dir)?;
+    }
     let (namespace, sources) = (resolved.namespace, resolved.sources);
     if grid::is_grid(&config.tile) {
         let (lanes, info) = prepare_grid(&config, &sources)?;
@@ -207,6 +210,31 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
         tile: info,
         config,
     })
+}
+
+/// Checks, changing nothing, that the daemon can make `dir` and write in it: its nearest folder
+/// that exists must be one this process may write in (not a file, not on a read-only file
+/// system).
+fn check_state_dir(dir: &Path) -> Result<(), DaemonError> {
+    let mut existing = dir;
+    while !existing.exists() {
+        match existing.parent() {
+            Some(parent) => existing = parent,
+            None => break,
+        }
+    }
+    let error = |source: std::io::Error| DaemonError::State {
+        path: existing.to_path_buf(),
+        source,
+    };
+    if !existing.is_dir() {
+        return Err(error(std::io::ErrorKind::NotADirectory.into()));
+    }
+    rustix::fs::access(
+        existing,
+        rustix::fs::Access::WRITE_OK | rustix::fs::Access::EXEC_OK,
+    )
+    .map_err(|e| error(e.into()))
 }
 
 /// Removes the resources of nodes in `namespace` whose process died; returns how many, or why

@@ -110,6 +110,11 @@ fn bad_configs_and_tiles_fail_naming_the_problem() {
             format!("metrics_interval_s = 1e300\n{CONFIG}"),
             "metrics_interval_s",
         ),
+        // A state folder the daemon could not make: `check` said ok, and the start failed.
+        (
+            format!("state_dir = \"t.tile/state\"\n{CONFIG}"),
+            "state_dir holds the sessions' journals",
+        ),
     ];
     for (text, what) in cases {
         std::fs::write(&config, text).unwrap();
