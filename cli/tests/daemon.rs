@@ -1145,6 +1145,44 @@ fn a_log_nobody_reads_holds_up_no_answer() {
     }
 }
 
+/// Always runs: a source takes at most `MAX_POSE_PUBLISHERS` clients at once (iceoryx2 fixes its
+/// pose service's publishers when it is made); the next is refused with a message that says so
+/// and what to do (it was iceoryx2's `ExceedsMaxSupportedPublishers`), and once one of them
+/// closes, a new client is served. `max_sessions` above that limit counts sessions whose clients
+/// have left.
+#[test]
+fn a_source_with_all_its_clients_says_so_to_the_next() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("full");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 10);
+    let mut clients: Vec<Connection> = (0..lanealign_wire::service::MAX_POSE_PUBLISHERS)
+        .map(|_| served(&setup, &name, &odometry[0]))
+        .collect();
+    let refused =
+        Connection::connect_in(&namespace(&setup), &name.parse().unwrap(), new_session_id())
+            .err()
+            .map(|e| lanealign_core::report::error_chain(&e))
+            .expect("the source is full");
+    assert!(
+        refused.contains(&format!(
+            "source '{name}' has {} clients connected, the most one source takes",
+            lanealign_wire::service::MAX_POSE_PUBLISHERS
+        )),
+        "{refused}"
+    );
+    let closed = clients
+        .pop()
+        .unwrap()
+        .close(Duration::from_secs(1))
+        .unwrap();
+    assert!(closed.daemon_told && closed.unanswered.is_empty());
+    clients.push(served(&setup, &name, &odometry[0]));
+    drop(clients);
+    assert!(daemon.stop().unwrap());
+}
+
 /// Always runs: a client publishing far faster than the daemon corrects (a million poses a
 /// second asked for) is held back by the connection, not dropped: every pose answered once,
 /// equal to offline correction.

@@ -332,6 +332,12 @@ pub enum ServiceOpenError {
 /// A port could not be created on a source's service.
 #[derive(Debug, thiserror::Error)]
 pub enum PortCreateError {
+    /// The source has as many clients as its pose service takes.
+    #[error("source '{source_name}' has {MAX_POSE_PUBLISHERS} clients connected, the most one source takes: close one (the daemon frees a killed client's place within a second)")]
+    SourceFull {
+        /// The source.
+        source_name: SourceName,
+    },
     /// A publisher.
     #[error("creating a publisher on '{service}' failed")]
     Publisher {
@@ -553,9 +559,16 @@ impl PoseServices {
             .publisher_builder()
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
-            .map_err(|source| PortCreateError::Publisher {
-                service: self.source.odom_service(),
-                source,
+            .map_err(|source| match source {
+                PublisherCreateError::ExceedsMaxSupportedPublishers => {
+                    PortCreateError::SourceFull {
+                        source_name: self.source.clone(),
+                    }
+                }
+                source => PortCreateError::Publisher {
+                    service: self.source.odom_service(),
+                    source,
+                },
             })
     }
 
