@@ -1025,14 +1025,7 @@ fn a_stop_request_followed_by_sigcont_stops_the_daemon() {
     let (_, odometry) = synthetic::drive(1, 8);
     for request in [Signal::TERM, Signal::INT] {
         let log = setup.dir.path().join("sigcont.log");
-        let mut daemon = KillOnDrop(
-            Command::new(daemon_binary().unwrap())
-                .arg("--config")
-                .arg(&setup.config)
-                .stderr(std::fs::File::create(&log).unwrap())
-                .spawn()
-                .unwrap(),
-        );
+        let mut daemon = daemon_logging_to(&setup, std::fs::File::create(&log).unwrap());
         let client = served(&setup, &name, &odometry[0]);
         let caught = caught_signals(daemon.0.id());
         for (number, what) in [
@@ -1116,14 +1109,7 @@ fn a_log_nobody_reads_holds_up_no_answer() {
     let room = rustix::pipe::fcntl_setpipe_size(&writer, 4096).unwrap();
     let mut writer = std::fs::File::from(writer);
     writer.write_all(&vec![b'#'; room]).unwrap();
-    let mut daemon = KillOnDrop(
-        Command::new(daemon_binary().unwrap())
-            .arg("--config")
-            .arg(&setup.config)
-            .stderr(writer)
-            .spawn()
-            .unwrap(),
-    );
+    let mut daemon = daemon_logging_to(&setup, writer);
     let (_, odometry) = synthetic::drive(1, 9);
     let got = run_replay(&setup, &name, &odometry, Rate::Hz(1000.0));
     assert!(got == offline(&setup, &name, &odometry));
@@ -1581,6 +1567,18 @@ fn a_daemon_out_of_file_descriptors_says_so_once_and_recovers() {
     answer_of(&mut before, &odometry[answered]);
     drop((before, after));
     assert!(daemon.stop().unwrap());
+}
+
+/// `lanealignd` on `setup`'s configuration, its log (stderr) into `log`; killed when dropped.
+fn daemon_logging_to(setup: &Setup, log: impl Into<Stdio>) -> KillOnDrop {
+    KillOnDrop(
+        Command::new(daemon_binary().unwrap())
+            .arg("--config")
+            .arg(&setup.config)
+            .stderr(log)
+            .spawn()
+            .unwrap(),
+    )
 }
 
 /// A child process killed when dropped: a failed assertion leaves no daemon running.
