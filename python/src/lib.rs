@@ -2,7 +2,7 @@
 //! defaults as `lanealign correct` and `lanealign eval`, so that results are equal bit for bit.
 
 use std::path::PathBuf;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use lanealign_cli::evaluation;
 use lanealign_cli::maps::MapSource;
@@ -420,16 +420,29 @@ impl Client {
 
     /// The next answer of this session, waiting up to `timeout_s` seconds: `None`, or a dict
     /// with `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom` (x, y, yaw)
-    /// and `covariance` (3, 3).
+    /// and `covariance` (3, 3). While it waits, other Python threads run, and a signal
+    /// (Ctrl-C) is acted on within 0.1 s.
     fn recv<'py>(
         &mut self,
         py: Python<'py>,
         timeout_s: f64,
     ) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let timeout = seconds("timeout_s", timeout_s)?;
-        match self.open()?.recv(timeout).map_err(error)? {
-            Some(answer) => Ok(Some(answer_dict(py, &answer)?)),
-            None => Ok(None),
+        let deadline = Instant::now() + seconds("timeout_s", timeout_s)?;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let slice = left.min(SIGNAL_CHECK_PERIOD);
+            let connection = OnThisThread(self.open()?);
+            let got = py
+                .detach(move || OnThisThread(connection.into_inner().recv(slice)))
+                .0
+                .map_err(error)?;
+            if let Some(answer) = got {
+                return Ok(Some(answer_dict(py, &answer)?));
+            }
+            if slice == left {
+                return Ok(None);
+            }
+            py.check_signals()?;
         }
     }
 
@@ -441,8 +454,9 @@ impl Client {
     #[pyo3(signature = (timeout_s=1.0))]
     fn close<'py>(&mut self, py: Python<'py>, timeout_s: f64) -> PyResult<Bound<'py, PyDict>> {
         let timeout = seconds("timeout_s", timeout_s)?;
-        let connection = self.connection.take().ok_or_else(closed_error)?;
-        match connection.close(timeout) {
+        let connection = OnThisThread(self.connection.take().ok_or_else(closed_error)?);
+        let closed = py.detach(move || OnThisThread(connection.into_inner().close(timeout)));
+        match closed.0 {
             Ok(closed) => closed_dict(py, &closed),
             Err(e) => {
                 let items = closed_dict(py, e.closed())?;
@@ -476,6 +490,26 @@ fn closed_dict<'py>(py: Python<'py>, closed: &Closed) -> PyResult<Bound<'py, PyD
     d.set_item("unanswered", closed.unanswered.clone())?;
     d.set_item("daemon_told", closed.daemon_told)?;
     Ok(d)
+}
+
+/// How long a wait of `Client.recv` runs without the GIL before it looks for signals.
+const SIGNAL_CHECK_PERIOD: Duration = Duration::from_millis(100);
+
+/// A value used on the thread that made it while that thread runs without the GIL (inside
+/// `Python::detach`), which asks for `Send`: iceoryx2's ports are not `Send`, and need not be.
+struct OnThisThread<T>(T);
+
+// SAFETY: `Python::detach` runs its closure on the calling thread, so an `OnThisThread` made
+// before it and taken apart inside it never reaches another thread; `Client` is `unsendable`, so
+// no other thread reaches the connection either. `Send` is asked for only because the closure
+// must not hold Python objects, and a connection holds none.
+unsafe impl<T> Send for OnThisThread<T> {}
+
+impl<T> OnThisThread<T> {
+    /// The value (a method, so that a closure takes the whole wrapper, not its field).
+    fn into_inner(self) -> T {
+        self.0
+    }
 }
 
 fn closed_error() -> PyErr {

@@ -12,6 +12,7 @@ import resource
 import shutil
 import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -336,3 +337,41 @@ def test_a_close_that_fails_keeps_the_answers_it_received(tmp_path):
         assert failed.answers[-1]["pose"].shape == (3, 4)
         with pytest.raises(ValueError, match="closed"):
             client.recv(0.0)
+
+
+def test_a_waiting_recv_lets_other_threads_run_and_ctrl_c_in():
+    """`Client.recv` waits without the GIL: another Python thread runs as much meanwhile as
+    while the caller sleeps (it got 0.6 % when recv held the GIL), and Ctrl-C (SIGINT) stops a
+    10 s wait within a fraction of a second (it came after the 10 s). No daemon needed: with
+    nothing in flight, recv waits out its timeout."""
+    namespace = f"pw-{os.getpid()}"
+    client = lanealign.Client("lidar", namespace=namespace)
+    try:
+        turns, stop = [0], [False]
+
+        def spin():
+            while not stop[0]:
+                turns[0] += 1
+
+        spinner = threading.Thread(target=spin)
+        spinner.start()
+        try:
+            start = turns[0]
+            assert client.recv(1.0) is None
+            during_recv = turns[0] - start
+            start = turns[0]
+            time.sleep(1.0)
+            during_sleep = turns[0] - start
+        finally:
+            stop[0] = True
+            spinner.join()
+        assert during_recv > 0.25 * during_sleep, (during_recv, during_sleep)
+        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+        started = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            client.recv(10.0)
+        assert time.monotonic() - started < 2.0
+        assert client.recv(0.0) is None, "the client is usable after the interruption"
+    finally:
+        client = None
+        remove_namespace_files(namespace)
