@@ -40,7 +40,8 @@ class CloseError(ValueError):
     daemon_told: bool
 
 class Client:
-    """A connection to one source of a running lanealignd: one session."""
+    """A connection to one source of a running lanealignd: one session. Used from the thread
+    that made it (another thread's call raises); ``recv`` and ``close`` wait without the GIL."""
 
     def __init__(self, source: str, *, namespace: str = ..., wait: str = ...) -> None: ...
     def daemon_connected(self) -> bool: ...

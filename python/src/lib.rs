@@ -341,6 +341,8 @@ fn synthetic_town<'py>(
 
 /// A connection to one source of a running `lanealignd`: one session, its poses out over
 /// iceoryx2 shared memory and its corrected poses back (see `lanealign_client::Connection`).
+/// Used from the thread that made it (iceoryx2's ports are not thread-safe): another thread's
+/// call raises. Its waits release the GIL.
 #[pyclass(unsendable)]
 struct Client {
     /// `None` once closed.
