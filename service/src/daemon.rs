@@ -479,6 +479,8 @@ fn reload_grid(
 
 /// Runs until SIGINT or SIGTERM: returns each source's summary. Fails, stopping every worker,
 /// if another daemon serves the namespace or any source's worker cannot start.
+/// `dropped_log_lines` counts the log records dropped so far (a log nobody reads); the daemon
+/// says when it grows.
 pub fn run(
     prepared: Prepared,
     dropped_log_lines: impl Fn() -> u64,

@@ -446,9 +446,9 @@ pub struct NodeListError {
 
 impl Namespace {
     /// A new node in this namespace, named `name`. It handles no signal: iceoryx2's handlers
-    /// would replace a client process's own (its Ctrl-C), and they keep one "last signal" for
-    /// all, so that a SIGCONT after a SIGTERM (systemd's stop) erased the request. The daemon
-    /// handles SIGINT and SIGTERM itself.
+    /// (installed by a node's first wait) would replace the process's own for a dozen signals,
+    /// and they keep one "last signal" for all, so that a SIGCONT after a SIGTERM (systemd's
+    /// stop) erased the request. The daemon handles SIGINT and SIGTERM itself.
     pub fn named_node(&self, name: &str) -> Result<Node<ipc::Service>, NodeCreateError> {
         let error = |source| NodeCreateError {
             namespace: self.0.clone(),
