@@ -238,8 +238,9 @@ anchor = {{ lat = {lat}, lon = {lon}, yaw_deg = {yaw}, east_m = {east}, north_m 
 [source.corrector]
 preset = "kiss-icp"
 """)
+    log = open(tmp_path / "daemon.log", "w")
     daemon = subprocess.Popen([str(BIN.with_name("lanealignd")), "--config", str(tmp_path / "d.toml")],
-                              stderr=subprocess.PIPE, text=True)
+                              stderr=log)
     client = None
     try:
         client = lanealign.Client("lidar", namespace=namespace)
@@ -252,6 +253,7 @@ preset = "kiss-icp"
         daemon.send_signal(signal.SIGCONT)
         daemon.terminate()
         daemon.wait(20)
+        log.close()
         client = None  # its iceoryx2 node goes before the namespace's files
         remove_namespace_files(namespace)
 
@@ -366,11 +368,17 @@ def test_a_waiting_recv_lets_other_threads_run_and_ctrl_c_in():
             stop[0] = True
             spinner.join()
         assert during_recv > 0.25 * during_sleep, (during_recv, during_sleep)
-        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
-        started = time.monotonic()
-        with pytest.raises(KeyboardInterrupt):
-            client.recv(10.0)
-        assert time.monotonic() - started < 2.0
+        # Python's own Ctrl-C handler, whatever this process inherited (a background job of a
+        # shell starts with SIGINT ignored, and Python then installs none).
+        inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+        try:
+            threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+            started = time.monotonic()
+            with pytest.raises(KeyboardInterrupt):
+                client.recv(10.0)
+            assert time.monotonic() - started < 2.0
+        finally:
+            signal.signal(signal.SIGINT, inherited)
         assert client.recv(0.0) is None, "the client is usable after the interruption"
     finally:
         client = None
