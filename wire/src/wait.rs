@@ -49,13 +49,14 @@ pub enum WaitError {
     /// The spin budget is out of range.
     #[error("spin_us = {0}: must be 1 to {MAX_SPIN_US}")]
     SpinBudget(u64),
-    /// The core does not exist on this machine.
-    #[error("core {core}: this machine has cores 0 to {}", available - 1)]
+    /// No thread of this process may run on the core (it does not exist, or a cpuset keeps
+    /// this process off it).
+    #[error("core {core}: the kernel lets no thread of this process run there (it runs on cores {running_on} now)")]
     NoSuchCore {
         /// The core asked for.
         core: usize,
-        /// Cores this process may run on.
-        available: usize,
+        /// The cores the asking thread runs on, as ranges (`0-3,6`).
+        running_on: String,
     },
     /// The kernel refused to pin the thread.
     #[error("pinning the thread to core {core}")]
@@ -89,6 +90,41 @@ impl std::str::FromStr for WaitStrategy {
     }
 }
 
+/// Pins the calling thread to `core`.
+fn pin_to(core: usize) -> rustix::io::Result<()> {
+    if core >= rustix::thread::CpuSet::MAX_CPU {
+        return Err(rustix::io::Errno::INVAL);
+    }
+    let mut set = rustix::thread::CpuSet::new();
+    set.set(core);
+    rustix::thread::sched_setaffinity(None, &set)
+}
+
+/// The cores the calling thread may run on now, as ranges: `0-3,6`.
+fn running_on() -> String {
+    let Ok(set) = rustix::thread::sched_getaffinity(None) else {
+        return "(unknown)".into();
+    };
+    let cores: Vec<usize> = (0..rustix::thread::CpuSet::MAX_CPU)
+        .filter(|&c| set.is_set(c))
+        .collect();
+    let mut ranges: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < cores.len() {
+        let start = cores[i];
+        while i + 1 < cores.len() && cores[i + 1] == cores[i] + 1 {
+            i += 1;
+        }
+        ranges.push(if cores[i] == start {
+            start.to_string()
+        } else {
+            format!("{start}-{}", cores[i])
+        });
+        i += 1;
+    }
+    ranges.join(",")
+}
+
 impl std::fmt::Display for WaitStrategy {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
@@ -101,18 +137,22 @@ impl std::fmt::Display for WaitStrategy {
 }
 
 impl WaitStrategy {
-    /// Checks the spin budget and that the core exists.
+    /// Checks the spin budget and that a thread can be pinned to the core. The kernel decides,
+    /// on a thread made for the try: the cores a process runs on are not the ones it may be
+    /// pinned to (`isolcpus` keeps an isolated core out of every process's mask, and that core
+    /// is the one to give a spinning worker; `taskset` and `CPUAffinity=` narrow the mask too).
     pub fn validate(&self) -> Result<(), WaitError> {
         match *self {
             WaitStrategy::SpinThenBlock { spin_us } if !(1..=MAX_SPIN_US).contains(&spin_us) => {
                 Err(WaitError::SpinBudget(spin_us))
             }
             WaitStrategy::BusySpin { core: Some(core) } => {
-                let available = std::thread::available_parallelism().map_or(1, |n| n.get());
-                if core < available {
-                    Ok(())
-                } else {
-                    Err(WaitError::NoSuchCore { core, available })
+                match std::thread::spawn(move || pin_to(core)).join() {
+                    Ok(Ok(())) => Ok(()),
+                    _ => Err(WaitError::NoSuchCore {
+                        core,
+                        running_on: running_on(),
+                    }),
                 }
             }
             _ => Ok(()),
@@ -124,10 +164,7 @@ impl WaitStrategy {
         let WaitStrategy::BusySpin { core: Some(core) } = *self else {
             return Ok(());
         };
-        self.validate()?;
-        let mut set = rustix::thread::CpuSet::new();
-        set.set(core);
-        rustix::thread::sched_setaffinity(None, &set).map_err(|e| WaitError::Pin {
+        pin_to(core).map_err(|e| WaitError::Pin {
             core,
             source: e.into(),
         })
@@ -185,6 +222,49 @@ impl WaitStrategy {
 mod tests {
     use super::*;
 
+    /// A thread that runs on one core (as under `taskset`, `CPUAffinity=` or `isolcpus`) may
+    /// still name another core of the machine for a spinning worker, and the message for one it
+    /// may not names the cores it runs on. (Counting the cores it runs on refused core 1 from a
+    /// thread on core 0 alone: "this machine has cores 0 to 0".)
+    #[test]
+    fn a_core_outside_the_callers_mask_is_the_kernels_to_refuse() {
+        let Ok(mine) = rustix::thread::sched_getaffinity(None) else {
+            panic!("sched_getaffinity failed");
+        };
+        let cores: Vec<usize> = (0..rustix::thread::CpuSet::MAX_CPU)
+            .filter(|&c| mine.is_set(c))
+            .collect();
+        if cores.len() < 2 {
+            eprintln!(
+                "SKIPPED a_core_outside_the_callers_mask_is_the_kernels_to_refuse: needs two cores"
+            );
+            return;
+        }
+        let (kept, other) = (cores[0], cores[cores.len() - 1]);
+        std::thread::spawn(move || {
+            pin_to(kept).unwrap();
+            assert_eq!(running_on(), kept.to_string());
+            let spin = WaitStrategy::BusySpin { core: Some(other) };
+            assert!(
+                spin.validate().is_ok(),
+                "core {other} from a thread on core {kept}"
+            );
+            assert_eq!(
+                running_on(),
+                kept.to_string(),
+                "the check pins another thread"
+            );
+            let far = WaitStrategy::BusySpin { core: Some(4000) };
+            let refused = far.validate().unwrap_err().to_string();
+            assert!(
+                refused.contains(&format!("runs on cores {kept} now")),
+                "{refused}"
+            );
+        })
+        .join()
+        .unwrap();
+    }
+
     #[test]
     fn parses_prints_and_checks_every_form() {
         for text in ["event", "busy-spin", "busy-spin:0", "spin-then-block:50"] {
@@ -198,6 +278,10 @@ mod tests {
         assert!(matches!(
             "busy-spin:100000".parse::<WaitStrategy>(),
             Err(WaitError::NoSuchCore { core: 100000, .. })
+        ));
+        assert!(matches!(
+            "busy-spin:1024".parse::<WaitStrategy>(),
+            Err(WaitError::NoSuchCore { core: 1024, .. })
         ));
         assert!(matches!(
             "spin".parse::<WaitStrategy>(),
