@@ -52,7 +52,7 @@ pub enum WaitError {
     /// No thread of this process may run on the core (it does not exist, or a cpuset keeps
     /// this process off it).
     #[error("core {core}: the kernel lets no thread of this process run there (it runs on cores {running_on} now)")]
-    NoSuchCore {
+    CoreNotAllowed {
         /// The core asked for.
         core: usize,
         /// The cores the asking thread runs on, as ranges (`0-3,6`).
@@ -149,7 +149,7 @@ impl WaitStrategy {
             WaitStrategy::BusySpin { core: Some(core) } => {
                 match std::thread::spawn(move || pin_to(core)).join() {
                     Ok(Ok(())) => Ok(()),
-                    _ => Err(WaitError::NoSuchCore {
+                    _ => Err(WaitError::CoreNotAllowed {
                         core,
                         running_on: running_on(),
                     }),
@@ -277,11 +277,11 @@ mod tests {
         ));
         assert!(matches!(
             "busy-spin:100000".parse::<WaitStrategy>(),
-            Err(WaitError::NoSuchCore { core: 100000, .. })
+            Err(WaitError::CoreNotAllowed { core: 100000, .. })
         ));
         assert!(matches!(
             "busy-spin:1024".parse::<WaitStrategy>(),
-            Err(WaitError::NoSuchCore { core: 1024, .. })
+            Err(WaitError::CoreNotAllowed { core: 1024, .. })
         ));
         assert!(matches!(
             "spin".parse::<WaitStrategy>(),
