@@ -1028,15 +1028,10 @@ fn a_stop_request_followed_by_sigcont_stops_the_daemon() {
         let mut daemon = daemon_logging_to(&setup, std::fs::File::create(&log).unwrap());
         let client = served(&setup, &name, &odometry[0]);
         let caught = caught_signals(daemon.0.id());
-        for (number, what) in [
-            (18, "SIGCONT"),
-            (20, "SIGTSTP"),
-            (3, "SIGQUIT"),
-            (10, "SIGUSR1"),
-        ] {
+        for swallowed in [Signal::CONT, Signal::TSTP, Signal::QUIT, Signal::USR1] {
             assert!(
-                !caught.contains(&number),
-                "the daemon catches {what}: {caught:?}"
+                !caught.contains(&(swallowed.as_raw() as u32)),
+                "the daemon catches {swallowed:?}: {caught:?}"
             );
         }
         let worker = thread_named(daemon.0.id(), "worker-");
@@ -1320,12 +1315,7 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
     let setup = town_setup(&[&name]);
     let log = setup.dir.path().join("daemon.log");
     let mut daemon = KillOnDrop(
-        Command::new("unshare")
-            .args(["--mount", "--propagation", "private", "sh", "-c"])
-            .arg("mount -t tmpfs -o size=8m tmpfs /dev/shm && exec \"$0\" \"$@\"")
-            .arg(daemon_binary().unwrap())
-            .arg("--config")
-            .arg(&setup.config)
+        in_small_shm(&mut Command::new("unshare"), "8m", &setup)
             .stdout(Stdio::null())
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
@@ -1452,24 +1442,13 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
     assert!(status.success(), "{status:?}: {}", daemon_log());
 
     for size in ["16k", "24k", "32k", "48k"] {
-        let out = Command::new("timeout")
-            .args([
-                "20",
-                "unshare",
-                "--mount",
-                "--propagation",
-                "private",
-                "sh",
-                "-c",
-            ])
-            .arg(format!(
-                "mount -t tmpfs -o size={size} tmpfs /dev/shm && exec \"$0\" \"$@\""
-            ))
-            .arg(daemon_binary().unwrap())
-            .arg("--config")
-            .arg(&setup.config)
-            .output()
-            .unwrap();
+        let out = in_small_shm(
+            Command::new("timeout").args(["20", "unshare"]),
+            size,
+            &setup,
+        )
+        .output()
+        .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{size}: {out:?}");
         assert!(
@@ -1477,6 +1456,19 @@ fn a_full_shared_memory_is_an_error_not_a_crash() {
             "{size}: {stderr}"
         );
     }
+}
+
+/// `command` (`unshare`, or a wrapper of it) completed to run `lanealignd` on `setup`'s
+/// configuration in a mount namespace of its own whose `/dev/shm` is a tmpfs of `size` (`8m`).
+fn in_small_shm<'c>(command: &'c mut Command, size: &str, setup: &Setup) -> &'c mut Command {
+    command
+        .args(["--mount", "--propagation", "private", "sh", "-c"])
+        .arg(format!(
+            "mount -t tmpfs -o size={size} tmpfs /dev/shm && exec \"$0\" \"$@\""
+        ))
+        .arg(daemon_binary().unwrap())
+        .arg("--config")
+        .arg(&setup.config)
 }
 
 /// Always runs: a session's files stay within what the client and the daemon check for before

@@ -33,7 +33,12 @@ use pyo3::types::{PyDict, PyString};
 
 /// An error as Python sees it: the message and its causes, as the command line prints them.
 fn error(e: impl Into<anyhow::Error>) -> PyErr {
-    PyValueError::new_err(format!("{:#}", e.into()))
+    PyValueError::new_err(message(e))
+}
+
+/// An error's message and its causes on one line, as the command line prints them.
+fn message(e: impl Into<anyhow::Error>) -> String {
+    format!("{:#}", e.into())
 }
 
 /// The status names, indexed by the codes `correct` returns.
@@ -436,7 +441,7 @@ impl Client {
             let connection = OnThisThread(self.open()?);
             let got = py
                 .detach(move || OnThisThread(connection.into_inner().recv(slice)))
-                .0
+                .into_inner()
                 .map_err(error)?;
             if let Some(answer) = got {
                 return Ok(Some(answer_dict(py, &answer)?));
@@ -458,11 +463,11 @@ impl Client {
         let timeout = seconds("timeout_s", timeout_s)?;
         let connection = OnThisThread(self.connection.take().ok_or_else(closed_error)?);
         let closed = py.detach(move || OnThisThread(connection.into_inner().close(timeout)));
-        match closed.0 {
+        match closed.into_inner() {
             Ok(closed) => closed_dict(py, &closed),
             Err(e) => {
                 let items = closed_dict(py, e.closed())?;
-                let raised = CloseError::new_err(format!("{:#}", anyhow::Error::from(e)));
+                let raised = CloseError::new_err(message(e));
                 for (name, value) in items.iter() {
                     raised.value(py).setattr(name.cast::<PyString>()?, value)?;
                 }

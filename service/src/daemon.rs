@@ -216,13 +216,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
 /// that exists must be one this process may write in (not a file, not on a read-only file
 /// system).
 fn check_state_dir(dir: &Path) -> Result<(), DaemonError> {
-    let mut existing = dir;
-    while !existing.exists() {
-        match existing.parent() {
-            Some(parent) => existing = parent,
-            None => break,
-        }
-    }
+    let existing = dir.ancestors().find(|p| p.exists()).unwrap_or(dir);
     let error = |source: std::io::Error| DaemonError::State {
         path: existing.to_path_buf(),
         source,

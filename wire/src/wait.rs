@@ -100,29 +100,31 @@ fn pin_to(core: usize) -> rustix::io::Result<()> {
     rustix::thread::sched_setaffinity(None, &set)
 }
 
+/// The cores in `set`, in order.
+fn cores_in(set: &rustix::thread::CpuSet) -> impl Iterator<Item = usize> + '_ {
+    (0..rustix::thread::CpuSet::MAX_CPU).filter(|&c| set.is_set(c))
+}
+
 /// The cores the calling thread may run on now, as ranges: `0-3,6`.
 fn running_on() -> String {
     let Ok(set) = rustix::thread::sched_getaffinity(None) else {
         return "(unknown)".into();
     };
-    let cores: Vec<usize> = (0..rustix::thread::CpuSet::MAX_CPU)
-        .filter(|&c| set.is_set(c))
-        .collect();
-    let mut ranges: Vec<String> = Vec::new();
-    let mut i = 0;
-    while i < cores.len() {
-        let start = cores[i];
-        while i + 1 < cores.len() && cores[i + 1] == cores[i] + 1 {
-            i += 1;
+    let mut ranges: Vec<(usize, usize)> = Vec::new();
+    for core in cores_in(&set) {
+        match ranges.last_mut() {
+            Some((_, last)) if *last + 1 == core => *last = core,
+            _ => ranges.push((core, core)),
         }
-        ranges.push(if cores[i] == start {
-            start.to_string()
-        } else {
-            format!("{start}-{}", cores[i])
-        });
-        i += 1;
     }
-    ranges.join(",")
+    let text: Vec<String> = ranges
+        .iter()
+        .map(|&(first, last)| match first == last {
+            true => first.to_string(),
+            false => format!("{first}-{last}"),
+        })
+        .collect();
+    text.join(",")
 }
 
 impl std::fmt::Display for WaitStrategy {
@@ -231,9 +233,7 @@ mod tests {
         let Ok(mine) = rustix::thread::sched_getaffinity(None) else {
             panic!("sched_getaffinity failed");
         };
-        let cores: Vec<usize> = (0..rustix::thread::CpuSet::MAX_CPU)
-            .filter(|&c| mine.is_set(c))
-            .collect();
+        let cores: Vec<usize> = cores_in(&mine).collect();
         if cores.len() < 2 {
             eprintln!(
                 "SKIPPED a_core_outside_the_callers_mask_is_the_kernels_to_refuse: needs two cores"
