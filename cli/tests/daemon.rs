@@ -4,7 +4,8 @@
 //! namespace, a source that cannot start stops the daemon, SIGHUP reloads the tile for new
 //! sessions (and refuses a bad one), nothing is left in shared memory, neither a cleaner of
 //! `/tmp` nor a private `/tmp` cuts a client off, a stop request survives the SIGCONT after it,
-//! a log nobody reads holds up no answer. Every test's namespace is as long as a
+//! a log nobody reads holds up no answer, one connection serves a publishing thread and a
+//! receiving one. Every test's namespace is as long as a
 //! namespace may be. On the synthetic town always; on real KITTI data where `../shared/data` is
 //! present.
 
@@ -209,6 +210,68 @@ fn answers_that_flow_need_no_looking_for_the_daemon() {
 /// Always runs: workers and clients that poll (busy-spin, and spin-then-block with pauses
 /// longer than its budget, so that it blocks too) answer every pose once, equal to offline
 /// correction bit for bit.
+/// Always runs: one connection, made on this thread and shared behind a lock by two others:
+/// one publishes a synthetic-town drive, a pose every 2 ms, the other takes answers under the
+/// lock and waits for them outside it ([`Connection::waiter`]). Every pose is answered once,
+/// equal to offline correction bit for bit, and no publish waits for the receiver's waits (a
+/// receiver waiting under the lock would hold it up to 100 ms while nothing is in flight).
+#[test]
+fn one_connection_publishes_on_one_thread_and_receives_on_another() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("threads");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(2, 42);
+    let poses = &odometry[..600];
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    let shared = Mutex::new(conn);
+    let (answers, longest_lock_wait) = std::thread::scope(|s| {
+        let publisher = s.spawn(|| {
+            let mut longest = Duration::ZERO;
+            for (k, pose) in poses.iter().enumerate() {
+                let asked = Instant::now();
+                let mut conn = shared.lock().unwrap();
+                longest = longest.max(asked.elapsed());
+                conn.publish(k as i64, &pose.to_row_major()).unwrap();
+                drop(conn);
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            longest
+        });
+        let receiver = s.spawn(|| {
+            let mut answers = Vec::new();
+            let until = Instant::now() + Duration::from_secs(30);
+            while answers.len() < poses.len() && Instant::now() < until {
+                let (answer, waiter) = {
+                    let mut conn = shared.lock().unwrap();
+                    (conn.poll().unwrap(), conn.waiter())
+                };
+                match answer {
+                    Some(answer) => answers.push(answer),
+                    None => waiter.wait(Duration::from_millis(100)).unwrap(),
+                }
+            }
+            answers
+        });
+        (receiver.join().unwrap(), publisher.join().unwrap())
+    });
+    let seqs: Vec<u64> = answers.iter().map(|a| a.seq).collect();
+    assert_eq!(seqs, (1..=poses.len() as u64).collect::<Vec<_>>());
+    assert!(poses_of(&answers) == offline(&setup, &name, poses));
+    assert!(
+        longest_lock_wait < Duration::from_millis(50),
+        "a publish waited {longest_lock_wait:?} for the lock"
+    );
+    let closed = shared
+        .into_inner()
+        .unwrap()
+        .close(Duration::from_secs(5))
+        .unwrap();
+    assert!(closed.daemon_told && closed.unanswered.is_empty());
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 #[test]
 fn spinning_workers_and_clients_answer_every_pose_as_offline() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -1592,7 +1655,11 @@ fn nothing_is_left_in_shared_memory() {
     let setup = town_setup(&[&name]);
     // iceoryx2 keeps per-namespace management state (created by the namespace's first node,
     // kept by design): create it before looking, so only what the processes leave counts.
-    drop(namespace(&setup).node().unwrap());
+    drop(
+        namespace(&setup)
+            .node::<lanealign_wire::service::Ipc>()
+            .unwrap(),
+    );
     let before = shm_entries();
     {
         let daemon = start(&setup);

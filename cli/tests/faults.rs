@@ -105,7 +105,7 @@ fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], se
     let until = Instant::now() + Duration::from_secs(5);
     let dead = || {
         let mut dead = 0;
-        iceoryx2::node::Node::<iceoryx2::prelude::ipc::Service>::list(&config, |state| {
+        iceoryx2::node::Node::<lanealign_wire::service::Ipc>::list(&config, |state| {
             dead += matches!(state, iceoryx2::node::NodeState::Dead(_)) as usize;
             iceoryx2::prelude::CallbackProgression::Continue
         })

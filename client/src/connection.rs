@@ -13,6 +13,7 @@
 use std::collections::hash_map::RandomState;
 use std::collections::BTreeMap;
 use std::hash::{BuildHasher, Hasher};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::node::Node;
@@ -21,14 +22,14 @@ use iceoryx2::port::notifier::{Notifier, NotifierNotifyError};
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{ReceiveError as PortReceiveError, SendError};
-use iceoryx2::prelude::ipc;
+
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{
     CorrectedPose, OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START, MAX_IN_FLIGHT,
 };
 use lanealign_wire::service::{
     NameError, Namespace, NodeCreateError, NodeListError, PortCreateError, PoseServices,
-    ServiceOpenError, SessionServices, SourceName,
+    ServiceOpenError, SessionServices, SourceName, ThreadSafeIpc,
 };
 use lanealign_wire::shm::{self, ShmError};
 use lanealign_wire::wait::WaitStrategy;
@@ -220,8 +221,9 @@ impl Rewind {
 }
 
 /// An odometry process's connection to one source of the daemon, in one session: the daemon
-/// runs a fresh corrector for a new session, and only this session's answers come here. Not
-/// `Send`: create it on the thread that uses it (iceoryx2 ports are bound to their thread).
+/// runs a fresh corrector for a new session, and only this session's answers come here. It may
+/// move to another thread, and be shared behind a lock; one thread may wait for answers while
+/// another publishes ([`Connection::waiter`]).
 pub struct Connection {
     namespace: Namespace,
     session: u64,
@@ -248,15 +250,67 @@ pub struct Connection {
     /// before the next wait.
     look_again: bool,
     events: ConnectionEvents,
-    // Ports first: they must be dropped before the services and the node that own them.
-    publisher: Publisher<ipc::Service, OdomPose, ()>,
-    notifier: Notifier<ipc::Service>,
-    subscriber: Subscriber<ipc::Service, CorrectedPose, ()>,
-    listener: Listener<ipc::Service>,
     wait: WaitStrategy,
-    poses: PoseServices,
-    answers: SessionServices,
-    _node: Node<ipc::Service>,
+    ports: Arc<Ports>,
+}
+
+/// A connection's iceoryx2 side, shared with its [`AnswerWaiter`]s: they may outlive it.
+struct Ports {
+    // Ports first: they must be dropped before the services and the node that own them.
+    publisher: Publisher<ThreadSafeIpc, OdomPose, ()>,
+    notifier: Notifier<ThreadSafeIpc>,
+    subscriber: Subscriber<ThreadSafeIpc, CorrectedPose, ()>,
+    listener: Listener<ThreadSafeIpc>,
+    poses: PoseServices<ThreadSafeIpc>,
+    answers: SessionServices<ThreadSafeIpc>,
+    _node: Node<ThreadSafeIpc>,
+}
+
+impl Ports {
+    /// Waits until an answer may be waiting, for at most `timeout`, as `wait` says.
+    fn wait(&self, wait: WaitStrategy, timeout: Duration) -> Result<(), ReceiveError> {
+        if timeout < MIN_WAIT {
+            return Ok(());
+        }
+        let (subscriber, listener) = (&self.subscriber, &self.listener);
+        if wait.spins() {
+            // Notifications the last spin did not sleep on: drop them while idle, before they
+            // pile up.
+            listener.try_wait(|_| {}).map_err(ReceiveError::Wait)?;
+        }
+        let mut failed = None;
+        wait.wait(
+            timeout,
+            || subscriber.has_samples().unwrap_or(true),
+            |left| {
+                // An interrupted sleep is a wake-up: a signal the process handles, or the
+                // process stopped and continued (SIGSTOP, SIGCONT: a debugger, Ctrl-Z).
+                failed = listener
+                    .timed_wait(|_| {}, left)
+                    .err()
+                    .filter(|e| !matches!(e, ListenerWaitError::InterruptSignal));
+            },
+        );
+        failed.map_or(Ok(()), |e| Err(ReceiveError::Wait(e)))
+    }
+}
+
+/// Waits for a connection's answers without holding the connection ([`Connection::waiter`]):
+/// one thread waits while others publish on the connection, which they share behind a lock
+/// taken only around [`Connection::poll`] and [`Connection::publish`]. It takes no answer;
+/// `poll` does. Cheap to clone; it keeps the connection's shared memory open until dropped.
+#[derive(Clone)]
+pub struct AnswerWaiter {
+    ports: Arc<Ports>,
+    wait: WaitStrategy,
+}
+
+impl AnswerWaiter {
+    /// Returns when an answer may be waiting (or a signal interrupted the wait), or after
+    /// `timeout`; waits as the connection's [`WaitStrategy`] said when the waiter was made.
+    pub fn wait(&self, timeout: Duration) -> Result<(), ReceiveError> {
+        self.ports.wait(self.wait, timeout)
+    }
 }
 
 impl Connection {
@@ -314,13 +368,15 @@ impl Connection {
                 ..ConnectionEvents::default()
             },
             wait: WaitStrategy::Event,
-            publisher,
-            notifier,
-            subscriber,
-            listener,
-            poses,
-            answers,
-            _node: node,
+            ports: Arc::new(Ports {
+                publisher,
+                notifier,
+                subscriber,
+                listener,
+                poses,
+                answers,
+                _node: node,
+            }),
         })
     }
 
@@ -348,13 +404,13 @@ impl Connection {
     /// answers). A daemon that serves the source but cannot open a session (no room in shared
     /// memory) says why in its log (`cannot answer a session`).
     pub fn session_opened(&self) -> bool {
-        self.answers.publishers() > 0
+        self.ports.answers.publishers() > 0
     }
 
     /// True when a living daemon serves this source.
     pub fn daemon_connected(&mut self) -> bool {
         let _ = self.check_daemon();
-        self.daemon.is_some() && self.poses.subscribers() > 0
+        self.daemon.is_some() && self.ports.poses.subscribers() > 0
     }
 
     /// Publishes the session's next pose (row-major 3x4 `[R | t]` in the source's axis
@@ -395,6 +451,7 @@ impl Connection {
                 0
             };
             let delivered = self
+                .ports
                 .publisher
                 .send_copy(OdomPose {
                     session: self.session,
@@ -420,7 +477,7 @@ impl Connection {
             woke = true;
         }
         if woke {
-            self.notifier.notify().map_err(PublishError::Notify)?;
+            self.ports.notifier.notify().map_err(PublishError::Notify)?;
         }
         Ok(())
     }
@@ -483,7 +540,12 @@ impl Connection {
     /// The next answer of this session if one is waiting.
     pub fn try_recv(&mut self) -> Result<Option<CorrectedPose>, ReceiveError> {
         loop {
-            let Some(sample) = self.subscriber.receive().map_err(ReceiveError::Receive)? else {
+            let Some(sample) = self
+                .ports
+                .subscriber
+                .receive()
+                .map_err(ReceiveError::Receive)?
+            else {
                 return Ok(None);
             };
             let answer = *sample;
@@ -538,37 +600,36 @@ impl Connection {
     pub fn recv(&mut self, timeout: Duration) -> Result<Option<CorrectedPose>, ReceiveError> {
         let deadline = Instant::now() + timeout;
         loop {
-            if let Some(answer) = self.try_recv()? {
+            if let Some(answer) = self.poll()? {
                 return Ok(Some(answer));
             }
-            self.check_daemon_if_due()?;
-            self.flush()?;
             let left = deadline.saturating_duration_since(Instant::now());
             if left < MIN_WAIT {
                 return self.try_recv();
             }
-            let (subscriber, listener) = (&self.subscriber, &self.listener);
-            if self.wait.spins() {
-                // Notifications the last spin did not sleep on: drop them while idle, before
-                // they pile up.
-                listener.try_wait(|_| {}).map_err(ReceiveError::Wait)?;
-            }
-            let mut failed = None;
-            self.wait.wait(
-                left.min(LIVENESS_PERIOD),
-                || subscriber.has_samples().unwrap_or(true),
-                |left| {
-                    // An interrupted sleep is a wake-up: a signal the process handles, or the
-                    // process stopped and continued (SIGSTOP, SIGCONT: a debugger, Ctrl-Z).
-                    failed = listener
-                        .timed_wait(|_| {}, left)
-                        .err()
-                        .filter(|e| !matches!(e, ListenerWaitError::InterruptSignal));
-                },
-            );
-            if let Some(e) = failed {
-                return Err(ReceiveError::Wait(e));
-            }
+            self.ports.wait(self.wait, left.min(LIVENESS_PERIOD))?;
+        }
+    }
+
+    /// What [`Connection::recv`] does between its waits: the next answer if one is waiting;
+    /// if none, checks the daemon's liveness when due and sends unanswered poses again to a
+    /// daemon that came back. A loop of `poll` and [`AnswerWaiter::wait`] (at most 100 ms a
+    /// wait, so that liveness is checked) is `recv` with the connection free between them.
+    pub fn poll(&mut self) -> Result<Option<CorrectedPose>, ReceiveError> {
+        if let Some(answer) = self.try_recv()? {
+            return Ok(Some(answer));
+        }
+        self.check_daemon_if_due()?;
+        self.flush()?;
+        Ok(None)
+    }
+
+    /// Waits for this connection's answers without borrowing it, as its [`WaitStrategy`] says
+    /// now: for a thread that waits while others publish.
+    pub fn waiter(&self) -> AnswerWaiter {
+        AnswerWaiter {
+            ports: Arc::clone(&self.ports),
+            wait: self.wait,
         }
     }
 
@@ -604,12 +665,12 @@ impl Connection {
             flags: FLAG_END_SESSION,
             reserved: 0,
         };
-        let taken = match self.publisher.send_copy(goodbye) {
+        let taken = match self.ports.publisher.send_copy(goodbye) {
             Ok(receivers) => receivers > 0,
             Err(source) => return Err(CloseError::Send { source, closed }),
         };
         if taken {
-            if let Err(source) = self.notifier.notify() {
+            if let Err(source) = self.ports.notifier.notify() {
                 return Err(CloseError::Notify { source, closed });
             }
         }

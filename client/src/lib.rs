@@ -20,5 +20,7 @@
 
 pub mod connection;
 
-pub use connection::{CloseError, Closed, ConnectError, Connection, PublishError, ReceiveError};
+pub use connection::{
+    AnswerWaiter, CloseError, Closed, ConnectError, Connection, PublishError, ReceiveError,
+};
 pub use lanealign_wire as wire;

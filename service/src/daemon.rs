@@ -21,7 +21,9 @@ use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::service::{Namespace, NodeCreateError, NodeListError, SourceName, DAEMON_NODE};
+use lanealign_wire::service::{
+    Ipc, Namespace, NodeCreateError, NodeListError, SourceName, DAEMON_NODE,
+};
 
 use crate::config::{Config, ConfigError, ResolvedSource};
 use crate::grid_loader::{load_trusted, GridLoader};
@@ -235,7 +237,7 @@ fn check_state_dir(dir: &Path) -> Result<(), DaemonError> {
 /// the nodes could not be listed (too few file descriptors, for one).
 pub fn remove_dead_nodes(namespace: &Namespace) -> Result<usize, NodeListFailure> {
     let mut removed = 0;
-    let listed = Node::<ipc::Service>::list(&namespace.config(), |state| {
+    let listed = Node::<Ipc>::list(&namespace.config(), |state| {
         if let NodeState::Dead(view) = state {
             let id = *view.id();
             match view.try_remove_stale_resources() {
@@ -321,7 +323,7 @@ impl ListingHealth {
 /// Sources of `namespace` that have a pose service but no configured worker.
 fn unknown_sources(namespace: &Namespace, known: &[SourceName]) -> BTreeSet<String> {
     let mut unknown = BTreeSet::new();
-    let _ = ipc::Service::list(&namespace.config(), |details| {
+    let _ = Ipc::list(&namespace.config(), |details| {
         let name = details.static_details.name().to_string();
         if let Some(source) = SourceName::of_odom_service(&name) {
             if !known.contains(&source) {
@@ -519,7 +521,7 @@ pub fn run(
         }
         listed => listing.record(listed),
     }
-    let node = namespace.named_node(DAEMON_NODE)?;
+    let node = namespace.named_node::<Ipc>(DAEMON_NODE)?;
     let hangup = Arc::new(AtomicBool::new(false));
     if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
         tracing::warn!(error = %error_line(&e), "SIGHUP cannot reload the tile");

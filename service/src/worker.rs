@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::node::Node;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
-use iceoryx2::prelude::ipc;
+
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::plausibility::{rate_warning, RateProbe};
@@ -22,8 +22,8 @@ use lanealign_wire::payload::{
     CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START,
 };
 use lanealign_wire::service::{
-    Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError, SessionServices,
-    DAEMON_NODE,
+    Ipc, Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError,
+    SessionServices, DAEMON_NODE,
 };
 use lanealign_wire::shm::{self, ShmError};
 
@@ -164,9 +164,9 @@ pub struct WorkerSetup {
 struct Live {
     session: Option<Session>,
     // Ports before the services they belong to.
-    publisher: Publisher<ipc::Service, CorrectedPose, ()>,
-    notifier: Notifier<ipc::Service>,
-    _services: SessionServices,
+    publisher: Publisher<Ipc, CorrectedPose, ()>,
+    notifier: Notifier<Ipc>,
+    _services: SessionServices<Ipc>,
     last_active: Instant,
     /// The session's first stamps, to warn once when the source is faster than its corrector
     /// is set for.
@@ -176,7 +176,7 @@ struct Live {
 struct Worker {
     name: String,
     setup: WorkerSetup,
-    node: Node<ipc::Service>,
+    node: Node<Ipc>,
     sessions: HashMap<u64, Live>,
     metrics: SourceMetrics,
     summary: WorkerSummary,

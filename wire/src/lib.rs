@@ -6,9 +6,9 @@
 //! `docs/wire.md`, which this crate's tests pin.
 //!
 //! ```no_run
-//! use lanealign_wire::service::{Namespace, PoseServices};
+//! use lanealign_wire::service::{Ipc, Namespace, PoseServices};
 //!
-//! let node = Namespace::default().node()?;
+//! let node = Namespace::default().node::<Ipc>()?;
 //! let services = PoseServices::open(&node, &"lidar".parse()?)?;
 //! let publisher = services.publisher()?;
 //! # Ok::<(), Box<dyn std::error::Error>>(())

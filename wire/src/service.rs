@@ -19,12 +19,13 @@ use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::{Subscriber, SubscriberCreateError};
 use iceoryx2::prelude::SignalHandlingMode;
 use iceoryx2::prelude::{
-    ipc, CallbackProgression, FileName, NodeName, Path as IoxPath, SemanticString, ServiceName,
+    CallbackProgression, FileName, NodeName, Path as IoxPath, SemanticString, ServiceName,
 };
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
 use iceoryx2::service::port_factory::{event, publish_subscribe, PortFactory as _};
 use iceoryx2::service::service_name::ServiceNameError;
+use iceoryx2::service::Service;
 
 use crate::payload::{CorrectedPose, OdomPose};
 
@@ -290,8 +291,8 @@ impl Namespace {
         config
     }
 
-    /// A new, unnamed node in this namespace.
-    pub fn node(&self) -> Result<Node<ipc::Service>, NodeCreateError> {
+    /// A new, unnamed node in this namespace, of service variant `S` ([`Ipc`], [`ThreadSafeIpc`]).
+    pub fn node<S: Service>(&self) -> Result<Node<S>, NodeCreateError> {
         self.named_node("")
     }
 }
@@ -376,10 +377,20 @@ pub enum PortCreateError {
     },
 }
 
-/// A publish-subscribe service of payload `T`.
-pub type PubSubService<T> = publish_subscribe::PortFactory<ipc::Service, T, ()>;
-/// An event service.
-pub type EventService = event::PortFactory<ipc::Service>;
+/// The daemon's iceoryx2 service variant: inter-process, each port used by the one thread that
+/// owns it (a worker owns its ports).
+pub type Ipc = iceoryx2::service::ipc::Service;
+/// The clients' variant: [`Ipc`] with ports that may move to and be shared by other threads,
+/// each behind a mutex of its own (about a microsecond more per round trip, measured). Its files
+/// and their layout are [`Ipc`]'s: either side may use either variant, and other languages'
+/// bindings offer both.
+pub type ThreadSafeIpc = iceoryx2::service::ipc_threadsafe::Service;
+
+/// A publish-subscribe service of payload `T`, on service variant `S` ([`Ipc`],
+/// [`ThreadSafeIpc`]).
+pub type PubSubService<S, T> = publish_subscribe::PortFactory<S, T, ()>;
+/// An event service on service variant `S`.
+pub type EventService<S> = event::PortFactory<S>;
 
 fn service_name(service: &str) -> Result<ServiceName, ServiceOpenError> {
     ServiceName::new(service).map_err(|source| ServiceOpenError::Name {
@@ -388,11 +399,11 @@ fn service_name(service: &str) -> Result<ServiceName, ServiceOpenError> {
     })
 }
 
-fn pubsub<T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
-    node: &Node<ipc::Service>,
+fn pubsub<S: Service, T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
+    node: &Node<S>,
     service: &str,
     (publishers, subscribers): (usize, usize),
-) -> Result<PubSubService<T>, ServiceOpenError> {
+) -> Result<PubSubService<S, T>, ServiceOpenError> {
     node.service_builder(&service_name(service)?)
         .publish_subscribe::<T>()
         .enable_safe_overflow(false)
@@ -407,7 +418,7 @@ fn pubsub<T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>(
         })
 }
 
-fn events(node: &Node<ipc::Service>, service: &str) -> Result<EventService, ServiceOpenError> {
+fn events<S: Service>(node: &Node<S>, service: &str) -> Result<EventService<S>, ServiceOpenError> {
     node.service_builder(&service_name(service)?)
         .event()
         .max_nodes(MAX_NODES)
@@ -449,7 +460,7 @@ impl Namespace {
     /// (installed by a node's first wait) would replace the process's own for a dozen signals,
     /// and they keep one "last signal" for all, so that a SIGCONT after a SIGTERM (systemd's
     /// stop) erased the request. The daemon handles SIGINT and SIGTERM itself.
-    pub fn named_node(&self, name: &str) -> Result<Node<ipc::Service>, NodeCreateError> {
+    pub fn named_node<S: Service>(&self, name: &str) -> Result<Node<S>, NodeCreateError> {
         let error = |source| NodeCreateError {
             namespace: self.0.clone(),
             hint: ownership_hint(self),
@@ -459,15 +470,15 @@ impl Namespace {
             .config(&self.config())
             .signal_handling_mode(SignalHandlingMode::Disabled);
         match NodeName::new(name) {
-            Ok(n) => builder.name(&n).create::<ipc::Service>().map_err(error),
-            Err(_) => builder.create::<ipc::Service>().map_err(error),
+            Ok(n) => builder.name(&n).create::<S>().map_err(error),
+            Err(_) => builder.create::<S>().map_err(error),
         }
     }
 
     /// The living daemons of this namespace (normally none or one).
     pub fn daemons(&self) -> Result<Vec<DaemonNode>, NodeListError> {
         let mut found = Vec::new();
-        Node::<ipc::Service>::list(&self.config(), |state| {
+        Node::<Ipc>::list(&self.config(), |state| {
             if let NodeState::Alive(view) = &state {
                 if let Some(details) = view.details() {
                     if details.name().as_str() == DAEMON_NODE {
@@ -525,16 +536,17 @@ fn user_name(uid: u32) -> Option<String> {
     })
 }
 
-/// Where a client publishes a source's poses and the daemon takes them.
-pub struct PoseServices {
+/// Where a client publishes a source's poses and the daemon takes them; ports of service
+/// variant `S`.
+pub struct PoseServices<S: Service> {
     source: SourceName,
-    odom: PubSubService<OdomPose>,
-    odom_events: EventService,
+    odom: PubSubService<S, OdomPose>,
+    odom_events: EventService<S>,
 }
 
-impl PoseServices {
+impl<S: Service> PoseServices<S> {
     /// Opens or creates `source`'s pose services on `node`.
-    pub fn open(node: &Node<ipc::Service>, source: &SourceName) -> Result<Self, ServiceOpenError> {
+    pub fn open(node: &Node<S>, source: &SourceName) -> Result<Self, ServiceOpenError> {
         let odom = source.odom_service();
         Ok(PoseServices {
             source: source.clone(),
@@ -554,7 +566,7 @@ impl PoseServices {
     }
 
     /// Client side: publishes poses.
-    pub fn publisher(&self) -> Result<Publisher<ipc::Service, OdomPose, ()>, PortCreateError> {
+    pub fn publisher(&self) -> Result<Publisher<S, OdomPose, ()>, PortCreateError> {
         self.odom
             .publisher_builder()
             .backpressure_strategy(BackpressureStrategy::DiscardData)
@@ -573,7 +585,7 @@ impl PoseServices {
     }
 
     /// Client side: wakes the daemon after a pose.
-    pub fn notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
+    pub fn notifier(&self) -> Result<Notifier<S>, PortCreateError> {
         self.odom_events
             .notifier_builder()
             .create()
@@ -584,7 +596,7 @@ impl PoseServices {
     }
 
     /// Daemon side: receives poses.
-    pub fn subscriber(&self) -> Result<Subscriber<ipc::Service, OdomPose, ()>, PortCreateError> {
+    pub fn subscriber(&self) -> Result<Subscriber<S, OdomPose, ()>, PortCreateError> {
         self.odom
             .subscriber_builder()
             .create()
@@ -595,7 +607,7 @@ impl PoseServices {
     }
 
     /// Daemon side: waits for poses.
-    pub fn listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
+    pub fn listener(&self) -> Result<Listener<S>, PortCreateError> {
         self.odom_events
             .listener_builder()
             .create()
@@ -606,17 +618,18 @@ impl PoseServices {
     }
 }
 
-/// Where the daemon answers one session of a source, and only that session's client listens.
-pub struct SessionServices {
+/// Where the daemon answers one session of a source, and only that session's client listens;
+/// ports of service variant `S`.
+pub struct SessionServices<S: Service> {
     service: String,
-    answers: PubSubService<CorrectedPose>,
-    answer_events: EventService,
+    answers: PubSubService<S, CorrectedPose>,
+    answer_events: EventService<S>,
 }
 
-impl SessionServices {
+impl<S: Service> SessionServices<S> {
     /// Opens or creates the answer services of `session` on `source`.
     pub fn open(
-        node: &Node<ipc::Service>,
+        node: &Node<S>,
         source: &SourceName,
         session: u64,
     ) -> Result<Self, ServiceOpenError> {
@@ -634,7 +647,7 @@ impl SessionServices {
     }
 
     /// Daemon side: publishes the session's answers.
-    pub fn publisher(&self) -> Result<Publisher<ipc::Service, CorrectedPose, ()>, PortCreateError> {
+    pub fn publisher(&self) -> Result<Publisher<S, CorrectedPose, ()>, PortCreateError> {
         self.answers
             .publisher_builder()
             .backpressure_strategy(BackpressureStrategy::DiscardData)
@@ -646,7 +659,7 @@ impl SessionServices {
     }
 
     /// Daemon side: wakes the client after an answer.
-    pub fn notifier(&self) -> Result<Notifier<ipc::Service>, PortCreateError> {
+    pub fn notifier(&self) -> Result<Notifier<S>, PortCreateError> {
         self.answer_events
             .notifier_builder()
             .create()
@@ -657,9 +670,7 @@ impl SessionServices {
     }
 
     /// Client side: receives the session's answers.
-    pub fn subscriber(
-        &self,
-    ) -> Result<Subscriber<ipc::Service, CorrectedPose, ()>, PortCreateError> {
+    pub fn subscriber(&self) -> Result<Subscriber<S, CorrectedPose, ()>, PortCreateError> {
         self.answers
             .subscriber_builder()
             .create()
@@ -670,7 +681,7 @@ impl SessionServices {
     }
 
     /// Client side: waits for answers.
-    pub fn listener(&self) -> Result<Listener<ipc::Service>, PortCreateError> {
+    pub fn listener(&self) -> Result<Listener<S>, PortCreateError> {
         self.answer_events
             .listener_builder()
             .create()

@@ -24,7 +24,7 @@ use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{CorrectedPose, OdomPose, FLAG_END_SESSION};
-use lanealign_wire::service::{Namespace, PoseServices, SessionServices, MAX_NAMESPACE_LEN};
+use lanealign_wire::service::{Ipc, Namespace, PoseServices, SessionServices, MAX_NAMESPACE_LEN};
 use lanealign_wire::wait::WaitStrategy;
 
 /// A tile, a config with the given sources (name, anchor), and what offline correction needs.
@@ -315,13 +315,12 @@ pub fn poses_of(answers: &[CorrectedPose]) -> Vec<Pose3> {
 /// A client that talks the wire directly, to send what the client library never would.
 pub struct RawClient {
     pub session: u64,
-    publisher: iceoryx2::port::publisher::Publisher<iceoryx2::prelude::ipc::Service, OdomPose, ()>,
-    notifier: iceoryx2::port::notifier::Notifier<iceoryx2::prelude::ipc::Service>,
-    subscriber:
-        iceoryx2::port::subscriber::Subscriber<iceoryx2::prelude::ipc::Service, CorrectedPose, ()>,
-    _poses: PoseServices,
-    _answers: SessionServices,
-    _node: iceoryx2::node::Node<iceoryx2::prelude::ipc::Service>,
+    publisher: iceoryx2::port::publisher::Publisher<Ipc, OdomPose, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<Ipc>,
+    subscriber: iceoryx2::port::subscriber::Subscriber<Ipc, CorrectedPose, ()>,
+    _poses: PoseServices<Ipc>,
+    _answers: SessionServices<Ipc>,
+    _node: iceoryx2::node::Node<Ipc>,
 }
 
 impl RawClient {
