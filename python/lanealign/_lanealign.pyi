@@ -40,8 +40,9 @@ class CloseError(ValueError):
     daemon_told: bool
 
 class Client:
-    """A connection to one source of a running lanealignd: one session. Used from the thread
-    that made it (another thread's call raises); ``recv`` and ``close`` wait without the GIL."""
+    """A connection to one source of a running lanealignd: one session. Any thread may use it,
+    and one may wait in ``recv`` while others ``publish``; ``recv`` and ``close`` wait without
+    the GIL."""
 
     def __init__(self, source: str, *, namespace: str = ..., wait: str = ...) -> None: ...
     def daemon_connected(self) -> bool: ...

@@ -2,6 +2,7 @@
 //! defaults as `lanealign correct` and `lanealign eval`, so that results are equal bit for bit.
 
 use std::path::PathBuf;
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use lanealign_cli::evaluation;
@@ -27,7 +28,7 @@ use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::create_exception;
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
@@ -346,12 +347,13 @@ fn synthetic_town<'py>(
 
 /// A connection to one source of a running `lanealignd`: one session, its poses out over
 /// iceoryx2 shared memory and its corrected poses back (see `lanealign_client::Connection`).
-/// Used from the thread that made it (iceoryx2's ports are not thread-safe): another thread's
-/// call raises. Its waits release the GIL.
-#[pyclass(unsendable)]
+/// Any thread may use it, and one thread may wait in `recv` while others publish: a call waits
+/// for another's brief work on the connection, never for its wait. Its waits release the GIL.
+#[pyclass]
 struct Client {
-    /// `None` once closed.
-    connection: Option<Connection>,
+    /// `None` once closed. Locked only around work on the connection, never around a wait,
+    /// and never while waiting for the GIL.
+    connection: Mutex<Option<Connection>>,
 }
 
 /// An answer as a dict: `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom`
@@ -392,25 +394,25 @@ impl Client {
             Connection::connect_in(&namespace, &source, new_session_id()).map_err(error)?;
         connection.set_wait_strategy(parsed::<WaitStrategy>("wait", wait)?);
         Ok(Client {
-            connection: Some(connection),
+            connection: Mutex::new(Some(connection)),
         })
     }
 
     /// True when a daemon serves the source.
-    fn daemon_connected(&mut self) -> PyResult<bool> {
-        Ok(self.open()?.daemon_connected())
+    fn daemon_connected(&self) -> PyResult<bool> {
+        self.with_open(|c| c.daemon_connected())
     }
 
     /// True when the daemon has opened this session (it does at the session's first pose). A
     /// living daemon that has not opened it after the first pose could not (its log says why,
     /// for example no room in /dev/shm).
-    fn session_opened(&mut self) -> PyResult<bool> {
-        Ok(self.open()?.session_opened())
+    fn session_opened(&self) -> PyResult<bool> {
+        self.with_open(|c| c.session_opened())
     }
 
     /// Publishes one pose ((3, 4) or (4, 4), the source's axis convention) stamped `stamp_ns`;
     /// returns its sequence number.
-    fn publish(&mut self, stamp_ns: i64, pose: PyReadonlyArrayDyn<'_, f64>) -> PyResult<u64> {
+    fn publish(&self, stamp_ns: i64, pose: PyReadonlyArrayDyn<'_, f64>) -> PyResult<u64> {
         let array = pose.as_array();
         if !matches!(array.shape(), [3 | 4, 4]) {
             return Err(PyValueError::new_err(format!(
@@ -422,33 +424,27 @@ impl Client {
         for (k, value) in v.iter_mut().enumerate() {
             *value = array[IxDyn(&[k / 4, k % 4])];
         }
-        self.open()?.publish(stamp_ns, &v).map_err(error)
+        self.with_open(|c| c.publish(stamp_ns, &v))?.map_err(error)
     }
 
     /// The next answer of this session, waiting up to `timeout_s` seconds: `None`, or a dict
     /// with `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom` (x, y, yaw)
     /// and `covariance` (3, 3). While it waits, other Python threads run, and a signal
     /// (Ctrl-C) is acted on within 0.1 s.
-    fn recv<'py>(
-        &mut self,
-        py: Python<'py>,
-        timeout_s: f64,
-    ) -> PyResult<Option<Bound<'py, PyDict>>> {
+    fn recv<'py>(&self, py: Python<'py>, timeout_s: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
         let deadline = Instant::now() + seconds("timeout_s", timeout_s)?;
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let slice = left.min(SIGNAL_CHECK_PERIOD);
-            let connection = OnThisThread(self.open()?);
-            let got = py
-                .detach(move || OnThisThread(connection.into_inner().recv(slice)))
-                .into_inner()
-                .map_err(error)?;
-            if let Some(answer) = got {
+            let (answer, waiter) = self.with_open(|c| (c.poll(), c.waiter()))?;
+            let answer = answer.map_err(error)?;
+            if let Some(answer) = answer {
                 return Ok(Some(answer_dict(py, &answer)?));
             }
-            if slice == left {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
                 return Ok(None);
             }
+            py.detach(|| waiter.wait(left.min(SIGNAL_CHECK_PERIOD)))
+                .map_err(error)?;
             py.check_signals()?;
         }
     }
@@ -459,11 +455,10 @@ impl Client {
     /// The client cannot be used after. When closing fails it raises `CloseError`, which
     /// holds the same three as attributes: no answer that arrived is lost.
     #[pyo3(signature = (timeout_s=1.0))]
-    fn close<'py>(&mut self, py: Python<'py>, timeout_s: f64) -> PyResult<Bound<'py, PyDict>> {
+    fn close<'py>(&self, py: Python<'py>, timeout_s: f64) -> PyResult<Bound<'py, PyDict>> {
         let timeout = seconds("timeout_s", timeout_s)?;
-        let connection = OnThisThread(self.connection.take().ok_or_else(closed_error)?);
-        let closed = py.detach(move || OnThisThread(connection.into_inner().close(timeout)));
-        match closed.into_inner() {
+        let connection = self.locked()?.take().ok_or_else(closed_error)?;
+        match py.detach(move || connection.close(timeout)) {
             Ok(closed) => closed_dict(py, &closed),
             Err(e) => {
                 let items = closed_dict(py, e.closed())?;
@@ -502,30 +497,23 @@ fn closed_dict<'py>(py: Python<'py>, closed: &Closed) -> PyResult<Bound<'py, PyD
 /// How long a wait of `Client.recv` runs without the GIL before it looks for signals.
 const SIGNAL_CHECK_PERIOD: Duration = Duration::from_millis(100);
 
-/// A value used on the thread that made it while that thread runs without the GIL (inside
-/// `Python::detach`), which asks for `Send`: iceoryx2's ports are not `Send`, and need not be.
-struct OnThisThread<T>(T);
-
-// SAFETY: `Python::detach` runs its closure on the calling thread, so an `OnThisThread` made
-// before it and taken apart inside it never reaches another thread; `Client` is `unsendable`, so
-// no other thread reaches the connection either. `Send` is asked for only because the closure
-// must not hold Python objects, and a connection holds none.
-unsafe impl<T> Send for OnThisThread<T> {}
-
-impl<T> OnThisThread<T> {
-    /// The value (a method, so that a closure takes the whole wrapper, not its field).
-    fn into_inner(self) -> T {
-        self.0
-    }
-}
-
 fn closed_error() -> PyErr {
     PyValueError::new_err("the client is closed")
 }
 
 impl Client {
-    fn open(&mut self) -> PyResult<&mut Connection> {
-        self.connection.as_mut().ok_or_else(closed_error)
+    /// The connection slot, locked. Taken while holding the GIL: no one holding the lock waits
+    /// for the GIL, so this wait is short.
+    fn locked(&self) -> PyResult<MutexGuard<'_, Option<Connection>>> {
+        self.connection.lock().map_err(|_| {
+            PyRuntimeError::new_err("the client is unusable: an earlier call on it panicked")
+        })
+    }
+
+    /// `f` on the open connection, locked for its duration.
+    fn with_open<T>(&self, f: impl FnOnce(&mut Connection) -> T) -> PyResult<T> {
+        let mut slot = self.locked()?;
+        Ok(f(slot.as_mut().ok_or_else(closed_error)?))
     }
 }
 

@@ -295,6 +295,49 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     assert answers[-1]["covariance"].shape == (3, 3)
 
 
+def test_one_client_publishes_on_one_thread_and_receives_on_another(tmp_path):
+    """The client, made on this thread, is used by two others at once: one publishes a pose
+    every 2 ms, the other waits in `recv`. Every pose is answered once, as `correct` gives it,
+    and no publish waits for the other thread's wait (it would for up to 0.1 s, the wait's
+    slice, were the connection held while waiting). A client was bound to its thread before."""
+    needs_data()
+    poses = kitti_00_lidar(300)
+    with kitti_00_daemon(tmp_path, f"pt-{os.getpid()}") as (daemon, client):
+        answers, longest, failures = [], [0.0], []
+
+        def receive():
+            try:
+                deadline = time.monotonic() + 30
+                while len(answers) < len(poses) and time.monotonic() < deadline:
+                    answer = client.recv(1.0)
+                    if answer is not None:
+                        answers.append(answer)
+            except BaseException as e:  # a PanicException is not an Exception
+                failures.append(e)
+
+        def publish():
+            try:
+                for i, pose in enumerate(poses):
+                    started = time.monotonic()
+                    client.publish(i, pose)
+                    longest[0] = max(longest[0], time.monotonic() - started)
+                    time.sleep(0.002)
+            except BaseException as e:
+                failures.append(e)
+
+        threads = [threading.Thread(target=receive), threading.Thread(target=publish)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert failures == []
+        assert [a["seq"] for a in answers] == list(range(1, len(poses) + 1))
+        assert longest[0] < 0.05, longest[0]
+    offline = lanealign.correct(poses, osm=str(DATA / "osm" / "kitti_00.osm"), anchor=ANCHOR_00,
+                                projection="kitti", preset="kiss-icp", frame="kitti-camera")
+    assert np.array_equal(np.stack([a["pose"] for a in answers]), offline.poses)
+
+
 def freeze(pid):
     """Stops process `pid` (SIGSTOP) and returns once every thread of it has stopped."""
     os.kill(pid, signal.SIGSTOP)
