@@ -9,7 +9,7 @@ with the command line's messages; a ``Client.close`` that fails raises ``CloseEr
 """
 
 import os
-from typing import NamedTuple, Optional, Tuple
+from typing import NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -38,7 +38,7 @@ def correct(
     osm: Optional[str] = None,
     tile: Optional[str] = None,
     lanes: Optional[str] = None,
-    anchor: Optional[Tuple[float, float, float, float, float]] = None,
+    anchor: Optional[Sequence[float]] = None,
     projection: Optional[str] = None,
     method: str = "robust",
     frame: str = "flu",
@@ -46,11 +46,13 @@ def correct(
 ) -> Corrected:
     """Correct a trajectory against lane centrelines, as ``lanealign correct`` does.
 
-    ``poses``: (N, 3, 4) or (N, 4, 4) poses, or planar (N, 3) ``[x, y, yaw]`` (metres, radians;
-    ``frame="flu"`` only). Exactly one map: ``osm`` (raw OSM or Lanelet2, ``.osm``/``.osm.pbf``),
-    ``tile`` (from ``lanealign-map compile``) or ``lanes`` (a ``lane_id,x,y`` CSV in the odometry
-    frame). ``anchor`` = (lat, lon, yaw_deg, east_m, north_m) places the odometry frame on Earth
-    (needed with ``osm`` and ``tile``); ``projection``: ``"tangent"`` (default for osm) or
+    ``poses``: (N, 3, 4) or (N, 4, 4) poses, (N, 12) rows of a KITTI file (as ``np.loadtxt``
+    reads one), or planar (N, 3) ``[x, y, yaw]`` (metres, radians; ``frame="flu"`` only); the
+    corrected poses come back in the same shape. Exactly one map: ``osm`` (raw OSM or Lanelet2,
+    ``.osm``/``.osm.pbf``), ``tile`` (from ``lanealign-map compile``) or ``lanes`` (a
+    ``lane_id,x,y`` CSV in the odometry frame). ``anchor`` = (lat, lon, yaw_deg) or (lat, lon,
+    yaw_deg, east_m, north_m) places the odometry frame on Earth (needed with ``osm`` and
+    ``tile``); ``projection``: ``"tangent"`` (default for osm) or
     ``"kitti"``. ``preset``: liodom, basalt, kiss-icp or orb-slam3; ``method``: robust or paper;
     ``frame``: ``"flu"`` or ``"kitti-camera"``. ``odometry_rate_hz``: the poses' rate when it is
     above the presets' 10 Hz (only every ``round(rate / 10)``-th pose then enters the window,
@@ -74,6 +76,7 @@ def correct(
 
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = "flu") -> dict:  # noqa: A001
     """APE-2D of ``est`` against ``gt`` (paired by index, no alignment), as ``lanealign eval``.
+    Each is (N, 3, 4), (N, 4, 4), (N, 12) or planar (N, 3), as ``correct`` takes them.
 
     Returns ``ape2d_mean_m``, ``rmse_m``, ``lateral_rmse_m``, ``heading_mean_deg``, ``max_m``
     and ``poses``.

@@ -1,4 +1,4 @@
-from typing import Dict, List, Optional, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -11,7 +11,7 @@ def correct(
     osm: Optional[str] = ...,
     tile: Optional[str] = ...,
     lanes: Optional[str] = ...,
-    anchor: Optional[Tuple[float, float, float, float, float]] = ...,
+    anchor: Optional[Sequence[float]] = ...,
     projection: Optional[str] = ...,
     method: str = ...,
     frame: str = ...,

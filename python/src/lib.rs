@@ -45,20 +45,24 @@ fn message(e: impl Into<anyhow::Error>) -> String {
 /// The status names, indexed by the codes `correct` returns.
 const STATUS_NAMES: [&str; 6] = Status::NAMES;
 
-/// Poses of shape (N, 3, 4), (N, 4, 4) or planar (N, 3) `[x, y, yaw]`.
+/// Poses of shape (N, 3, 4), (N, 4, 4), (N, 12) (a KITTI file's rows, as `np.loadtxt` reads
+/// it) or planar (N, 3) `[x, y, yaw]`.
 fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
     let shape = array.shape().to_vec();
-    let row = |i: usize, r: usize, c: usize| array[IxDyn(&[i, r, c])];
-    match shape.as_slice() {
-        [_, 3 | 4, 4] => Ok((0..shape[0])
+    let rows = |element: &dyn Fn(usize, usize) -> f64| {
+        (0..shape[0])
             .map(|i| {
                 let mut v = [0.0; 12];
                 for (k, value) in v.iter_mut().enumerate() {
-                    *value = row(i, k / 4, k % 4);
+                    *value = element(i, k);
                 }
                 Pose3::from_row_major(&v)
             })
-            .collect()),
+            .collect()
+    };
+    match shape.as_slice() {
+        [_, 3 | 4, 4] => Ok(rows(&|i, k| array[IxDyn(&[i, k / 4, k % 4])])),
+        [_, 12] => Ok(rows(&|i, k| array[IxDyn(&[i, k])])),
         [_, 3] => Ok((0..shape[0])
             .map(|i| {
                 let p = |c: usize| array[IxDyn(&[i, c])];
@@ -66,7 +70,7 @@ fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
             })
             .collect()),
         _ => Err(PyValueError::new_err(format!(
-            "poses must have shape (N, 3, 4), (N, 4, 4) or (N, 3), not {shape:?}"
+            "poses must have shape (N, 3, 4), (N, 4, 4), (N, 12) or (N, 3), not {shape:?}"
         ))),
     }
 }
@@ -75,18 +79,26 @@ fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
 fn poses_into(poses: &[Pose3], like: &[usize]) -> ArrayD<f64> {
     let mut out = ArrayD::zeros(IxDyn(like));
     for (i, p) in poses.iter().enumerate() {
-        if like.len() == 2 {
-            let [x, y] = p.planar_position();
-            out[IxDyn(&[i, 0])] = x;
-            out[IxDyn(&[i, 1])] = y;
-            out[IxDyn(&[i, 2])] = p.planar_heading();
-            continue;
-        }
-        for (k, value) in p.to_row_major().into_iter().enumerate() {
-            out[IxDyn(&[i, k / 4, k % 4])] = value;
-        }
-        if like[1] == 4 {
-            out[IxDyn(&[i, 3, 3])] = 1.0;
+        match like {
+            [_, 3] => {
+                let [x, y] = p.planar_position();
+                out[IxDyn(&[i, 0])] = x;
+                out[IxDyn(&[i, 1])] = y;
+                out[IxDyn(&[i, 2])] = p.planar_heading();
+            }
+            [_, 12] => {
+                for (k, value) in p.to_row_major().into_iter().enumerate() {
+                    out[IxDyn(&[i, k])] = value;
+                }
+            }
+            _ => {
+                for (k, value) in p.to_row_major().into_iter().enumerate() {
+                    out[IxDyn(&[i, k / 4, k % 4])] = value;
+                }
+                if like[1] == 4 {
+                    out[IxDyn(&[i, 3, 3])] = 1.0;
+                }
+            }
         }
     }
     out
@@ -98,6 +110,20 @@ where
 {
     text.parse()
         .map_err(|e| PyValueError::new_err(format!("{what} {text:?}: {e}")))
+}
+
+/// An anchor from (lat, lon, yaw_deg) or (lat, lon, yaw_deg, east_m, north_m), as the command
+/// line's `--anchor` takes it.
+fn anchor_from(values: &[f64]) -> PyResult<Anchor> {
+    let (lat, lon, yaw_deg, east_m, north_m) = match *values {
+        [lat, lon, yaw_deg] => (lat, lon, yaw_deg, 0.0, 0.0),
+        [lat, lon, yaw_deg, east_m, north_m] => (lat, lon, yaw_deg, east_m, north_m),
+        _ => return Err(PyValueError::new_err(format!(
+            "anchor is (lat, lon, yaw_deg) or (lat, lon, yaw_deg, east_m, north_m), not {} values",
+            values.len()
+        ))),
+    };
+    Anchor::new(lat, lon, yaw_deg, east_m, north_m).map_err(error)
 }
 
 /// The corrected poses (the input's shape and frame), a status code per pose (an index into
@@ -120,7 +146,7 @@ fn correct<'py>(
     osm: Option<PathBuf>,
     tile: Option<PathBuf>,
     lanes: Option<PathBuf>,
-    anchor: Option<(f64, f64, f64, f64, f64)>,
+    anchor: Option<Vec<f64>>,
     projection: Option<&str>,
     method: &str,
     frame: &str,
@@ -129,12 +155,12 @@ fn correct<'py>(
     let array = poses.as_array().to_owned();
     let shape = array.shape().to_vec();
     let frame: AxisConvention = parsed("frame", frame)?;
-    if shape.len() == 2 && frame != AxisConvention::Flu {
+    let input = poses_from(&array)?;
+    if matches!(shape.as_slice(), [_, 3]) && frame != AxisConvention::Flu {
         return Err(PyValueError::new_err(
             "planar (N, 3) poses are in the flu frame",
         ));
     }
-    let input = poses_from(&array)?;
     let mut config = CorrectorConfig::new(parsed::<Preset>("preset", preset)?, {
         parsed::<Method>("method", method)?
     });
@@ -143,13 +169,12 @@ fn correct<'py>(
     let projection = projection
         .map(|p| parsed::<Projection>("projection", p))
         .transpose()?;
-    let anchor = anchor
-        .map(|(lat, lon, yaw_deg, east_m, north_m)| Anchor::new(lat, lon, yaw_deg, east_m, north_m))
-        .transpose()
-        .map_err(error)?;
+    let anchor = anchor.as_deref().map(anchor_from).transpose()?;
     let need_anchor = || {
         anchor.ok_or_else(|| {
-            PyValueError::new_err("osm= and tile= need anchor=(lat, lon, yaw_deg, east_m, north_m)")
+            PyValueError::new_err(
+                "osm= and tile= need anchor=(lat, lon, yaw_deg[, east_m, north_m])",
+            )
         })
     };
     let source = match (osm, tile, lanes) {

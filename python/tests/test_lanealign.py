@@ -83,6 +83,16 @@ def test_correct_equals_the_command_line_without_data(tmp_path):
     h = lanealign.correct(homogeneous, lanes=str(lanes), preset="kiss-icp", method="paper")
     assert np.array_equal(h.poses[:, :3, :], got.poses)
     assert np.array_equal(h.poses[:, 3], np.tile([0, 0, 0, 1.0], (200, 1)))
+    # So do the rows of a KITTI file as np.loadtxt reads it, (N, 12), in any frame.
+    rows = lanealign.correct(np.loadtxt(tmp_path / "in.txt"), lanes=str(lanes), preset="kiss-icp",
+                             method="paper")
+    assert rows.poses.shape == (200, 12)
+    assert np.array_equal(rows.poses, got.poses.reshape(200, 12))
+    assert np.array_equal(rows.status, got.status)
+    camera = dict(lanes=str(lanes), preset="kiss-icp", frame="kitti-camera")
+    assert np.array_equal(lanealign.correct(poses.reshape(200, 12), **camera).poses,
+                          lanealign.correct(poses, **camera).poses.reshape(200, 12))
+    assert lanealign.eval(poses, rows.poses) == lanealign.eval(poses, got.poses)
 
 
 def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
@@ -97,6 +107,14 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
         lanealign.correct(poses, lanes=str(tmp_path / "missing.csv"), preset="kiss-icp")
     with pytest.raises(ValueError, match="lat"):
         lanealign.correct(poses, osm="x.osm", anchor=(91, 0, 0, 0, 0), preset="kiss-icp")
+    with pytest.raises(ValueError, match=r"anchor is \(lat, lon, yaw_deg\) or .* not 4 values"):
+        lanealign.correct(poses, osm="x.osm", anchor=(49, 8, 0, 0), preset="kiss-icp")
+    with pytest.raises(ValueError, match=r"shape \(N, 3, 4\).* not \[200, 11\]"):
+        lanealign.correct(poses.reshape(200, 12)[:, :11], lanes=str(lanes), preset="kiss-icp",
+                          frame="kitti-camera")
+    with pytest.raises(ValueError, match="planar"):
+        lanealign.correct(np.zeros((3, 3)), lanes=str(lanes), preset="kiss-icp",
+                          frame="kitti-camera")
 
 
 def test_synthetic_town_equals_the_command_line_bit_for_bit(tmp_path):
@@ -114,6 +132,12 @@ def test_synthetic_town_equals_the_command_line_bit_for_bit(tmp_path):
                                 method=method)
         assert np.array_equal(got.poses, read_kitti(out)), method
         assert lanealign.eval(truth, got.poses)["ape2d_mean_m"] < raw / 3, method
+    # The anchor's offsets may be left out, as on the command line.
+    cli("correct", "--map", town, "--anchor", "49,8.4,0", "--preset", "kiss-icp",
+        tmp_path / "odometry.txt", "-o", tmp_path / "short.txt")
+    short = lanealign.correct(odometry, tile=str(town), anchor=(49.0, 8.4, 0.0), preset="kiss-icp")
+    assert np.array_equal(short.poses, read_kitti(tmp_path / "short.txt"))
+    assert np.array_equal(short.poses, read_kitti(tmp_path / "robust.txt"))
 
 
 def anchor_of(seq):
