@@ -116,23 +116,38 @@ fn numbers(line: &str) -> Result<Vec<f64>, String> {
         .collect()
 }
 
+/// A line of `found` numbers where `format` has `expected`, with what the count suggests: the
+/// other format's line, or a whole 4x4 matrix.
+fn count_error(expected: usize, found: usize, format: Format) -> String {
+    let hint = match (format, found) {
+        (Format::Kitti, 8) => " (a TUM line: stamp, position, quaternion?)",
+        (Format::Tum, 12) => " (a KITTI line: a 3x4 matrix by rows?)",
+        (Format::Kitti, 16) => " (a whole 4x4 matrix? a KITTI line is its first three rows)",
+        _ => "",
+    };
+    format!("expected {expected} numbers, found {found}{hint}")
+}
+
 /// One line: `None` for a blank line or a TUM comment, else the stamp (TUM) and the pose.
 fn parse_line(line: &str, format: Format) -> Result<Option<(Option<f64>, Pose3)>, String> {
     let line = line.trim();
     if line.is_empty() || (format == Format::Tum && line.starts_with('#')) {
         return Ok(None);
     }
+    if format == Format::Kitti && line.starts_with('#') {
+        return Err("a comment, which KITTI files do not have (TUM files do)".into());
+    }
     let v = numbers(line)?;
     let (stamp, pose) = match format {
         Format::Kitti => {
             let Ok(row_major) = <[f64; 12]>::try_from(v.as_slice()) else {
-                return Err(format!("expected 12 numbers, found {}", v.len()));
+                return Err(count_error(12, v.len(), format));
             };
             (None, Pose3::from_row_major(&row_major))
         }
         Format::Tum => {
             if v.len() != 8 {
-                return Err(format!("expected 8 numbers, found {}", v.len()));
+                return Err(count_error(8, v.len(), format));
             }
             let qn = (v[4] * v[4] + v[5] * v[5] + v[6] * v[6] + v[7] * v[7]).sqrt();
             if (qn - 1.0).abs() > MAX_QUATERNION_ERROR {
@@ -268,7 +283,18 @@ mod tests {
     fn bad_lines_name_file_and_line() {
         let p = Path::new("bad.txt");
         let cases = [
-            ("1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n", 2, "expected 12"),
+            (
+                "1 0 0 0 0 1 0 0 0 0 1 0\n1 2 3\n",
+                2,
+                "expected 12 numbers, found 3",
+            ),
+            ("0 0 0 0 0 0 0 1\n", 1, "found 8 (a TUM line"),
+            (
+                "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n",
+                1,
+                "found 16 (a whole 4x4 matrix?",
+            ),
+            ("# timestamp tx ty tz qx qy qz qw\n", 1, "TUM files do"),
             ("1 0 0 0 0 1 0 0 0 0 1 x\n", 1, "not a number"),
             (
                 "1 0 0 0 0 1 0 0 0 0 1 0\n\n1 0 0 nan 0 1 0 0 0 0 1 0\n",
@@ -294,6 +320,7 @@ mod tests {
         assert!(msg.contains("not a number") && msg.len() < 200, "{msg}");
         let tum = [
             ("1 0 0 0 0 0 0 2\n", "length 2"),
+            ("1 0 0 0 0 1 0 0 0 0 1 0\n", "found 12 (a KITTI line"),
             ("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n", "must increase"),
         ];
         for (text, what) in tum {
