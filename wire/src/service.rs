@@ -218,11 +218,6 @@ impl Namespace {
     pub fn files(&self) -> Vec<std::path::PathBuf> {
         let root = std::path::PathBuf::from(self.root_path());
         let prefix = self.prefix();
-        let ours = |name: &str| {
-            name.strip_prefix(&prefix).is_some_and(|rest| {
-                rest.len() >= 40 && rest.bytes().take(40).all(|b| b.is_ascii_hexdigit())
-            })
-        };
         let shm = std::fs::read_dir(crate::shm::SHM_DIR)
             .into_iter()
             .flatten()
@@ -231,10 +226,29 @@ impl Namespace {
             .then_some(root)
             .into_iter()
             .chain(
-                shm.filter(|e| ours(&e.file_name().to_string_lossy()))
+                shm.filter(|e| owns_shm_name(&prefix, &e.file_name().to_string_lossy()))
                     .map(|e| e.path()),
             )
             .collect()
+    }
+
+    /// The namespace's shared-memory files in `/dev/shm` that this process has mapped, from
+    /// `/proc/self/maps`: the files it may write to, found without reading all of `/dev/shm`
+    /// as [`Namespace::files`] does (other software's files there made that 10 ms with 20000 of
+    /// them). `None` when the process's mappings cannot be read.
+    pub fn mapped_files(&self) -> Option<Vec<std::path::PathBuf>> {
+        let maps = std::fs::read_to_string("/proc/self/maps").ok()?;
+        let dir = format!("{}/", crate::shm::SHM_DIR);
+        let prefix = self.prefix();
+        let mut files: Vec<std::path::PathBuf> = maps
+            .lines()
+            .filter_map(|line| line.split_once(&dir).map(|(_, name)| name))
+            .filter(|name| !name.ends_with(" (deleted)") && owns_shm_name(&prefix, name))
+            .map(|name| std::path::PathBuf::from(format!("{dir}{name}")))
+            .collect();
+        files.sort();
+        files.dedup();
+        Some(files)
     }
 
     /// Every file and folder of the namespace ([`Namespace::files`] and what its folder holds,
@@ -497,6 +511,15 @@ impl Namespace {
         })?;
         Ok(found)
     }
+}
+
+/// Whether `name`, a file name in `/dev/shm`, is a shared-memory file of the namespace whose
+/// iceoryx2 file prefix is `prefix`: the prefix, then a 40-digit hex hash. The hash is checked
+/// too: names may hold `_`, so the prefix of namespace `a` begins the files of `a_b` as well.
+fn owns_shm_name(prefix: &str, name: &str) -> bool {
+    name.strip_prefix(prefix).is_some_and(|rest| {
+        rest.len() >= 40 && rest.bytes().take(40).all(|b| b.is_ascii_hexdigit())
+    })
 }
 
 /// Who owns `namespace`'s files ([`Namespace::files`], and everything in its root folder), when

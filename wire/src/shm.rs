@@ -80,14 +80,20 @@ pub fn check_room(what: &'static str, needed: u64) -> Result<(), ShmError> {
     Ok(())
 }
 
-/// Reserves every page of the namespace's files in [`SHM_DIR`] that is not backed yet, so that
-/// writing to them can never fail with SIGBUS. Returns how many files it reserved pages of.
-/// A file that vanished meanwhile (a session ended) or that this process may not write (the
-/// namespace's files belong to one user) is passed over; a file system without `fallocate`
-/// too (there the pages were never sparse). Costs a `stat` per file when all are reserved.
+/// Reserves every page not backed yet of the namespace's files in [`SHM_DIR`] that this
+/// process has mapped ([`Namespace::mapped_files`]; all of the namespace's files when the
+/// process's mappings cannot be read), so that writing to them can never fail with SIGBUS: a
+/// process writes only to files it maps, and each side reserves its own after making its
+/// ports. Returns how many files it reserved pages of. A file that vanished meanwhile (a
+/// session ended) or that this process may not write (the namespace's files belong to one user)
+/// is passed over; a file system without `fallocate` too (there the pages were never sparse).
+/// Costs a `stat` per file when all are reserved.
 pub fn reserve(namespace: &Namespace) -> Result<usize, ShmError> {
     let mut reserved = 0;
-    for path in namespace.files() {
+    let files = namespace
+        .mapped_files()
+        .unwrap_or_else(|| namespace.files());
+    for path in files {
         let Ok(meta) = std::fs::symlink_metadata(&path) else {
             continue;
         };
@@ -109,4 +115,57 @@ pub fn reserve(namespace: &Namespace) -> Result<usize, ShmError> {
         }
     }
     Ok(reserved)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::os::unix::fs::MetadataExt;
+
+    use super::*;
+    use crate::service::{Ipc, PoseServices};
+
+    /// Bytes of `path` not backed by pages.
+    fn sparse_bytes(path: &std::path::Path) -> u64 {
+        let meta = std::fs::metadata(path).unwrap();
+        meta.size().saturating_sub(meta.blocks() * 512)
+    }
+
+    #[test]
+    fn a_process_reserves_the_files_it_maps_and_no_others() {
+        let namespace: Namespace = format!("r{}", std::process::id()).parse().unwrap();
+        let node = namespace.node::<Ipc>().unwrap();
+        let poses = PoseServices::open(&node, &"lidar".parse().unwrap()).unwrap();
+        let publisher = poses.publisher().unwrap();
+        // Another process's file of the namespace, which this one never maps.
+        let foreign = std::path::PathBuf::from(format!(
+            "{SHM_DIR}/{}{}.other",
+            namespace.prefix(),
+            "ab".repeat(20)
+        ));
+        std::fs::File::create(&foreign)
+            .unwrap()
+            .set_len(1 << 20)
+            .unwrap();
+        let mapped = namespace.mapped_files().unwrap();
+        assert!(
+            !mapped.is_empty() && !mapped.contains(&foreign),
+            "{mapped:?}"
+        );
+        assert!(mapped.iter().all(|f| namespace.files().contains(f)));
+        let sparse_before: u64 = mapped.iter().map(|f| sparse_bytes(f)).sum();
+        assert!(
+            sparse_before > 0,
+            "the publisher's data segment is sparse until reserved"
+        );
+        assert!(reserve(&namespace).unwrap() > 0);
+        assert_eq!(mapped.iter().map(|f| sparse_bytes(f)).sum::<u64>(), 0);
+        assert_eq!(
+            sparse_bytes(&foreign),
+            1 << 20,
+            "not this process's to reserve"
+        );
+        drop((publisher, poses, node));
+        namespace.remove_files().unwrap();
+        assert!(!foreign.exists());
+    }
 }
