@@ -62,8 +62,18 @@ pub enum ReplayError {
     },
 }
 
+impl ReplayError {
+    /// What came back of a replay that lost poses ([`ReplayError::Lost`]).
+    pub fn partial(&self) -> Option<&Replay> {
+        match self {
+            ReplayError::Lost { partial, .. } => Some(partial),
+            _ => None,
+        }
+    }
+}
+
 /// What a lost replay adds when the daemon never opened its session.
-pub const NOT_OPENED: &str = "; the daemon never opened this session: its log says why (`cannot answer a session`, e.g. no room in /dev/shm)";
+const NOT_OPENED: &str = "; the daemon never opened this session: its log says why (`cannot answer a session`, e.g. no room in /dev/shm)";
 
 /// The first few of a list of sequence numbers.
 fn summarize(seqs: &[u64]) -> String {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
-use lanealign_cli::replay::{replay, Rate, ReplayError, NOT_OPENED};
+use lanealign_cli::replay::{replay, Rate};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::pose::Pose3;
@@ -94,23 +94,21 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         Duration::from_secs(10),
     ) {
         Ok(r) => r,
-        Err(ReplayError::Lost {
-            missing,
-            unopened,
-            sent,
-            timeout,
-            partial,
-        }) => {
-            anyhow::bail!(
-                "{} of {sent} poses were not answered (no answer for {timeout:?}; first missing: {:?}); {} answered, {} daemon restarts; nothing written{}",
-                missing.len(),
-                &missing[..missing.len().min(10)],
-                partial.answers.len(),
-                partial.events.daemon_restarts,
-                if unopened { NOT_OPENED } else { "" }
-            )
+        Err(e) => {
+            // A replay that lost poses: what did come back, and that nothing was written.
+            let outcome = e.partial().map(|p| {
+                format!(
+                    "nothing written ({} poses answered, {} daemon restarts)",
+                    p.answers.len(),
+                    p.events.daemon_restarts
+                )
+            });
+            let e = anyhow::Error::new(e);
+            return Err(match outcome {
+                Some(outcome) => e.context(outcome),
+                None => e,
+            });
         }
-        Err(e) => return Err(e.into()),
     };
     let output = Trajectory {
         stamps: input.stamps.clone(),
