@@ -168,6 +168,44 @@ fn bad_pose_lines_name_file_and_line_and_fail() {
     }
 }
 
+/// An output that names an input (the same path, a link to it, a hard link) is refused before
+/// anything is read or written, and the input is left as it was: every output replaces its file
+/// whole, and as root even a read-only one. `replay` refuses before looking for a daemon.
+#[test]
+fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path());
+    let run = dir.path().join("run.txt");
+    let poses: String = (0..50)
+        .map(|i| format!("1 0 0 {} 0 1 0 0.5 0 0 1 0\n", i as f64 * 1.2))
+        .collect();
+    std::fs::write(&run, &poses).unwrap();
+    let hard = dir.path().join("hard.txt");
+    std::fs::hard_link(&run, &hard).unwrap();
+    let link = dir.path().join("link.csv");
+    std::os::unix::fs::symlink(&lanes, &link).unwrap();
+    let lanes_text = std::fs::read_to_string(&lanes).unwrap();
+    let new = dir.path().join("new.txt");
+    let (run, hard, lanes, link, new_path) = (s(&run), s(&hard), s(&lanes), s(&link), s(&new));
+    let correct = ["correct", "--lanes", lanes, "--preset", "kiss-icp", run];
+    let cases: Vec<Vec<&str>> = vec![
+        [&correct[..], &["-o", run]].concat(),
+        [&correct[..], &["-o", hard]].concat(),
+        [&correct[..], &["-o", new_path, "--status", link]].concat(),
+        vec!["eval", "--gt", run, "--est", run, "--plot", hard],
+        vec!["replay", "--source", "lidar", run, "-o", run],
+    ];
+    for args in cases {
+        let out = lanealign(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("is the input"), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read_to_string(run).unwrap(), poses);
+    assert_eq!(std::fs::read_to_string(lanes).unwrap(), lanes_text);
+    assert!(!new.exists(), "nothing written");
+}
+
 #[test]
 fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
     let dir = tempfile::tempdir().unwrap();

@@ -56,6 +56,38 @@ pub enum InputError {
         /// The 1-based line number.
         line: usize,
     },
+    /// An output names a file that is also an input.
+    #[error("{output}: is the input {input}, which writing it would replace: write the output elsewhere")]
+    OutputIsInput {
+        /// The output as given.
+        output: PathBuf,
+        /// The input as given.
+        input: PathBuf,
+    },
+}
+
+/// Refuses an output that names the same file as an input (by device and inode, whatever path
+/// or link names it): an output replaces its file whole, so the input would be lost, and as
+/// root even a read-only file is replaced. An output that does not exist yet is no input;
+/// `None` stands for a path not given.
+pub fn check_outputs_apart(
+    outputs: &[Option<&Path>],
+    inputs: &[Option<&Path>],
+) -> Result<(), InputError> {
+    use std::os::unix::fs::MetadataExt;
+    let file_id = |p: &Path| std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+    for output in outputs.iter().flatten() {
+        let Some(id) = file_id(output) else {
+            continue;
+        };
+        if let Some(input) = inputs.iter().flatten().find(|i| file_id(i) == Some(id)) {
+            return Err(InputError::OutputIsInput {
+                output: output.to_path_buf(),
+                input: input.to_path_buf(),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// At most [`QUOTE_CHARS`] characters of `text`, with `...` when cut; control characters are
@@ -382,5 +414,30 @@ mod tests {
             2,
             "no temporary file left"
         );
+    }
+
+    #[test]
+    fn an_output_that_is_an_input_by_any_name_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in.txt");
+        std::fs::write(&input, "keep").unwrap();
+        let link = dir.path().join("link.txt");
+        std::os::unix::fs::symlink(&input, &link).unwrap();
+        let hard = dir.path().join("hard.txt");
+        std::fs::hard_link(&input, &hard).unwrap();
+        let dotted = dir.path().join(".").join("in.txt");
+        for output in [&input, &link, &hard, &dotted] {
+            let e = check_outputs_apart(&[Some(output)], &[Some(Path::new("other")), Some(&input)])
+                .unwrap_err();
+            assert!(
+                e.to_string().contains("is the input") && e.to_string().contains("in.txt"),
+                "{e}"
+            );
+        }
+        let new = dir.path().join("new.txt");
+        let copy = dir.path().join("copy.txt");
+        std::fs::write(&copy, "keep").unwrap();
+        check_outputs_apart(&[Some(&new), Some(&copy), None], &[Some(&input), None]).unwrap();
+        assert_eq!(std::fs::read(&input).unwrap(), b"keep");
     }
 }

@@ -222,6 +222,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             margin,
             output,
         } => {
+            let given: Vec<Option<&std::path::Path>> = inputs
+                .iter()
+                .map(|p| Some(p.as_path()))
+                .chain([sign.as_deref()])
+                .collect();
+            lanealign_core::input::check_outputs_apart(&[Some(&output)], &given)?;
             let key = sign.as_deref().map(read_secret_key).transpose()?;
             if !(spacing.is_finite() && spacing > 0.0) {
                 bail!("--spacing must be a positive number of metres");
@@ -319,6 +325,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tile: path,
             geojson,
         } => {
+            lanealign_core::input::check_outputs_apart(&[geojson.as_deref()], &[Some(&path)])?;
             let (map, info) = tile::load(&path)?;
             let p = info.plane;
             let (lat0, lon0) = p.unproject([info.bounds[0], info.bounds[1]]);

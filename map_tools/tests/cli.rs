@@ -62,6 +62,34 @@ fn compile_says_what_it_read_and_skipped() {
     assert!(out.status.success(), "{}", stderr(&out));
 }
 
+/// An output that names an input (itself, or through a link) is refused before anything is
+/// read, and the input is left as it was: the output replaces its file whole.
+#[test]
+fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let osm = write(dir.path(), "small.osm", SMALL_OSM);
+    let link = dir.path().join("link.osm");
+    std::os::unix::fs::symlink(&osm, &link).unwrap();
+    let tile = dir.path().join("small.tile");
+    let tile = tile.to_str().unwrap();
+    assert!(lanealign_map(&["compile", &osm, "-o", tile])
+        .status
+        .success());
+    let tile_bytes = std::fs::read(tile).unwrap();
+    for args in [
+        vec!["compile", &osm, "-o", &osm],
+        vec!["compile", tile, &osm, "-o", link.to_str().unwrap()],
+        vec!["inspect", tile, "--geojson", tile],
+    ] {
+        let out = lanealign_map(&args);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("is the input"), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read_to_string(&osm).unwrap(), SMALL_OSM);
+    assert_eq!(std::fs::read(tile).unwrap(), tile_bytes);
+}
+
 #[test]
 fn osm_cut_at_an_element_boundary_is_refused() {
     let dir = tempfile::tempdir().unwrap();

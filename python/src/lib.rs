@@ -118,10 +118,12 @@ fn anchor_from(values: &[f64]) -> PyResult<Anchor> {
     let (lat, lon, yaw_deg, east_m, north_m) = match *values {
         [lat, lon, yaw_deg] => (lat, lon, yaw_deg, 0.0, 0.0),
         [lat, lon, yaw_deg, east_m, north_m] => (lat, lon, yaw_deg, east_m, north_m),
-        _ => return Err(PyValueError::new_err(format!(
+        _ => {
+            return Err(PyValueError::new_err(format!(
             "anchor is (lat, lon, yaw_deg) or (lat, lon, yaw_deg, east_m, north_m), not {} values",
             values.len()
-        ))),
+        )))
+        }
     };
     Anchor::new(lat, lon, yaw_deg, east_m, north_m).map_err(error)
 }
@@ -304,6 +306,8 @@ fn compile_map<'py>(
             unmarked_offset_scale,
         },
     };
+    let given: Vec<Option<&std::path::Path>> = inputs.iter().map(|p| Some(p.as_path())).collect();
+    lanealign_core::input::check_outputs_apart(&[Some(&output)], &given).map_err(error)?;
     let (lanes, points, lane_km, bytes, cells) = py
         .detach(|| -> anyhow::Result<_> {
             if let Some(cell_size_m) = grid {

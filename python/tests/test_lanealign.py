@@ -115,6 +115,14 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     with pytest.raises(ValueError, match="planar"):
         lanealign.correct(np.zeros((3, 3)), lanes=str(lanes), preset="kiss-icp",
                           frame="kitti-camera")
+    osm = tmp_path / "road.osm"
+    osm.write_text('<?xml version="1.0"?>\n<osm version="0.6"><node id="1" lat="49" lon="8"/>'
+                   '<node id="2" lat="49.001" lon="8"/><way id="3"><nd ref="1"/><nd ref="2"/>'
+                   '<tag k="highway" v="residential"/></way></osm>\n')
+    text = osm.read_text()
+    with pytest.raises(ValueError, match="is the input"):
+        lanealign.compile_map(osm, osm)
+    assert osm.read_text() == text
 
 
 def test_synthetic_town_equals_the_command_line_bit_for_bit(tmp_path):

@@ -11,6 +11,7 @@ use lanealign_cli::{evaluation, plots, report, results, status_file};
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::grid::{Grid, LoadPolicy};
+use lanealign_core::input;
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::ape_2d;
@@ -249,6 +250,16 @@ pub fn status_csv(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
 
 /// Runs `lanealign correct`.
 pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
+    input::check_outputs_apart(
+        &[args.output.as_deref(), args.status.as_deref()],
+        &[
+            Some(&args.input),
+            args.gt.as_deref(),
+            args.map.osm.as_deref(),
+            args.map.map.as_deref(),
+            args.map.lanes.as_deref(),
+        ],
+    )?;
     let config = args.corrector.config()?;
     let params = config.params()?;
     let input = trajectory::read(&args.input, args.format)?;

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use clap::Args;
 use lanealign_cli::{evaluation, plots, status_file};
+use lanealign_core::input;
 use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::trajectory::{self, Format};
@@ -38,6 +39,10 @@ pub struct EvalArgs {
 
 /// Runs `lanealign eval`.
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
+    input::check_outputs_apart(
+        &[args.plot.as_deref()],
+        &[Some(&args.gt), Some(&args.est), args.status.as_deref()],
+    )?;
     let gt = trajectory::read(&args.gt, args.format)?;
     let est = trajectory::read(&args.est, args.format)?;
     let paired = evaluation::pair(&gt, &est, args.frame)?;

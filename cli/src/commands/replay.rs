@@ -8,6 +8,7 @@ use clap::Args;
 use lanealign_cli::replay::{replay, Rate};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
+use lanealign_core::input;
 use lanealign_core::pose::Pose3;
 use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{self, Format, Trajectory};
@@ -70,6 +71,10 @@ fn status_csv(answers: &[CorrectedPose]) -> String {
 
 /// Runs `lanealign replay`.
 pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
+    input::check_outputs_apart(
+        &[Some(&args.output), args.status.as_deref()],
+        &[Some(&args.input)],
+    )?;
     let input = trajectory::read(&args.input, args.format)?;
     let stamps: Vec<i64> = input
         .stamps
