@@ -22,7 +22,6 @@ use iceoryx2::port::notifier::{Notifier, NotifierNotifyError};
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{ReceiveError as PortReceiveError, SendError};
-
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{
     CorrectedPose, OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START, MAX_IN_FLIGHT,
