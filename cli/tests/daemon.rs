@@ -580,6 +580,10 @@ fn sighup_reloads_a_grid_for_new_sessions() {
 /// session that streams a few hundred poses and leaves without a word). Past `max_sessions` the
 /// least recently active end, and what the daemon holds stays bounded: its open files, its
 /// journals on disk and its shared-memory files are the same after 60 sessions as after 30.
+/// Each is the median of 15 looks over 1.5 s, from 1 s after the last client left: the open
+/// files dip by ten for up to a second after a client leaves, then settle (measured: 230, 230),
+/// and the journal's background thread holds one or two more for a moment every second (one
+/// look, on a busy disk, once saw 232 against 230); what leaks stays.
 #[test]
 fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -587,15 +591,28 @@ fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
-    let held = || {
+    let now_held = || {
         let fds = std::fs::read_dir(format!("/proc/{}/fd", daemon.id()))
             .unwrap()
             .count();
-        (
+        [
             fds,
             journal_count(&setup, &name),
             namespace(&setup).files().len(),
-        )
+        ]
+    };
+    let held = || {
+        std::thread::sleep(Duration::from_secs(1));
+        let mut looks = Vec::new();
+        for _ in 0..15 {
+            looks.push(now_held());
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        std::array::from_fn::<usize, 3, _>(|i| {
+            let mut each: Vec<usize> = looks.iter().map(|l| l[i]).collect();
+            each.sort();
+            each[each.len() / 2]
+        })
     };
     let mut counts = Vec::new();
     for k in 0..60 {
@@ -608,7 +625,6 @@ fn sessions_that_come_and_go_leave_the_daemon_as_it_was() {
         }
         drop(conn);
         if k == 29 || k == 59 {
-            std::thread::sleep(Duration::from_millis(1500));
             counts.push(held());
         }
     }
