@@ -8,7 +8,7 @@ use std::time::SystemTime;
 #[derive(Debug, thiserror::Error)]
 pub enum ResultsError {
     /// The folder or the `latest` link could not be made.
-    #[error("{path}")]
+    #[error("making the results folder {path} failed")]
     Io {
         /// What was being made.
         path: PathBuf,
@@ -16,6 +16,9 @@ pub enum ResultsError {
         #[source]
         source: std::io::Error,
     },
+    /// The parent named is something other than a folder.
+    #[error("{0}: not a folder (--results names the folder that keeps the runs)")]
+    NotAFolder(PathBuf),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ResultsError + '_ {
@@ -25,9 +28,18 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ResultsError + '_ {
     }
 }
 
+/// `Ok` unless `parent` exists and is not a folder: a check before a run writes anything else.
+pub fn check_parent(parent: &Path) -> Result<(), ResultsError> {
+    if parent.exists() && !parent.is_dir() {
+        return Err(ResultsError::NotAFolder(parent.to_path_buf()));
+    }
+    Ok(())
+}
+
 /// Makes `parent/<YYYY-MM-DD_HH-MM-SS>` (UTC; `-2`, `-3`, ... appended when two runs start in
 /// the same second), points `parent/latest` at it, and returns it.
 pub fn create(parent: &Path) -> Result<PathBuf, ResultsError> {
+    check_parent(parent)?;
     std::fs::create_dir_all(parent).map_err(io(parent))?;
     let stamp = humantime::format_rfc3339_seconds(SystemTime::now())
         .to_string()

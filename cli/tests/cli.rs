@@ -206,6 +206,42 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     assert!(!new.exists(), "nothing written");
 }
 
+/// `-o` and `--status` naming one file (it failed, and left the status CSV where the trajectory
+/// was to be) and a `--results` that names a file are refused, and nothing is written.
+#[test]
+fn outputs_that_cannot_all_be_written_are_refused_and_none_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path());
+    let run = dir.path().join("run.txt");
+    std::fs::write(&run, "1 0 0 0 0 1 0 0.5 0 0 1 0\n".repeat(20)).unwrap();
+    let out = dir.path().join("out.txt");
+    let dotted = dir.path().join(".").join("out.txt");
+    let file = dir.path().join("results");
+    std::fs::write(&file, "").unwrap();
+    let correct = [
+        "correct",
+        "--lanes",
+        s(&lanes),
+        "--preset",
+        "kiss-icp",
+        s(&run),
+    ];
+    for (extra, says) in [
+        (
+            ["-o", s(&out), "--status", s(&dotted)],
+            "named for two outputs",
+        ),
+        (["-o", s(&out), "--results", s(&file)], "not a folder"),
+    ] {
+        let args = [&correct[..], &extra[..]].concat();
+        let result = lanealign(&args);
+        let err = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?}: nothing written");
+    }
+}
+
 #[test]
 fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
     let dir = tempfile::tempdir().unwrap();

@@ -56,6 +56,14 @@ pub enum InputError {
         /// The 1-based line number.
         line: usize,
     },
+    /// Two outputs name the same file.
+    #[error(
+        "{path}: named for two outputs, which would overwrite each other: give each its own file"
+    )]
+    OutputTwice {
+        /// The second output as given.
+        path: PathBuf,
+    },
     /// An output names a file that is also an input.
     #[error("{output}: is the input {input}, which writing it would replace: write the output elsewhere")]
     OutputIsInput {
@@ -274,8 +282,13 @@ impl Outputs {
                 return Ok(());
             }
             Ok(_) => std::fs::canonicalize(path).map_err(io)?,
-            Err(_) => path.to_path_buf(),
+            Err(_) => new_file_path(path),
         };
+        if self.staged.iter().any(|(_, staged)| *staged == target) {
+            return Err(InputError::OutputTwice {
+                path: path.to_path_buf(),
+            });
+        }
         let mut name = target.as_os_str().to_owned();
         name.push(format!(".partial-{}", std::process::id()));
         let tmp = PathBuf::from(name);
@@ -296,6 +309,20 @@ impl Outputs {
             std::fs::write(&path, bytes).map_err(|source| InputError::Io { path, source })?;
         }
         Ok(())
+    }
+}
+
+/// Where a file not made yet will be: its folder's canonical path and its name, so that two
+/// spellings of one new file are one path. The path as given when its folder does not exist
+/// either (writing there fails).
+fn new_file_path(path: &Path) -> PathBuf {
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    match (std::fs::canonicalize(folder), path.file_name()) {
+        (Ok(folder), Some(name)) => folder.join(name),
+        _ => path.to_path_buf(),
     }
 }
 
@@ -439,5 +466,30 @@ mod tests {
         std::fs::write(&copy, "keep").unwrap();
         check_outputs_apart(&[Some(&new), Some(&copy), None], &[Some(&input), None]).unwrap();
         assert_eq!(std::fs::read(&input).unwrap(), b"keep");
+    }
+
+    #[test]
+    fn two_outputs_naming_one_file_are_refused_and_nothing_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let new = dir.path().join("new.txt");
+        let dotted = dir.path().join(".").join("new.txt");
+        let mut outputs = Outputs::default();
+        outputs.stage(&new, b"trajectory").unwrap();
+        let e = outputs.stage(&dotted, b"status").unwrap_err();
+        assert!(e.to_string().contains("named for two outputs"), "{e}");
+        drop(outputs);
+        let existing = dir.path().join("old.txt");
+        std::fs::write(&existing, "old").unwrap();
+        let mut outputs = Outputs::default();
+        outputs.stage(&existing, b"trajectory").unwrap();
+        assert!(outputs.stage(&existing, b"status").is_err());
+        drop(outputs);
+        let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().collect();
+        assert_eq!(
+            left.len(),
+            1,
+            "neither the new file nor a temporary one: {left:?}"
+        );
+        assert_eq!(std::fs::read(&existing).unwrap(), b"old");
     }
 }

@@ -260,6 +260,9 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             args.map.lanes.as_deref(),
         ],
     )?;
+    if let Some(parent) = &args.results {
+        results::check_parent(parent)?;
+    }
     let config = args.corrector.config()?;
     let params = config.params()?;
     let input = trajectory::read(&args.input, args.format)?;
