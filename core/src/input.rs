@@ -56,6 +56,12 @@ pub enum InputError {
         /// The 1-based line number.
         line: usize,
     },
+    /// An output names a file that nobody may write (no write permission bit).
+    #[error("{path}: read-only, and an output replaces its file: make it writable (chmod u+w) or write elsewhere")]
+    ReadOnly {
+        /// The output as given.
+        path: PathBuf,
+    },
     /// Two outputs name the same file.
     #[error(
         "{path}: named for two outputs, which would overwrite each other: give each its own file"
@@ -267,7 +273,9 @@ pub struct Outputs {
 
 impl Outputs {
     /// Stages `bytes` for `path` (written now to a temporary file beside the file it names, or
-    /// kept for commit when it names a device or FIFO).
+    /// kept for commit when it names a device or FIFO). A file without any write permission bit
+    /// is refused, even for root (who may write anything, and a rename would replace it): a
+    /// read-only file is one its owner means to keep.
     pub fn stage(&mut self, path: &Path, bytes: &[u8]) -> Result<(), InputError> {
         let io = |source| InputError::Io {
             path: path.to_path_buf(),
@@ -280,6 +288,11 @@ impl Outputs {
             Ok(m) if !m.is_file() => {
                 self.direct.push((path.to_path_buf(), bytes.to_vec()));
                 return Ok(());
+            }
+            Ok(m) if m.permissions().readonly() => {
+                return Err(InputError::ReadOnly {
+                    path: path.to_path_buf(),
+                })
             }
             Ok(_) => std::fs::canonicalize(path).map_err(io)?,
             Err(_) => new_file_path(path),
@@ -491,5 +504,20 @@ mod tests {
             "neither the new file nor a temporary one: {left:?}"
         );
         assert_eq!(std::fs::read(&existing).unwrap(), b"old");
+    }
+
+    #[test]
+    fn a_read_only_file_is_not_replaced_even_by_root() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let kept = dir.path().join("kept.txt");
+        std::fs::write(&kept, "keep").unwrap();
+        std::fs::set_permissions(&kept, std::fs::Permissions::from_mode(0o444)).unwrap();
+        let e = write_atomic(&kept, b"new").unwrap_err();
+        assert!(e.to_string().contains("read-only"), "{e}");
+        assert_eq!(std::fs::read(&kept).unwrap(), b"keep");
+        std::fs::set_permissions(&kept, std::fs::Permissions::from_mode(0o644)).unwrap();
+        write_atomic(&kept, b"new").unwrap();
+        assert_eq!(std::fs::read(&kept).unwrap(), b"new");
     }
 }
