@@ -1,6 +1,8 @@
 //! Reading files that come from outside: regular files only (a FIFO, a device or a folder is
 //! refused before anything is read), lines of bounded length (memory stays proportional to the
 //! valid input), and errors that quote at most [`QUOTE_CHARS`] characters of what they refuse.
+//! And writing outputs whole or not at all ([`Outputs`]), never over an input, a read-only file
+//! or another output.
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
@@ -81,9 +83,8 @@ pub enum InputError {
 }
 
 /// Refuses an output that names the same file as an input (by device and inode, whatever path
-/// or link names it): an output replaces its file whole, so the input would be lost, and as
-/// root even a read-only file is replaced. An output that does not exist yet is no input;
-/// `None` stands for a path not given.
+/// or link names it): an output replaces its file whole, so the input would be lost. An output
+/// that does not exist yet is no input; `None` stands for a path not given.
 pub fn check_outputs_apart(
     outputs: &[Option<&Path>],
     inputs: &[Option<&Path>],
