@@ -168,9 +168,17 @@ fn bad_pose_lines_name_file_and_line_and_fail() {
     }
 }
 
+/// `lanealign ARGS` exits with 1 and says `says`.
+fn assert_refused(args: &[&str], says: &str) {
+    let out = lanealign(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+    assert!(err.contains(says), "{args:?}: {err}");
+}
+
 /// An output that names an input (the same path, a link to it, a hard link) is refused before
 /// anything is read or written, and the input is left as it was: every output replaces its file
-/// whole, and as root even a read-only one. `replay` refuses before looking for a daemon.
+/// whole. `replay` refuses before looking for a daemon.
 #[test]
 fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     let dir = tempfile::tempdir().unwrap();
@@ -196,10 +204,7 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         vec!["replay", "--source", "lidar", run, "-o", run],
     ];
     for args in cases {
-        let out = lanealign(&args);
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
-        assert!(err.contains("is the input"), "{args:?}: {err}");
+        assert_refused(&args, "is the input");
     }
     assert_eq!(std::fs::read_to_string(run).unwrap(), poses);
     assert_eq!(std::fs::read_to_string(lanes).unwrap(), lanes_text);
@@ -234,10 +239,7 @@ fn outputs_that_cannot_all_be_written_are_refused_and_none_is_written() {
         (["-o", s(&out), "--results", s(&file)], "not a folder"),
     ] {
         let args = [&correct[..], &extra[..]].concat();
-        let result = lanealign(&args);
-        let err = String::from_utf8_lossy(&result.stderr);
-        assert_eq!(result.status.code(), Some(1), "{args:?}: {err}");
-        assert!(err.contains(says), "{args:?}: {err}");
+        assert_refused(&args, says);
         assert!(!out.exists(), "{args:?}: nothing written");
     }
 }
