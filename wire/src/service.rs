@@ -234,8 +234,9 @@ impl Namespace {
 
     /// The namespace's shared-memory files in `/dev/shm` that this process has mapped, from
     /// `/proc/self/maps`: the files it may write to, found without reading all of `/dev/shm`
-    /// as [`Namespace::files`] does (other software's files there made that 10 ms with 20000 of
-    /// them). `None` when the process's mappings cannot be read.
+    /// as [`Namespace::files`] does (3.5 ms with 20000 files of other software there, against
+    /// 0.016 ms: `cargo bench -p lanealign-client --bench connect`). `None` when the process's
+    /// mappings cannot be read.
     pub fn mapped_files(&self) -> Option<Vec<std::path::PathBuf>> {
         let maps = std::fs::read_to_string("/proc/self/maps").ok()?;
         let dir = format!("{}/", crate::shm::SHM_DIR);
@@ -395,9 +396,10 @@ pub enum PortCreateError {
 /// owns it (a worker owns its ports).
 pub type Ipc = iceoryx2::service::ipc::Service;
 /// The clients' variant: [`Ipc`] with ports that may move to and be shared by other threads,
-/// each behind a mutex of its own (about a microsecond more per round trip, measured). Its files
-/// and their layout are [`Ipc`]'s: either side may use either variant, and other languages'
-/// bindings offer both.
+/// each behind a mutex of its own (on the client's side alone within the noise of a busy-spin
+/// round trip; about a microsecond more with the daemon's ports on it too: docs/performance.md).
+/// Its files and their layout are [`Ipc`]'s: either side may use either variant, and other
+/// languages' bindings offer both.
 pub type ThreadSafeIpc = iceoryx2::service::ipc_threadsafe::Service;
 
 /// A publish-subscribe service of payload `T`, on service variant `S` ([`Ipc`],
