@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 use iceoryx2::node::Node;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
-
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::plausibility::{rate_warning, RateProbe};
