@@ -128,6 +128,7 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
         "robust, newest matches trimmed:untrimmed_newest=0",
         "robust, gate since the last accepted step:gate_widens_through_null_steps=false",
         "robust, an alignment on every pose:alignment_spacing_m=0",
+        "robust, every standing pose in the window:standstill_speed_mps=0",
         "robust, smooth:+smooth",
     ]
     .into_iter()

@@ -87,9 +87,10 @@ pub enum Status {
     /// The input pose was not finite: it was not added and nothing changed.
     InvalidInput,
     /// The pose is answered with the correction in force and no alignment ran: it came between
-    /// window poses of a source faster than the presets' rate ([`Params::odometry_rate_hz`]) and
-    /// did not enter the window, or it entered the window less than
-    /// [`Params::alignment_spacing_m`] of road after the last accepted alignment.
+    /// window poses of a source faster than the presets' rate ([`Params::odometry_rate_hz`]), or
+    /// the vehicle stood still ([`Params::standstill_speed_mps`]), and it did not enter the
+    /// window; or it entered the window less than [`Params::alignment_spacing_m`] of road after
+    /// the last accepted alignment.
     Carried {
         /// Poses in the window.
         window_len: usize,
@@ -264,7 +265,8 @@ pub struct CorrectorState {
     /// Odometry path length the match gate widens by (metres; see
     /// [`Params::gate_widens_through_null_steps`]).
     pub gate_travelled_m: f64,
-    /// The last position pushed (metres, frame `anchored`).
+    /// The last position pushed that did not stand still (metres, frame `anchored`; see
+    /// [`Params::standstill_speed_mps`]).
     pub last_position_in_anchored: Option<[f64; 2]>,
     /// The filter's covariance of the current pose (without the inherited map error).
     pub covariance: Covariance,
@@ -290,6 +292,8 @@ pub struct Corrector {
     /// ones have drifted beyond the gate) does not close it, so it widens until they are
     /// matched ([`Params::gate_widens_through_null_steps`]).
     gate_travelled_m: f64,
+    /// The last position that did not stand still ([`Params::standstill_speed_mps`]): where the
+    /// distance travelled is measured from.
     last_position_in_anchored: Option<[f64; 2]>,
     uncertainty: PoseUncertainty,
     /// The map error the pose inherits from its last alignment (see
@@ -482,21 +486,28 @@ impl Corrector {
             };
         }
         let p = self.params;
-        if let Some(last) = self.last_position_in_anchored {
-            let moved = distance(last, position_in_anchored);
-            self.travelled_m += moved;
-            self.gate_travelled_m += moved;
-            let motion = [
-                position_in_anchored[0] - last[0],
-                position_in_anchored[1] - last[1],
-            ];
-            self.uncertainty
-                .drive(self.map_from_anchored.rotate(motion), &p);
+        let last = self
+            .last_position_in_anchored
+            .map(|last| (last, distance(last, position_in_anchored)));
+        let standing = last.is_some_and(|(_, moved)| moved < p.standstill_distance_m());
+        if !standing {
+            if let Some((last, moved)) = last {
+                self.travelled_m += moved;
+                self.gate_travelled_m += moved;
+                let motion = [
+                    position_in_anchored[0] - last[0],
+                    position_in_anchored[1] - last[1],
+                ];
+                self.uncertainty
+                    .drive(self.map_from_anchored.rotate(motion), &p);
+            }
+            self.last_position_in_anchored = Some(position_in_anchored);
         }
-        self.last_position_in_anchored = Some(position_in_anchored);
         // A source faster than the presets' rate feeds only every `window_stride`-th pose to the
-        // window (`Params::odometry_rate_hz`); the ones between keep the correction in force.
-        if (self.carried as usize) + 1 < p.window_stride() && !self.window.is_empty() {
+        // window (`Params::odometry_rate_hz`); the ones between, and the poses of a standstill
+        // (`Params::standstill_speed_mps`), keep the correction in force.
+        if (standing || (self.carried as usize) + 1 < p.window_stride()) && !self.window.is_empty()
+        {
             self.carried += 1;
             return Step {
                 position_in_map: self.map_from_anchored.apply(position_in_anchored),
@@ -1090,6 +1101,75 @@ mod tests {
         ));
         // A corrector restored between window poses continues the count.
         assert_restores_bit_for_bit(at_rate, &fast, &steps, &[1, 13, 205, 1111]);
+    }
+
+    #[test]
+    fn a_standstill_changes_nothing_but_the_poses_that_stand() {
+        // The L-shaped drive with two stops of 600 poses each (a minute at 10 Hz), one on each
+        // road, the odometry jittering by up to 2 cm about the stopping point as it does when
+        // standing still; a pose every 2 m otherwise.
+        let drive = l_drive([0.0, 1.0]);
+        let stops = [100, 200];
+        let jitter = |k: usize| {
+            let k = k as f64;
+            [0.02 * (1.7 * k).sin(), 0.02 * (2.3 * k).cos()]
+        };
+        let mut stopped = Vec::new();
+        for (i, &p) in drive.iter().enumerate() {
+            stopped.push((p, Some(i)));
+            if stops.contains(&i) {
+                stopped.extend((0..600).map(|k| {
+                    let d = jitter(k);
+                    ([p[0] + d[0], p[1] + d[1]], None)
+                }));
+            }
+        }
+        let positions: Vec<[f64; 2]> = stopped.iter().map(|&(p, _)| p).collect();
+        let steps_of = |params: Params, drive: &[[f64; 2]]| -> Vec<Step> {
+            let mut c = Corrector::new(l_shaped_map(), params);
+            drive.iter().map(|&p| c.push(p)).collect()
+        };
+        let mut params = small_params();
+        params.standstill_speed_mps = 1.0;
+        assert_eq!(params.standstill_distance_m(), 0.1);
+        let moving = steps_of(params, &drive);
+        let steps = steps_of(params, &positions);
+        for (j, (step, &(p, index))) in steps.iter().zip(&stopped).enumerate() {
+            let mut got = *step;
+            match index {
+                // A moving pose gets the answer it gets without the stops, bit for bit.
+                Some(i) => {
+                    got.timing = moving[i].timing;
+                    assert_eq!(got, moving[i], "pose {i}");
+                }
+                // A standing one, the correction in force; the window, the covariance and the
+                // distance travelled stay as they were.
+                None => {
+                    let before = &steps[j - 1];
+                    let window_len = before.status.window_len();
+                    assert_eq!(step.status, Status::Carried { window_len }, "pose {j}");
+                    assert_eq!(step.map_from_anchored, before.map_from_anchored);
+                    assert_eq!(step.position_in_map, before.map_from_anchored.apply(p));
+                    assert_eq!(step.covariance, before.covariance, "pose {j}");
+                }
+            }
+        }
+        assert!(matches!(
+            steps.last().map(|s| s.status),
+            Some(Status::Accepted { .. })
+        ));
+        // Without it (the paper's method) the stops fill the window, and the answers differ.
+        let paper = steps_of(small_params(), &positions);
+        assert_eq!(
+            paper[stops[0] + 600].status.window_len(),
+            small_params().max_window
+        );
+        let paper_moving = steps_of(small_params(), &drive);
+        assert!(stopped.iter().zip(&paper).any(|(&(_, index), step)| {
+            index.is_some_and(|i| step.position_in_map != paper_moving[i].position_in_map)
+        }));
+        // A corrector restored in the middle of a stop continues as the uninterrupted one.
+        assert_restores_bit_for_bit(params, &positions, &steps, &[stops[0] + 300, 1000]);
     }
 
     #[test]

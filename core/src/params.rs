@@ -88,6 +88,15 @@ pub struct Params {
     /// pose a few decimetres from the last adds little the lanes have not said. After a refused
     /// attempt every pose tries again. 0 = paper (every pose).
     pub alignment_spacing_m: f64,
+    /// Beyond the paper: the speed below which the vehicle counts as standing still (m/s). A pose
+    /// closer than `standstill_speed_mps / odometry_rate_hz` metres to the last moving pose
+    /// stands still: it does not enter the window, counts no distance travelled (neither for the
+    /// alignments nor for the gate nor for the covariance's drift) and is answered with the
+    /// correction in force ([`crate::corrector::Status::Carried`]). So a stop at a red light
+    /// neither fills the window with one spot (whose poses have no direction to match lanes by)
+    /// nor turns the odometry's jitter into road; slower motion is thinned to that spacing. 0 =
+    /// paper (every pose moves).
+    pub standstill_speed_mps: f64,
 }
 
 /// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
@@ -229,6 +238,7 @@ impl Preset {
             min_evidence_ratio: 0.0,
             odometry_rate_hz: PRESET_RATE_HZ,
             alignment_spacing_m: 0.0,
+            standstill_speed_mps: 0.0,
         }
     }
 
@@ -275,6 +285,10 @@ impl Preset {
             // more of the whole process's instructions for the same corrections within the
             // noise, docs/performance.md).
             icp_tolerance_m: 1e-4,
+            // Below walking pace the vehicle stands: a minute at a red light would otherwise put
+            // 600 poses of one spot into the window (KITTI 00 with stops inserted: 1.03 ->
+            // 1.10-1.27 m) and its jitter would count as road (docs/method.md, item 9).
+            standstill_speed_mps: 1.0,
             ..self.params()
         }
     }
@@ -361,6 +375,7 @@ impl Params {
             ("drift_per_m", self.drift_per_m),
             ("min_evidence_ratio", self.min_evidence_ratio),
             ("alignment_spacing_m", self.alignment_spacing_m),
+            ("standstill_speed_mps", self.standstill_speed_mps),
         ] {
             if !finite_nonneg(v) {
                 return Err(invalid(key, v, "must be finite and non-negative"));
@@ -425,6 +440,12 @@ impl Params {
     /// rate over the presets' ([`Params::odometry_rate_hz`]), rounded, at least 1.
     pub fn window_stride(&self) -> usize {
         (self.odometry_rate_hz / PRESET_RATE_HZ).round().max(1.0) as usize
+    }
+
+    /// How close to the last moving pose a pose stands still (metres): the distance
+    /// [`Params::standstill_speed_mps`] covers between two poses at [`Params::odometry_rate_hz`].
+    pub fn standstill_distance_m(&self) -> f64 {
+        self.standstill_speed_mps / self.odometry_rate_hz
     }
 }
 
@@ -505,6 +526,9 @@ pub struct Overrides {
     /// See [`Params::alignment_spacing_m`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub alignment_spacing_m: Option<f64>,
+    /// See [`Params::standstill_speed_mps`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub standstill_speed_mps: Option<f64>,
 }
 
 impl Overrides {
@@ -541,6 +565,9 @@ impl Overrides {
             odometry_rate_hz: self.odometry_rate_hz.unwrap_or(base.odometry_rate_hz),
             untrimmed_newest: self.untrimmed_newest.unwrap_or(base.untrimmed_newest),
             alignment_spacing_m: self.alignment_spacing_m.unwrap_or(base.alignment_spacing_m),
+            standstill_speed_mps: self
+                .standstill_speed_mps
+                .unwrap_or(base.standstill_speed_mps),
         }
     }
 }

@@ -75,8 +75,9 @@ pub enum StatusCode {
     /// from [`CorrectedPose::expected_seq`] on.
     Gap = 8,
     /// Answered with the correction in force, no alignment ran: the pose came between window
-    /// poses of a source faster than its corrector's rate (`odometry_rate_hz`), or less than
-    /// `alignment_spacing_m` of road after the last accepted alignment (the robust method's 1 m).
+    /// poses of a source faster than its corrector's rate (`odometry_rate_hz`), or the vehicle
+    /// stood still (`standstill_speed_mps`), or it came less than `alignment_spacing_m` of road
+    /// after the last accepted alignment (the robust method's 1 m).
     Carried = 9,
 }
 
