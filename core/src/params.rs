@@ -322,6 +322,10 @@ pub enum ParamsError {
         /// The scale the map has.
         found: f64,
     },
+    /// Parameter overrides given as text could not be read (an unknown key, a value of the
+    /// wrong type, a key given twice): the parser's message.
+    #[error("{0}")]
+    Overrides(String),
 }
 
 impl Params {
@@ -532,6 +536,42 @@ pub struct Overrides {
 }
 
 impl Overrides {
+    /// Overrides given as `(key, value)` text, the value in TOML's syntax (a number, `inf`,
+    /// `true` or `false`), as the command line's `--set KEY=VALUE` and Python's `overrides=`
+    /// give them. Unknown keys, values of the wrong type and keys given twice are refused with
+    /// the parser's message; a key must be a parameter's name (letters, digits and `_`).
+    pub fn from_assignments<'a>(
+        pairs: impl IntoIterator<Item = (&'a str, &'a str)>,
+    ) -> Result<Overrides, ParamsError> {
+        let mut lines = Vec::new();
+        for (key, value) in pairs {
+            let (key, value) = (key.trim(), value.trim());
+            if key.is_empty() || !key.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_') {
+                return Err(ParamsError::Overrides(format!(
+                    "'{key}' is not a parameter's name"
+                )));
+            }
+            if value.is_empty() || value.contains(['\n', '\r']) {
+                return Err(ParamsError::Overrides(format!(
+                    "{key}: '{value}' is not a value"
+                )));
+            }
+            lines.push(format!("{key} = {value}"));
+        }
+        let doc = lines.join("\n");
+        toml::from_str(&doc).map_err(|e| {
+            // The parser's message names no key: name the assignment it points at.
+            let line = e.span().map_or(0, |span| {
+                doc[..span.start.min(doc.len())].matches('\n').count()
+            });
+            let message = e.message().trim();
+            ParamsError::Overrides(match lines.get(line) {
+                Some(assignment) => format!("{assignment}: {message}"),
+                None => message.to_string(),
+            })
+        })
+    }
+
     /// `base` with every given override applied (not validated: see [`Params::validate`]).
     pub fn apply(&self, base: Params) -> Params {
         Params {
@@ -704,6 +744,44 @@ mod tests {
         small.overrides.max_window = Some(3);
         let e = small.params().unwrap_err().to_string();
         assert!(e.starts_with("max_window = 3"), "{e}");
+    }
+
+    #[test]
+    fn overrides_given_as_text_are_typed_and_checked() {
+        let o = Overrides::from_assignments([
+            ("max_window", "800"),
+            (" lane_tolerance_m ", "1"),
+            ("max_match_distance_m", "inf"),
+            ("gate_widens_through_null_steps", "false"),
+        ])
+        .unwrap();
+        assert_eq!(o.max_window, Some(800));
+        assert_eq!(o.lane_tolerance_m, Some(1.0));
+        assert_eq!(o.max_match_distance_m, Some(f64::INFINITY));
+        assert_eq!(o.gate_widens_through_null_steps, Some(false));
+        let refused = |pairs: &[(&str, &str)], says: &str| {
+            let e = Overrides::from_assignments(pairs.iter().copied())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(says), "{pairs:?}: {e}");
+        };
+        refused(&[("nope", "1")], "nope");
+        refused(&[("neighbours", "2.5")], "neighbours = 2.5: invalid type");
+        refused(
+            &[
+                ("max_window", "8"),
+                ("neighbours", "9"),
+                ("max_window", "9"),
+            ],
+            "max_window = 9: duplicate key",
+        );
+        // A key or value that would be more than one assignment is not read as several.
+        refused(
+            &[("max_window = 8\nneighbours", "9")],
+            "not a parameter's name",
+        );
+        refused(&[("max_window", "8\nneighbours = 9")], "not a value");
+        refused(&[("max_window", "")], "not a value");
     }
 
     #[test]

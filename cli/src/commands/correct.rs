@@ -1,6 +1,5 @@
 //! `lanealign correct`: corrects a recorded trajectory offline, exactly as the daemon would.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -84,14 +83,14 @@ pub struct CorrectorArgs {
 /// Parses `--set key=value` pairs into typed overrides: unknown keys, bad values and repeated
 /// keys are refused with the parser's message.
 pub fn parse_overrides(pairs: &[String]) -> anyhow::Result<Overrides> {
-    let mut doc = String::new();
-    for pair in pairs {
-        let (key, value) = pair
-            .split_once('=')
-            .ok_or_else(|| anyhow!("--set '{pair}': expected KEY=VALUE"))?;
-        let _ = writeln!(doc, "{} = {}", key.trim(), value.trim());
-    }
-    toml::from_str(&doc).map_err(|e| anyhow!("--set: {}", e.message().trim()))
+    let assignments = pairs
+        .iter()
+        .map(|pair| {
+            pair.split_once('=')
+                .ok_or_else(|| anyhow!("--set '{pair}': expected KEY=VALUE"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Overrides::from_assignments(assignments).map_err(|e| anyhow!("--set: {e}"))
 }
 
 impl CorrectorArgs {
