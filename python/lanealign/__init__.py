@@ -9,7 +9,7 @@ with the command line's messages; a ``Client.close`` that fails raises ``CloseEr
 """
 
 import os
-from typing import NamedTuple, Optional, Sequence, Tuple
+from typing import Mapping, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -43,6 +43,8 @@ def correct(
     method: str = "robust",
     frame: str = "flu",
     odometry_rate_hz: Optional[float] = None,
+    smooth: bool = False,
+    overrides: Optional[Mapping[str, Union[int, float, bool]]] = None,
 ) -> Corrected:
     """Correct a trajectory against lane centrelines, as ``lanealign correct`` does.
 
@@ -56,7 +58,10 @@ def correct(
     ``"kitti"``. ``preset``: liodom, basalt, kiss-icp or orb-slam3; ``method``: robust or paper;
     ``frame``: ``"flu"`` or ``"kitti-camera"``. ``odometry_rate_hz``: the poses' rate when it is
     above the presets' 10 Hz (only every ``round(rate / 10)``-th pose then enters the window,
-    the others get the correction in force, status ``"carried"``).
+    the others get the correction in force, status ``"carried"``). ``smooth``: publish smoothed
+    poses, as ``--smooth``. ``overrides``: parameters by name, as ``--set KEY=VALUE`` takes them
+    (``lanealign params`` lists them), e.g. ``{"max_window": 800, "lane_tolerance_m": 0.5}``;
+    an unknown name or a value of the wrong type is a ``ValueError``.
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
     out, status, covariance = _lanealign.correct(
@@ -70,6 +75,8 @@ def correct(
         method=method,
         frame=frame,
         odometry_rate_hz=odometry_rate_hz,
+        smooth=smooth,
+        overrides=overrides,
     )
     return Corrected(out, status, covariance)
 

@@ -1,4 +1,4 @@
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -16,6 +16,8 @@ def correct(
     method: str = ...,
     frame: str = ...,
     odometry_rate_hz: Optional[float] = ...,
+    smooth: bool = ...,
+    overrides: Optional[Mapping[str, Union[int, float, bool]]] = ...,
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = ...) -> Dict[str, Union[float, int]]: ...
 def compile_map(

@@ -14,7 +14,7 @@ use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::ape_2d;
-use lanealign_core::params::{CorrectorConfig, Method, Preset, UNMARKED_OFFSET_SCALE};
+use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset, UNMARKED_OFFSET_SCALE};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile;
@@ -30,7 +30,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyString};
+use pyo3::types::{PyBool, PyDict, PyString};
 
 /// An error as Python sees it: the message and its causes, as the command line prints them.
 fn error(e: impl Into<anyhow::Error>) -> PyErr {
@@ -137,10 +137,39 @@ type Corrected<'py> = (
     Bound<'py, PyArray3<f64>>,
 );
 
+/// Parameter overrides from a dict of names to numbers and bools, read as the command line's
+/// `--set KEY=VALUE` reads them (a float stays a float: `800.0` is no pose count).
+fn overrides_from(dict: &Bound<'_, PyDict>) -> PyResult<Overrides> {
+    let mut pairs = Vec::with_capacity(dict.len());
+    for (key, value) in dict.iter() {
+        let key: String = key
+            .extract()
+            .map_err(|_| PyValueError::new_err(format!("overrides: {key}: not a parameter name")))?;
+        let text = if value.is_instance_of::<PyBool>() {
+            value.extract::<bool>()?.to_string()
+        } else if let Ok(i) = value.extract::<i64>() {
+            i.to_string()
+        } else if let Ok(f) = value.extract::<f64>() {
+            match f {
+                f if f.is_nan() => "nan".to_string(),
+                f if f.is_infinite() => (if f > 0.0 { "inf" } else { "-inf" }).to_string(),
+                f => format!("{f:?}"),
+            }
+        } else {
+            return Err(PyValueError::new_err(format!(
+                "overrides: {key} = {value}: not a number or a bool"
+            )));
+        };
+        pairs.push((key, text));
+    }
+    Overrides::from_assignments(pairs.iter().map(|(k, v)| (k.as_str(), v.as_str())))
+        .map_err(|e| PyValueError::new_err(format!("overrides: {e}")))
+}
+
 /// Corrects a trajectory as `lanealign correct` does (see the package's docstring).
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None))]
+#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None, smooth=false, overrides=None))]
 fn correct<'py>(
     py: Python<'py>,
     poses: PyReadonlyArrayDyn<'py, f64>,
@@ -153,6 +182,8 @@ fn correct<'py>(
     method: &str,
     frame: &str,
     odometry_rate_hz: Option<f64>,
+    smooth: bool,
+    overrides: Option<Bound<'py, PyDict>>,
 ) -> PyResult<Corrected<'py>> {
     let array = poses.as_array().to_owned();
     let shape = array.shape().to_vec();
@@ -166,7 +197,18 @@ fn correct<'py>(
     let mut config = CorrectorConfig::new(parsed::<Preset>("preset", preset)?, {
         parsed::<Method>("method", method)?
     });
-    config.overrides.odometry_rate_hz = odometry_rate_hz;
+    config.smooth = smooth;
+    if let Some(dict) = &overrides {
+        config.overrides = overrides_from(dict)?;
+    }
+    if odometry_rate_hz.is_some() {
+        if config.overrides.odometry_rate_hz.is_some() {
+            return Err(PyValueError::new_err(
+                "odometry_rate_hz is given twice: as an argument and in overrides",
+            ));
+        }
+        config.overrides.odometry_rate_hz = odometry_rate_hz;
+    }
     let params = config.params().map_err(error)?;
     let projection = projection
         .map(|p| parsed::<Projection>("projection", p))

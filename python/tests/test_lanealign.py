@@ -95,6 +95,28 @@ def test_correct_equals_the_command_line_without_data(tmp_path):
     assert lanealign.eval(poses, rows.poses) == lanealign.eval(poses, got.poses)
 
 
+def test_overrides_and_smooth_are_the_command_lines_set_and_smooth(tmp_path):
+    lanes, poses = straight_lane_and_drift(tmp_path)
+    write_kitti(tmp_path / "in.txt", poses)
+    cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--smooth",
+        "--set", "min_window=50", "--set", "lane_tolerance_m=0.25",
+        "--set", "max_match_distance_m=inf", "--set", "gate_widens_through_null_steps=false",
+        tmp_path / "in.txt", "-o", tmp_path / "set.txt")
+    args = dict(lanes=str(lanes), preset="kiss-icp")
+    got = lanealign.correct(poses, smooth=True, overrides={
+        "min_window": 50, "lane_tolerance_m": 0.25, "max_match_distance_m": float("inf"),
+        "gate_widens_through_null_steps": False}, **args)
+    assert np.array_equal(got.poses, read_kitti(tmp_path / "set.txt"))
+    assert not np.array_equal(got.poses, lanealign.correct(poses, **args).poses)
+    for overrides, says in [({"nope": 1}, "nope"), ({"min_window": 50.0}, "min_window"),
+                            ({"min_window": 1}, "min_window = 1: must be at least 2"),
+                            ({"min_window": "50"}, "not a number or a bool")]:
+        with pytest.raises(ValueError, match=re.escape(says)):
+            lanealign.correct(poses, overrides=overrides, **args)
+    with pytest.raises(ValueError, match="given twice"):
+        lanealign.correct(poses, odometry_rate_hz=100, overrides={"odometry_rate_hz": 100}, **args)
+
+
 def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     lanes, poses = straight_lane_and_drift(tmp_path)
     with pytest.raises(ValueError, match="preset"):
