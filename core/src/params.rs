@@ -286,8 +286,8 @@ impl Preset {
             // noise, docs/performance.md).
             icp_tolerance_m: 1e-4,
             // Below walking pace the vehicle stands: a minute at a red light would otherwise put
-            // 600 poses of one spot into the window (KITTI 00 with stops inserted: 1.03 ->
-            // 1.10-1.27 m) and its jitter would count as road (docs/method.md, item 9).
+            // 600 poses of one spot into the window and its jitter would count as road (KITTI 00
+            // with such a stop every 500 poses: 1.03 -> 1.42 m; docs/method.md, item 9).
             standstill_speed_mps: 1.0,
             ..self.params()
         }
