@@ -301,6 +301,8 @@ pub struct Corrector {
     map_error: [[f64; 2]; 2],
     /// Poses carried since the last one that entered the window.
     carried: u32,
+    /// Whether the last finite pose pushed stood still ([`Params::standstill_speed_mps`]).
+    stood_still: bool,
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
@@ -327,6 +329,7 @@ impl Corrector {
             uncertainty: PoseUncertainty::new(&params),
             map_error: [[0.0; 2]; 2],
             carried: 0,
+            stood_still: false,
             matcher: match mode {
                 MatchMode::Reference => Matcher::Reference(Vec::new()),
                 MatchMode::Fast => Matcher::Fast(Box::default()),
@@ -418,6 +421,12 @@ impl Corrector {
         self.map_from_anchored
     }
 
+    /// Whether the last finite pose pushed stood still ([`Params::standstill_speed_mps`]): it
+    /// entered no window and counted no distance.
+    pub fn stood_still(&self) -> bool {
+        self.stood_still
+    }
+
     /// Readies the memory the next [`Corrector::push`] may need, so that a caller waiting
     /// between poses (the daemon, after publishing an answer) takes its page faults there and
     /// not while an answer is awaited. Optional: `push` does the same work when this was not
@@ -490,6 +499,7 @@ impl Corrector {
             .last_position_in_anchored
             .map(|last| (last, distance(last, position_in_anchored)));
         let standing = last.is_some_and(|(_, moved)| moved < p.standstill_distance_m());
+        self.stood_still = standing;
         if !standing {
             if let Some((last, moved)) = last {
                 self.travelled_m += moved;

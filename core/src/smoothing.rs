@@ -3,7 +3,9 @@
 //!
 //! The rate is bounded where it matters, at the current pose: from one pose to the next, the
 //! output moves at most `max_step_m` and turns at most `max_yaw_step_rad` more than the odometry
-//! itself did. The exact estimate is untouched; only what is published is smoothed.
+//! itself did. The exact estimate is untouched; only what is published is smoothed. While the
+//! vehicle stands still the published correction is held ([`Smoother::hold`]): a standing
+//! vehicle's output does not creep.
 
 use crate::se2::{wrap_angle, Se2};
 
@@ -83,11 +85,34 @@ impl Smoother {
         self.output_from_odom = Some(next);
         next
     }
+
+    /// The correction to publish for a pose of a standing vehicle: the last one published,
+    /// unchanged (the exact `map_from_odom` before the first), so that the output moves only as
+    /// the odometry does and a glide waits until the vehicle moves again.
+    pub fn hold(&mut self, map_from_odom: Se2) -> Se2 {
+        *self.output_from_odom.get_or_insert(map_from_odom)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_standing_vehicles_output_is_held_and_the_glide_goes_on_when_it_moves() {
+        let mut s = Smoother::new(Smoothing::default());
+        let target = Se2::new(0.0, 1.0, 0.0);
+        assert_eq!(s.hold(Se2::IDENTITY), Se2::IDENTITY, "the first is exact");
+        // 5 cm of the 1 m toward the target, then nothing while standing, then 5 cm more.
+        let x = |t: Se2| t.translation()[0];
+        let gliding = s.next(target, [1.0, 0.0]);
+        assert!((x(gliding) - 0.05).abs() < 1e-12, "{gliding:?}");
+        for _ in 0..100 {
+            assert_eq!(s.hold(target), gliding);
+        }
+        let moving = s.next(target, [2.0, 0.0]);
+        assert!((x(moving) - 0.1).abs() < 1e-12, "{moving:?}");
+    }
 
     #[test]
     fn glides_to_a_jump_within_the_limits_then_follows_exactly() {

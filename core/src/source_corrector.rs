@@ -185,6 +185,9 @@ impl SourceCorrector {
             Status::InvalidInput => *pose,
             _ => {
                 let published = match &mut self.smoother {
+                    Some(smoother) if self.corrector.stood_still() => {
+                        smoother.hold(step.map_from_anchored)
+                    }
                     Some(smoother) => {
                         smoother.next(step.map_from_anchored, anchored.planar_position())
                     }

@@ -398,6 +398,30 @@ fn stops_at_red_lights_change_no_correction_of_the_drive() {
         "the stops matter without the setting"
     );
 
+    // Smoothed, a standing vehicle's output moves only as its odometry does: a correction
+    // still gliding in waits until the vehicle moves again.
+    let smoothed = correct_trajectory(
+        s.map.clone(),
+        params,
+        MatchMode::Fast,
+        Placement {
+            smoothing: Some(Smoothing::default()),
+            ..placement
+        },
+        &poses,
+    );
+    let position = |p: &Pose3| cam.to_planar(p).translation;
+    for j in 1..poses.len() {
+        if stopped[j].1.is_none() {
+            let out = (position(&smoothed[j].pose) - position(&smoothed[j - 1].pose)).norm();
+            let odometry = (position(&poses[j]) - position(&poses[j - 1])).norm();
+            assert!(
+                out <= odometry + 1e-9,
+                "pose {j}: {out} m against {odometry} m"
+            );
+        }
+    }
+
     // An odometry that publishes faster than it updates repeats its last estimate: every pose
     // published twice is corrected as once, each repeat answered as its first.
     let twice: Vec<Pose3> = odom.poses.iter().flat_map(|&p| [p, p]).collect();
