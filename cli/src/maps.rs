@@ -13,7 +13,7 @@ use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::Pose3;
 use lanealign_core::se2::Se2;
-use lanealign_core::source_corrector::{correct_trajectory, CorrectedPose, Placement};
+use lanealign_core::source_corrector::{correct_stamped_trajectory, CorrectedPose, Placement};
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -37,13 +37,15 @@ pub struct LoadedMap {
 
 impl LoadedMap {
     /// Corrects a recorded trajectory on this map (on a grid, loading the cells each pose needs
-    /// under the default [`LoadPolicy`]); for a grid, what it loaded too.
+    /// under the default [`LoadPolicy`]), its poses stamped `stamps_s` (seconds) when the format
+    /// has stamps; for a grid, what it loaded too.
     pub fn correct(
         &self,
         params: Params,
         mode: MatchMode,
         placement: Placement,
         poses: &[Pose3],
+        stamps_s: Option<&[f64]>,
     ) -> anyhow::Result<(Vec<CorrectedPose>, Option<GridRun>)> {
         Ok(match &self.grid {
             Some(grid) => {
@@ -54,11 +56,19 @@ impl LoadedMap {
                     mode,
                     placement,
                     poses,
+                    stamps_s,
                 )?;
                 (run, Some(loads))
             }
             None => (
-                correct_trajectory(self.map.clone(), params, mode, placement, poses),
+                correct_stamped_trajectory(
+                    self.map.clone(),
+                    params,
+                    mode,
+                    placement,
+                    poses,
+                    stamps_s,
+                ),
                 None,
             ),
         })

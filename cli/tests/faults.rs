@@ -15,7 +15,7 @@ use common::*;
 use lanealign_cli::daemon_config;
 use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::synthetic::{self, Lcg};
-use lanealign_core::pose::Pose3;
+use lanealign_core::pose::{apply_planar_correction, Pose3};
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
 use lanealign_wire::clock::monotonic_ns;
@@ -173,9 +173,13 @@ struct Town {
 }
 
 fn town(setup_of: fn(&[&str]) -> Setup) -> Town {
+    let (_, poses) = synthetic::drive(2, 7);
+    town_driven(setup_of, poses)
+}
+
+fn town_driven(setup_of: fn(&[&str]) -> Setup, poses: Vec<Pose3>) -> Town {
     let name = unique("town");
     let setup = setup_of(&[&name]);
-    let (_, poses) = synthetic::drive(2, 7);
     let input = setup.dir.path().join("town-odometry.txt");
     write(
         &input,
@@ -254,6 +258,26 @@ fn killed_daemons_lose_nothing_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let t = town(town_setup);
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 12, "800");
+}
+
+/// The same with an odometry that restarts at its origin a third of the way: the sessions
+/// restored after the jump continue the odometry from where the vehicle was, as offline.
+#[test]
+fn killed_daemons_lose_nothing_of_an_odometry_that_restarts() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, mut poses) = synthetic::drive(2, 7);
+    let at = poses.len() / 3;
+    let origin = poses[at].to_se2().inverse();
+    for pose in &mut poses[at..] {
+        *pose = apply_planar_correction(&origin, pose);
+    }
+    let t = town_driven(town_setup, poses);
+    // The odometry jumps; what it is corrected to does not.
+    let out = offline(&t.setup, &t.name, &t.poses);
+    let moved = |p: &[Pose3]| (p[at].translation - p[at - 1].translation).norm();
+    assert!(moved(&t.poses) > 20.0, "{} m", moved(&t.poses));
+    assert!(moved(&out) < 5.0, "{} m", moved(&out));
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 14, "800");
 }
 
 /// The same on a grid: a restored session asks for its cells again and, behind the poses the

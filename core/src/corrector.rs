@@ -95,21 +95,30 @@ pub enum Status {
         /// Poses in the window.
         window_len: usize,
     },
+    /// The odometry jumped: the pose is farther from the last than the vehicle can drive between
+    /// them ([`Params::max_speed_mps`]). It is answered
+    /// with the correction in force where the last motion leads, did not enter the window, and
+    /// the poses after it continue from there ([`crate::continuity`]).
+    OdometryJump {
+        /// Poses in the window.
+        window_len: usize,
+    },
 }
 
 impl Status {
     /// Every status name, in the order of [`Status::name`]'s match.
-    pub const NAMES: [&'static str; 6] = [
+    pub const NAMES: [&'static str; 7] = [
         "warming_up",
         "accepted",
         "rejected",
         "reset",
         "invalid_input",
         "carried",
+        "odometry_jump",
     ];
 
     /// A short lowercase name: `warming_up`, `accepted`, `rejected`, `reset`, `invalid_input`,
-    /// `carried`.
+    /// `carried`, `odometry_jump`.
     pub fn name(&self) -> &'static str {
         match self {
             Status::WarmingUp { .. } => Self::NAMES[0],
@@ -118,6 +127,7 @@ impl Status {
             Status::Reset { .. } => Self::NAMES[3],
             Status::InvalidInput => Self::NAMES[4],
             Status::Carried { .. } => Self::NAMES[5],
+            Status::OdometryJump { .. } => Self::NAMES[6],
         }
     }
 
@@ -165,6 +175,7 @@ impl Status {
         match *self {
             Status::WarmingUp { window_len }
             | Status::Carried { window_len }
+            | Status::OdometryJump { window_len }
             | Status::Accepted { window_len, .. }
             | Status::Rejected { window_len, .. }
             | Status::Reset { window_len, .. } => window_len,

@@ -29,6 +29,7 @@
 //! ```
 
 pub mod confidence;
+pub mod continuity;
 pub mod corrector;
 pub mod geo;
 pub mod grid;

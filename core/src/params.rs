@@ -97,6 +97,13 @@ pub struct Params {
     /// nor turns the odometry's jitter into road; slower motion is thinned to that spacing. 0 =
     /// paper (every pose moves).
     pub standstill_speed_mps: f64,
+    /// Beyond the paper: the fastest the vehicle drives (m/s). A pose farther from the last than
+    /// this speed covers in the time between them (their stamps' difference, at least one period
+    /// of [`Params::odometry_rate_hz`]) and three times the step before is a jump of the
+    /// odometry, not motion (a restarted odometry back at its origin, a SLAM system's
+    /// relocalisation): the source corrector continues the odometry from where the vehicle was
+    /// ([`crate::continuity`]). inf = paper (every step is motion).
+    pub max_speed_mps: f64,
 }
 
 /// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
@@ -239,6 +246,7 @@ impl Preset {
             odometry_rate_hz: PRESET_RATE_HZ,
             alignment_spacing_m: 0.0,
             standstill_speed_mps: 0.0,
+            max_speed_mps: f64::INFINITY,
         }
     }
 
@@ -289,6 +297,10 @@ impl Preset {
             // 600 poses of one spot into the window and its jitter would count as road (KITTI 00
             // with such a stop every 500 poses: 1.03 -> 1.42 m; docs/method.md, item 9).
             standstill_speed_mps: 1.0,
+            // Two and a half times the fastest step of the shared runs (28 m/s on the highway of
+            // 01): an odometry that restarts at its origin mid-drive would otherwise put the
+            // corrected poses where the drive began (KITTI 00; docs/method.md, item 10).
+            max_speed_mps: 70.0,
             ..self.params()
         }
     }
@@ -405,6 +417,7 @@ impl Params {
         for (key, v) in [
             ("max_window_path_m", self.max_window_path_m),
             ("max_match_distance_m", self.max_match_distance_m),
+            ("max_speed_mps", self.max_speed_mps),
         ] {
             if !positive_or_inf(v) {
                 return Err(invalid(key, v, "must be positive (inf = off)"));
@@ -533,6 +546,9 @@ pub struct Overrides {
     /// See [`Params::standstill_speed_mps`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub standstill_speed_mps: Option<f64>,
+    /// See [`Params::max_speed_mps`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_speed_mps: Option<f64>,
 }
 
 impl Overrides {
@@ -608,6 +624,7 @@ impl Overrides {
             standstill_speed_mps: self
                 .standstill_speed_mps
                 .unwrap_or(base.standstill_speed_mps),
+            max_speed_mps: self.max_speed_mps.unwrap_or(base.max_speed_mps),
         }
     }
 }

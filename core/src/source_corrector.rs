@@ -10,6 +10,7 @@
 use std::sync::Arc;
 
 use crate::confidence::Covariance;
+use crate::continuity::{Continued, Continuity};
 use crate::corrector::{Corrector, CorrectorState, MatchMode, Status, StepTiming};
 use crate::lane_map::LaneMap;
 use crate::params::Params;
@@ -21,11 +22,13 @@ use crate::smoothing::{Smoother, Smoothing};
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CorrectedPose {
     /// The corrected pose, in the input's frame and axis convention (smoothed when the source
-    /// asks for smooth output; the input unchanged for invalid input).
+    /// asks for smooth output; the input unchanged for invalid input). After a jump of the
+    /// odometry, in the frame the source had before it: the output continues where it was.
     pub pose: Pose3,
     /// The exact correction in force after this pose, never smoothed: maps planar odometry
-    /// coordinates onto the corrected map plane (the anchor's placement composed with the
-    /// accumulated correction).
+    /// coordinates (the frame the source publishes in now) onto the corrected map plane (the
+    /// anchor's placement composed with the accumulated correction and, after a jump of the
+    /// odometry, with what carries its new frame onto its old one).
     pub map_from_odom: Se2,
     /// The covariance of the exact corrected pose's error (map plane; x, y in metres, yaw in
     /// radians; see [`crate::confidence`]).
@@ -63,6 +66,8 @@ pub struct SourceState {
     pub corrector: CorrectorState,
     /// The last published (smoothed) correction, when the source smooths.
     pub smoothed: Option<Se2>,
+    /// The odometry's own recent motion and its jumps so far.
+    pub continuity: Continuity,
 }
 
 /// A corrector for one source: converts, places, corrects and converts back.
@@ -72,6 +77,7 @@ pub struct SourceCorrector {
     odom_from_anchored: Se2,
     anchor_yaw: f64,
     smoother: Option<Smoother>,
+    continuity: Continuity,
 }
 
 impl SourceCorrector {
@@ -83,6 +89,7 @@ impl SourceCorrector {
             odom_from_anchored: placement.anchored_from_odom.inverse(),
             anchor_yaw: placement.anchored_from_odom.yaw(),
             smoother: placement.smoothing.map(Smoother::new),
+            continuity: Continuity::default(),
             placement,
         }
     }
@@ -106,9 +113,13 @@ impl SourceCorrector {
     /// Where `pose` would lie in the map plane under the correction in force (metres): the
     /// position the next step queries around.
     pub fn predicted_position_in_map(&self, pose: &Pose3) -> [f64; 2] {
-        self.corrector
-            .map_from_anchored()
-            .apply(self.placement.position_in_anchored(pose))
+        let mut in_odom = self.placement.convention.to_planar(pose).planar_position();
+        let continued_from_odom = self.continuity.continued_from_odom;
+        if continued_from_odom != Se2::IDENTITY {
+            in_odom = continued_from_odom.apply(in_odom);
+        }
+        let in_anchored = self.placement.anchored_from_odom.apply(in_odom);
+        self.corrector.map_from_anchored().apply(in_anchored)
     }
 
     /// The lane map in use.
@@ -126,6 +137,7 @@ impl SourceCorrector {
         SourceState {
             corrector: self.corrector.state(),
             smoothed: self.smoother.as_ref().and_then(Smoother::output_from_odom),
+            continuity: self.continuity,
         }
     }
 
@@ -144,6 +156,7 @@ impl SourceCorrector {
             smoother: placement
                 .smoothing
                 .map(|limits| Smoother::restore(limits, state.smoothed)),
+            continuity: state.continuity,
             placement,
         }
     }
@@ -160,57 +173,93 @@ impl SourceCorrector {
         self.corrector.work_ahead();
     }
 
-    /// Corrects the next pose (`world_from_body` in the source's convention); returns the
-    /// step's timing too. A pose that is no pose ([`Pose3::problem`]: a non-finite number, an
-    /// absurd coordinate, a rotation that is not one) is answered as invalid input and changes
-    /// nothing.
+    /// Corrects the next pose (`world_from_body` in the source's convention) of a source
+    /// without stamps; see [`SourceCorrector::correct_at`].
     pub fn correct(&mut self, pose: &Pose3) -> (CorrectedPose, StepTiming) {
+        self.correct_at(pose, f64::NAN)
+    }
+
+    /// Corrects the next pose (`world_from_body` in the source's convention), stamped `stamp_s`
+    /// (seconds; NaN without a stamp, when one period of [`Params::odometry_rate_hz`] is assumed
+    /// between poses); returns the step's timing too. A pose that is no pose
+    /// ([`Pose3::problem`]: a non-finite number, an absurd coordinate, a rotation that is not
+    /// one) is answered as invalid input and changes nothing. A pose the vehicle cannot have
+    /// driven to is a jump of the odometry ([`crate::continuity`]): it is answered with the
+    /// correction in force where the last motion leads, and the poses after it continue from
+    /// there.
+    pub fn correct_at(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         if pose.problem().is_some() {
             let record = CorrectedPose {
                 pose: *pose,
-                map_from_odom: self.corrector.map_from_anchored()
-                    * self.placement.anchored_from_odom,
+                map_from_odom: self.map_from_odom(),
                 covariance: self.corrector.covariance(),
                 status: Status::InvalidInput,
             };
             return (record, StepTiming::default());
         }
         let placement = &self.placement;
-        let anchored = apply_planar_correction(
-            &placement.anchored_from_odom,
-            &placement.convention.to_planar(pose),
-        );
-        let step = self.corrector.push(anchored.planar_position());
-        let corrected = match step.status {
+        let planar = placement.convention.to_planar(pose);
+        let continued = self
+            .continuity
+            .observe(planar.to_se2(), stamp_s, self.corrector.params());
+        let continued_from_odom = self.continuity.continued_from_odom;
+        let planar = if continued_from_odom == Se2::IDENTITY {
+            planar
+        } else {
+            apply_planar_correction(&continued_from_odom, &planar)
+        };
+        let anchored = apply_planar_correction(&placement.anchored_from_odom, &planar);
+        let (status, covariance, timing, published) = if continued == Continued::Jumped {
+            let held = self.corrector.map_from_anchored();
+            let published = match &mut self.smoother {
+                Some(smoother) => smoother.hold(held),
+                None => held,
+            };
+            let window_len = self.corrector.window().len();
+            let status = Status::OdometryJump { window_len };
+            let covariance = self.corrector.covariance();
+            (status, covariance, StepTiming::default(), published)
+        } else {
+            let step = self.corrector.push(anchored.planar_position());
+            let published = match &mut self.smoother {
+                Some(smoother) if self.corrector.stood_still() => {
+                    smoother.hold(step.map_from_anchored)
+                }
+                Some(smoother) => smoother.next(step.map_from_anchored, anchored.planar_position()),
+                None => step.map_from_anchored,
+            };
+            (step.status, step.covariance, step.timing, published)
+        };
+        let corrected = match status {
             Status::InvalidInput => *pose,
             _ => {
-                let published = match &mut self.smoother {
-                    Some(smoother) if self.corrector.stood_still() => {
-                        smoother.hold(step.map_from_anchored)
-                    }
-                    Some(smoother) => {
-                        smoother.next(step.map_from_anchored, anchored.planar_position())
-                    }
-                    None => step.map_from_anchored,
-                };
                 let in_map = apply_planar_correction(&published, &anchored);
-                placement
+                self.placement
                     .convention
                     .from_planar(&apply_planar_correction(&self.odom_from_anchored, &in_map))
             }
         };
         let record = CorrectedPose {
             pose: corrected,
-            map_from_odom: step.map_from_anchored * placement.anchored_from_odom,
-            covariance: step.covariance,
-            status: step.status,
+            map_from_odom: self.map_from_odom(),
+            covariance,
+            status,
         };
-        (record, step.timing)
+        (record, timing)
+    }
+
+    /// The exact correction in force: planar odometry coordinates (the frame the source
+    /// publishes in now) onto the corrected map plane.
+    fn map_from_odom(&self) -> Se2 {
+        self.corrector.map_from_anchored()
+            * self.placement.anchored_from_odom
+            * self.continuity.continued_from_odom
     }
 }
 
 /// Corrects a whole recorded trajectory pose by pose, exactly as the online corrector sees it:
-/// the output is in the input's own frame and convention.
+/// the output is in the input's own frame and convention. The poses come at the rate the
+/// parameters are set for ([`Params::odometry_rate_hz`]); see [`correct_stamped_trajectory`].
 pub fn correct_trajectory(
     map: Arc<LaneMap>,
     params: Params,
@@ -218,8 +267,31 @@ pub fn correct_trajectory(
     placement: Placement,
     poses: &[Pose3],
 ) -> Vec<CorrectedPose> {
+    correct_stamped_trajectory(map, params, mode, placement, poses, None)
+}
+
+/// [`correct_trajectory`] with each pose's stamp (seconds; `stamps_s[i]` for `poses[i]`, `None`
+/// for a trajectory without stamps): an odometry's speed, which tells its jumps from its motion,
+/// is judged by them ([`SourceCorrector::correct_at`]).
+pub fn correct_stamped_trajectory(
+    map: Arc<LaneMap>,
+    params: Params,
+    mode: MatchMode,
+    placement: Placement,
+    poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
+) -> Vec<CorrectedPose> {
     let mut corrector = SourceCorrector::new(map, params, mode, placement);
-    poses.iter().map(|pose| corrector.correct(pose).0).collect()
+    poses
+        .iter()
+        .enumerate()
+        .map(|(i, pose)| corrector.correct_at(pose, stamp_at(stamps_s, i)).0)
+        .collect()
+}
+
+/// The stamp of pose `i` (seconds), NaN when there are no stamps.
+pub fn stamp_at(stamps_s: Option<&[f64]>, i: usize) -> f64 {
+    stamps_s.and_then(|s| s.get(i)).copied().unwrap_or(f64::NAN)
 }
 
 /// Counts over a corrected run.
@@ -249,6 +321,7 @@ mod tests {
     use super::*;
     use crate::lane_map::Lane;
     use crate::params::Preset;
+    use crate::smoothing::Smoothing;
 
     #[test]
     fn any_non_finite_number_is_invalid_input_and_changes_nothing() {
@@ -280,5 +353,71 @@ mod tests {
         }
         let (next, _) = c.correct(&Pose3::planar(1.0, 0.5, 0.0, 0.0));
         assert_eq!(next.status, Status::WarmingUp { window_len: 2 });
+    }
+
+    #[test]
+    fn a_jump_of_the_odometry_is_flagged_and_the_drive_goes_on_where_it_was() {
+        // An eastbound lane; the odometry drives along it at 15 m/s, 0.5 m to its left, and
+        // restarts at its origin at pose 300.
+        let lane = Lane::new(1, (0..400).map(|i| [i as f64 * 3.0, 0.0]).collect());
+        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
+        let placement = Placement {
+            convention: AxisConvention::Flu,
+            anchored_from_odom: Se2::IDENTITY,
+            smoothing: Some(Smoothing::default()),
+        };
+        let params = Preset::KissIcp.robust_params();
+        let drive: Vec<Pose3> = (0..600)
+            .map(|i| Pose3::planar(1.5 * i as f64, 0.5, 0.0, 0.0))
+            .collect();
+        let restarted: Vec<Pose3> = drive
+            .iter()
+            .enumerate()
+            .map(|(i, p)| match i {
+                0..300 => *p,
+                _ => Pose3::planar(1.5 * (i - 300) as f64, 0.0, 0.0, 0.0),
+            })
+            .collect();
+        let unbroken = correct_trajectory(map.clone(), params, MatchMode::Fast, placement, &drive);
+        let run = correct_trajectory(map.clone(), params, MatchMode::Fast, placement, &restarted);
+        for (i, (got, want)) in run.iter().zip(&unbroken).enumerate() {
+            let (g, w) = (got.pose.planar_position(), want.pose.planar_position());
+            assert!(
+                (g[0] - w[0]).abs() < 1e-6 && (g[1] - w[1]).abs() < 1e-6,
+                "pose {i}"
+            );
+            if i == 300 {
+                let window_len = unbroken[299].status.window_len();
+                assert_eq!(got.status, Status::OdometryJump { window_len });
+                // The correction in force maps the odometry's new frame: its origin is where
+                // the vehicle was.
+                let [x, _] = got.map_from_odom.apply([0.0, 0.0]);
+                assert!((x - 450.0).abs() < 1e-6, "{x}");
+            } else if i < 300 {
+                assert_eq!(got.status, want.status, "pose {i}");
+            } else {
+                // The jumped pose did not enter the window: one pose fewer in it.
+                assert_eq!(got.status.name(), want.status.name(), "pose {i}");
+                assert!(
+                    want.status.window_len() - got.status.window_len() <= 1,
+                    "pose {i}"
+                );
+            }
+        }
+        // Without the check the restart is taken for road: the output goes back to the start.
+        let mut off = params;
+        off.max_speed_mps = f64::INFINITY;
+        let taken = correct_trajectory(map.clone(), off, MatchMode::Fast, placement, &restarted);
+        assert!(taken[400].pose.planar_position()[0] < 200.0);
+        // A corrector restored after the jump goes on as the one saved.
+        let mut first = SourceCorrector::new(map.clone(), params, MatchMode::Fast, placement);
+        for pose in &restarted[..350] {
+            first.correct(pose);
+        }
+        let mut second =
+            SourceCorrector::restore(map, params, MatchMode::Fast, placement, first.state());
+        for pose in &restarted[350..] {
+            assert_eq!(first.correct(pose).0, second.correct(pose).0);
+        }
     }
 }

@@ -41,6 +41,7 @@ use std::sync::Arc;
 
 use memmap2::MmapMut;
 
+use lanealign_core::continuity::Continuity;
 use lanealign_core::corrector::CorrectorState;
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::SourceState;
@@ -54,7 +55,10 @@ pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
 const ANSWER_LEN: usize = 272;
 const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP05";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP06";
+/// Snapshots before jumps of the odometry were told from motion (read with none so far and no
+/// last pose: the pose after the restore cannot be judged a jump).
+const SNAPSHOT_MAGIC_V5: &[u8; 8] = b"LASNAP05";
 /// Snapshots before the match gate widened through steps that change nothing (read with the
 /// gate closed at the last accepted step, as the corrector then had it).
 const SNAPSHOT_MAGIC_V4: &[u8; 8] = b"LASNAP04";
@@ -310,6 +314,13 @@ impl Snapshot {
             Some(t) => e.u32(1).se2(t),
             None => e.u32(0).se2(&Se2::IDENTITY),
         };
+        let continuity = &self.state.continuity;
+        e.se2(&continuity.continued_from_odom);
+        match continuity.last {
+            Some((pose, stamp_s)) => e.u32(1).se2(&pose).f64(stamp_s),
+            None => e.u32(0).se2(&Se2::IDENTITY).f64(f64::NAN),
+        };
+        e.se2(&continuity.last_motion);
         e.u64(c.window.len() as u64);
         for p in &c.window {
             e.f64s(p);
@@ -327,11 +338,12 @@ impl Snapshot {
             return None;
         }
         let magic = body.get(..8)?;
-        let (has_map_error, has_carried, has_unanchored) = match magic {
-            m if m == SNAPSHOT_MAGIC => (true, true, true),
-            m if m == SNAPSHOT_MAGIC_V4 => (true, true, false),
-            m if m == SNAPSHOT_MAGIC_V3 => (true, false, false),
-            m if m == SNAPSHOT_MAGIC_V2 => (false, false, false),
+        let (has_map_error, has_carried, has_unanchored, has_continuity) = match magic {
+            m if m == SNAPSHOT_MAGIC => (true, true, true, true),
+            m if m == SNAPSHOT_MAGIC_V5 => (true, true, true, false),
+            m if m == SNAPSHOT_MAGIC_V4 => (true, true, false, false),
+            m if m == SNAPSHOT_MAGIC_V3 => (true, false, false, false),
+            m if m == SNAPSHOT_MAGIC_V2 => (false, false, false, false),
             _ => return None,
         };
         let mut d = Decoder(&body[8..]);
@@ -355,6 +367,18 @@ impl Snapshot {
         };
         let last_position = (d.u32()?, d.f64s::<2>()?);
         let smoothed = (d.u32()?, d.se2()?);
+        let flag = |f: u32| (f <= 1).then_some(f == 1);
+        let continuity = if has_continuity {
+            let continued_from_odom = d.se2()?;
+            let last = (d.u32()?, d.se2()?, d.f64()?);
+            Continuity {
+                continued_from_odom,
+                last: flag(last.0)?.then_some((last.1, last.2)),
+                last_motion: d.se2()?,
+            }
+        } else {
+            Continuity::default()
+        };
         let n = d.u64()?;
         if n > MAX_WINDOW || d.0.len() as u64 != n * 16 {
             return None;
@@ -366,7 +390,6 @@ impl Snapshot {
             && gate_travelled_m.is_finite()
             && covariance.iter().flatten().all(|v| v.is_finite())
             && map_error.iter().flatten().all(|v| v.is_finite());
-        let flag = |f: u32| (f <= 1).then_some(f == 1);
         let state = SourceState {
             corrector: CorrectorState {
                 map_from_anchored,
@@ -381,6 +404,7 @@ impl Snapshot {
                 carried,
             },
             smoothed: flag(smoothed.0)?.then_some(smoothed.1),
+            continuity,
         };
         finite.then_some(Snapshot {
             last_seq,
@@ -779,30 +803,46 @@ mod tests {
                     carried: 7,
                 },
                 smoothed: None,
+                continuity: Continuity {
+                    continued_from_odom: Se2::new(-2.0, 300.0, 40.0),
+                    last: Some((Se2::new(1.0, 7.0, 8.0), 12.5)),
+                    last_motion: Se2::new(0.01, 1.5, 0.0),
+                },
             },
         };
         let bytes = snap.encode();
         assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
-        // Where the map error starts; the count of carried poses follows it.
+        // Where the map error starts; the count of carried poses follows it, and the odometry's
+        // continuity (108 bytes) comes after the last position and the smoothed correction.
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
-        let older = |magic: &[u8; 8], keep: std::ops::Range<usize>| {
+        let (continuity_at, window_at) = (at + 100, at + 208);
+        let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
-            v.extend_from_slice(&bytes[keep]);
-            v.extend_from_slice(&bytes[at + 44..bytes.len() - 8]);
+            for part in parts {
+                v.extend_from_slice(&bytes[part.clone()]);
+            }
             v.extend_from_slice(&xxh3_64(&v).to_le_bytes());
             v
         };
-        // The format before: no distance the gate widens by (8 bytes fewer), read as the
-        // distance since the last accepted step.
+        let tail = window_at..bytes.len() - 8;
+        // The format before: no continuity, read as no jump so far and no last pose.
         let mut old = snap.clone();
+        old.state.continuity = Continuity::default();
+        let v5 = frame(SNAPSHOT_MAGIC_V5, &[8..continuity_at, tail.clone()]);
+        assert_eq!(Snapshot::decode(&v5), Some(old.clone()));
+        let older = |magic: &[u8; 8], keep: std::ops::Range<usize>| {
+            frame(magic, &[keep, at + 44..continuity_at, tail.clone()])
+        };
+        // The one before: no distance the gate widens by (8 bytes fewer), read as the distance
+        // since the last accepted step.
         old.state.corrector.gate_travelled_m = old.state.corrector.travelled_m;
         let v4 = older(SNAPSHOT_MAGIC_V4, 8..at + 36);
         assert_eq!(Snapshot::decode(&v4), Some(old.clone()));
-        // The one before: no carried count (4 bytes fewer), read as none carried.
+        // Before that: no carried count (4 bytes fewer), read as none carried.
         old.state.corrector.carried = 0;
         let v3 = older(SNAPSHOT_MAGIC_V3, 8..at + 32);
         assert_eq!(Snapshot::decode(&v3), Some(old.clone()));
-        // And before that: no map error either (32 bytes fewer), read as none.
+        // And before: no map error either (32 bytes fewer), read as none.
         old.state.corrector.map_error = [[0.0; 2]; 2];
         let v2 = older(SNAPSHOT_MAGIC_V2, 8..at);
         assert_eq!(Snapshot::decode(&v2), Some(old));

@@ -118,6 +118,7 @@ pub fn wire_status(status: &Status) -> (StatusCode, ReasonCode) {
         Status::Reset { .. } => StatusCode::Reset,
         Status::InvalidInput => StatusCode::InvalidInput,
         Status::Carried { .. } => StatusCode::Carried,
+        Status::OdometryJump { .. } => StatusCode::OdometryJump,
     };
     let reason = match status.reason() {
         None => ReasonCode::None,
@@ -573,6 +574,7 @@ mod tests {
             },
             Status::InvalidInput,
             Status::Carried { window_len: 150 },
+            Status::OdometryJump { window_len: 150 },
         ];
         assert_eq!(statuses.len(), Status::NAMES.len());
         for s in statuses {

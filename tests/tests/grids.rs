@@ -75,6 +75,7 @@ fn every_shared_run_on_a_grid_equals_the_whole_map_bit_for_bit() {
                     MatchMode::Fast,
                     placement,
                     &odom.poses,
+                    None,
                 )
                 .unwrap();
                 let what = format!("{run} {seq} {}", method.name());

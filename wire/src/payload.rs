@@ -79,11 +79,16 @@ pub enum StatusCode {
     /// stood still (`standstill_speed_mps`), or it came less than `alignment_spacing_m` of road
     /// after the last accepted alignment (the robust method's 1 m).
     Carried = 9,
+    /// The odometry jumped (it moved farther than the vehicle can between two poses,
+    /// `max_speed_mps`: a restart at its origin, a relocalisation): answered
+    /// with the correction in force where the last motion leads; the poses after it continue from
+    /// there, and `map_from_odom` carries the odometry's new frame.
+    OdometryJump = 10,
 }
 
 impl StatusCode {
     /// Every code, in numeric order.
-    pub const ALL: [StatusCode; 10] = [
+    pub const ALL: [StatusCode; 11] = [
         StatusCode::WarmingUp,
         StatusCode::Accepted,
         StatusCode::Rejected,
@@ -94,6 +99,7 @@ impl StatusCode {
         StatusCode::PassThrough,
         StatusCode::Gap,
         StatusCode::Carried,
+        StatusCode::OdometryJump,
     ];
 
     /// Decodes a status code; `None` for a code this build does not know.
@@ -114,6 +120,7 @@ impl StatusCode {
             StatusCode::PassThrough => "pass_through",
             StatusCode::Gap => "gap",
             StatusCode::Carried => "carried",
+            StatusCode::OdometryJump => "odometry_jump",
         }
     }
 
@@ -255,7 +262,7 @@ mod tests {
         for s in StatusCode::ALL {
             assert_eq!(StatusCode::from_code(s as u32), Some(s));
         }
-        assert_eq!(StatusCode::from_code(10), None);
+        assert_eq!(StatusCode::from_code(11), None);
         assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
         assert_eq!(ReasonCode::from_code(3), None);
     }

@@ -285,7 +285,13 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     };
     let (loaded_map, anchored_from_odom) = (loaded.map.clone(), loaded.anchored_from_odom);
     let spinner = report::spinner(format!("correcting {} poses", input.poses.len()));
-    let (run, grid_run) = loaded.correct(params, config.match_mode, placement, &input.poses)?;
+    let (run, grid_run) = loaded.correct(
+        params,
+        config.match_mode,
+        placement,
+        &input.poses,
+        input.stamps.as_deref(),
+    )?;
     spinner.finish_and_clear();
     if let Some(g) = grid_run {
         eprintln!(

@@ -10,7 +10,7 @@ use crate::corrector::MatchMode;
 use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::Pose3;
-use crate::source_corrector::{CorrectedPose, Placement, SourceCorrector};
+use crate::source_corrector::{stamp_at, CorrectedPose, Placement, SourceCorrector};
 
 use super::{assemble, distance, CellKey, Grid, GridCell, GridError};
 
@@ -172,6 +172,7 @@ impl GridMaps {
 
 /// Corrects a whole recorded trajectory on a grid, as [`crate::source_corrector::correct_trajectory`] does on one map:
 /// before each pose, the cells its corrector needs under `policy` are loaded (on this thread).
+/// `stamps_s` as for [`crate::source_corrector::correct_stamped_trajectory`].
 pub fn correct_trajectory_on_grid(
     grid: Arc<Grid>,
     policy: LoadPolicy,
@@ -179,6 +180,7 @@ pub fn correct_trajectory_on_grid(
     mode: MatchMode,
     placement: Placement,
     poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
 ) -> Result<(Vec<CorrectedPose>, GridRun), GridError> {
     let mut maps = GridMaps::new(grid, policy);
     let mut run = GridRun::default();
@@ -197,7 +199,7 @@ pub fn correct_trajectory_on_grid(
         })?;
     let mut corrector = SourceCorrector::new(Arc::new(map), params, mode, placement);
     let mut out = Vec::with_capacity(poses.len());
-    for pose in poses {
+    for (i, pose) in poses.iter().enumerate() {
         if pose.problem().is_none() {
             let next = corrector.predicted_position_in_map(pose);
             if let Some(map) = maps.next_map(corrector.window(), next, &mut run)? {
@@ -205,7 +207,7 @@ pub fn correct_trajectory_on_grid(
                 corrector.replace_map(Arc::new(map));
             }
         }
-        out.push(corrector.correct(pose).0);
+        out.push(corrector.correct_at(pose, stamp_at(stamps_s, i)).0);
     }
     run.uncovered_queries += corrector.map().uncovered_queries();
     Ok((out, run))
