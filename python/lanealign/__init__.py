@@ -45,6 +45,7 @@ def correct(
     odometry_rate_hz: Optional[float] = None,
     smooth: bool = False,
     overrides: Optional[Mapping[str, Union[int, float, bool]]] = None,
+    stamps: Optional[np.ndarray] = None,
 ) -> Corrected:
     """Correct a trajectory against lane centrelines, as ``lanealign correct`` does.
 
@@ -61,7 +62,10 @@ def correct(
     the others get the correction in force, status ``"carried"``). ``smooth``: publish smoothed
     poses, as ``--smooth``. ``overrides``: parameters by name, as ``--set KEY=VALUE`` takes them
     (``lanealign params`` lists them), e.g. ``{"max_window": 800, "lane_tolerance_m": 0.5}``;
-    an unknown name or a value of the wrong type is a ``ValueError``.
+    an unknown name or a value of the wrong type is a ``ValueError``. ``stamps``: each pose's
+    time in seconds (N), as a TUM file gives them: the odometry's speed, which tells its jumps
+    (status ``"odometry_jump"``) from its motion, is then judged by them, so that a pause in the
+    poses is not taken for a jump; without them the poses come at ``odometry_rate_hz``.
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
     out, status, covariance = _lanealign.correct(
@@ -77,6 +81,7 @@ def correct(
         odometry_rate_hz=odometry_rate_hz,
         smooth=smooth,
         overrides=overrides,
+        stamps=None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64),
     )
     return Corrected(out, status, covariance)
 

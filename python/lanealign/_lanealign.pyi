@@ -18,6 +18,7 @@ def correct(
     odometry_rate_hz: Optional[float] = ...,
     smooth: bool = ...,
     overrides: Optional[Mapping[str, Union[int, float, bool]]] = ...,
+    stamps: Optional[np.ndarray] = ...,
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = ...) -> Dict[str, Union[float, int]]: ...
 def compile_map(

@@ -26,7 +26,7 @@ use lanealign_wire::payload::{CorrectedPose, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
-use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArrayDyn};
+use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -43,7 +43,7 @@ fn message(e: impl Into<anyhow::Error>) -> String {
 }
 
 /// The status names, indexed by the codes `correct` returns.
-const STATUS_NAMES: [&str; 6] = Status::NAMES;
+const STATUS_NAMES: [&str; 7] = Status::NAMES;
 
 /// Poses of shape (N, 3, 4), (N, 4, 4), (N, 12) (a KITTI file's rows, as `np.loadtxt` reads
 /// it) or planar (N, 3) `[x, y, yaw]`.
@@ -169,7 +169,7 @@ fn overrides_from(dict: &Bound<'_, PyDict>) -> PyResult<Overrides> {
 /// Corrects a trajectory as `lanealign correct` does (see the package's docstring).
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None, smooth=false, overrides=None))]
+#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None, smooth=false, overrides=None, stamps=None))]
 fn correct<'py>(
     py: Python<'py>,
     poses: PyReadonlyArrayDyn<'py, f64>,
@@ -184,11 +184,22 @@ fn correct<'py>(
     odometry_rate_hz: Option<f64>,
     smooth: bool,
     overrides: Option<Bound<'py, PyDict>>,
+    stamps: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Corrected<'py>> {
     let array = poses.as_array().to_owned();
     let shape = array.shape().to_vec();
     let frame: AxisConvention = parsed("frame", frame)?;
     let input = poses_from(&array)?;
+    let stamps: Option<Vec<f64>> = stamps.map(|s| s.as_array().to_vec());
+    if let Some(s) = &stamps {
+        if s.len() != input.len() {
+            return Err(PyValueError::new_err(format!(
+                "stamps: {} stamps for {} poses",
+                s.len(),
+                input.len()
+            )));
+        }
+    }
     if matches!(shape.as_slice(), [_, 3]) && frame != AxisConvention::Flu {
         return Err(PyValueError::new_err(
             "planar (N, 3) poses are in the flu frame",
@@ -254,7 +265,13 @@ fn correct<'py>(
                 smoothing: config.smoothing(),
             };
             Ok(loaded
-                .correct(params, config.match_mode, placement, &input)?
+                .correct(
+                    params,
+                    config.match_mode,
+                    placement,
+                    &input,
+                    stamps.as_deref(),
+                )?
                 .0)
         })
         .map_err(error)?;

@@ -117,6 +117,34 @@ def test_overrides_and_smooth_are_the_command_lines_set_and_smooth(tmp_path):
         lanealign.correct(poses, odometry_rate_hz=100, overrides={"odometry_rate_hz": 100}, **args)
 
 
+def test_a_pause_with_stamps_is_motion_and_without_them_a_jump(tmp_path):
+    # Twenty poses missing (2 s of a drive at 12 m/s): read at 10 Hz, 25 m in one period is
+    # no vehicle's step, and the odometry is continued from where it was; with the stamps it
+    # is a pause, corrected as `lanealign correct` corrects the TUM file.
+    lanes, poses = straight_lane_and_drift(tmp_path)
+    kept = np.r_[0:100, 120:200]
+    stamps = kept * 0.1
+    gap = list(kept).index(120)
+    unstamped = lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes)
+    names = [lanealign.STATUS_NAMES[c] for c in unstamped.status]
+    assert names.count("odometry_jump") == 1 and names[gap] == "odometry_jump"
+    stamped = lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=stamps)
+    assert "odometry_jump" not in [lanealign.STATUS_NAMES[c] for c in stamped.status]
+    assert abs(stamped.poses[-1, 0, 3] - unstamped.poses[-1, 0, 3]) > 20.0
+    tum = tmp_path / "paused.tum"
+    rows = []
+    for t, p in zip(stamps, poses[kept]):
+        x, y, z = map(float, p[:, 3])
+        rows.append(f"{float(t)!r} {x!r} {y!r} {z!r} 0 0 0 1\n")
+    tum.write_text("".join(rows))
+    out = tmp_path / "out.tum"
+    cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--format", "tum", tum, "-o", out)
+    corrected = np.loadtxt(out)
+    assert np.array_equal(corrected[:, 1:3], stamped.poses[:, :2, 3])
+    with pytest.raises(ValueError, match="stamps: 3 stamps for 180 poses"):
+        lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=stamps[:3])
+
+
 def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     lanes, poses = straight_lane_and_drift(tmp_path)
     with pytest.raises(ValueError, match="preset"):
