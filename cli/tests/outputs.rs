@@ -117,6 +117,55 @@ fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     assert_eq!(carried, 1800, "nine of every ten poses");
 }
 
+#[test]
+fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path(), 200);
+    // Along the lane at 12 m/s (10 Hz), 0.5 m beside it; the odometry restarts at its origin at
+    // pose 300. As TUM: the same, with a 3 s pause before pose 300 instead.
+    let kitti = dir.path().join("restarted.txt");
+    let lines: String = (0..400)
+        .map(|i| {
+            let x = if i < 300 { i } else { i - 300 } as f64 * 1.2;
+            format!("1 0 0 {x} 0 1 0 0.5 0 0 1 0\n")
+        })
+        .collect();
+    std::fs::write(&kitti, lines).unwrap();
+    let tum = dir.path().join("paused.tum");
+    let lines: String = (0..400)
+        .map(|i| {
+            let t = i as f64 * 0.1 + if i < 300 { 0.0 } else { 3.0 };
+            let x = if i < 300 { i } else { i + 30 } as f64 * 1.2;
+            format!("{t} {x} 0.5 0 0 0 0 1\n")
+        })
+        .collect();
+    std::fs::write(&tum, lines).unwrap();
+    let run = |poses: &Path, format: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args([
+                "correct", "--preset", "kiss-icp", "--format", format, "--lanes",
+            ])
+            .arg(&lanes)
+            .arg(poses)
+            .arg("-o")
+            .arg(dir.path().join(format!("out.{format}")))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err
+    };
+    let err = run(&kitti, "kitti");
+    assert!(
+        err.contains(
+            "WARN the odometry jumped at 1 pose (300): farther than max_speed_mps (70 m/s)"
+        ),
+        "{err}"
+    );
+    let err = run(&tum, "tum");
+    assert!(!err.contains("jumped"), "{err}");
+}
+
 /// `lanealign eval ... | head -1`: a reader that goes away ends the command as it ends Unix
 /// filters (SIGPIPE), not with a panic on stderr.
 #[test]

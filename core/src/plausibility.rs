@@ -2,10 +2,12 @@
 //! answer would mislead. Each check returns a warning that says what to try; callers print it and
 //! carry on (the run's output is still what the corrector computed).
 
+use crate::corrector::Status;
 use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::{AxisConvention, Pose3};
 use crate::se2::Se2;
+use crate::source_corrector::CorrectedPose;
 
 /// Farthest the anchored start of a run may lie from every lane point before the anchor is
 /// suspect (metres).
@@ -96,6 +98,37 @@ pub fn no_correction_warning(poses: usize, accepted: usize) -> Option<String> {
              reason column says why each attempt was refused"
         )
     })
+}
+
+/// A warning when the odometry jumped (status [`Status::OdometryJump`]) in `run`: at which
+/// poses (0-based, the first few), and what to give when the poses only paused.
+pub fn odometry_jump_warning(run: &[CorrectedPose], params: &Params) -> Option<String> {
+    let jumps: Vec<usize> = run
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| matches!(c.status, Status::OdometryJump { .. }))
+        .map(|(i, _)| i)
+        .collect();
+    if jumps.is_empty() {
+        return None;
+    }
+    let shown: Vec<String> = jumps.iter().take(5).map(usize::to_string).collect();
+    Some(format!(
+        "the odometry jumped at {} pose{} ({}{}): farther than max_speed_mps ({} m/s) from the \
+         pose before, so each was continued from where the vehicle was (status odometry_jump); \
+         if the poses only paused or come slower than odometry_rate_hz ({} Hz), give their \
+         stamps (TUM) or the rate",
+        jumps.len(),
+        if jumps.len() == 1 { "" } else { "s" },
+        shown.join(", "),
+        if jumps.len() > shown.len() {
+            ", ..."
+        } else {
+            ""
+        },
+        params.max_speed_mps,
+        params.odometry_rate_hz,
+    ))
 }
 
 /// How much faster than the corrector's [`Params::odometry_rate_hz`] a source's stamps may say it

@@ -379,6 +379,9 @@ impl Worker {
                 false
             }
         };
+        if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
+            tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump)");
+        }
         if delivered {
             self.summary.published += 1;
         } else {

@@ -373,6 +373,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             &args.frame.to_planar(&input.poses[0]),
         ),
         plausibility::no_correction_warning(run.len(), c.accepted),
+        plausibility::odometry_jump_warning(&run, &params),
         input
             .stamps
             .as_deref()

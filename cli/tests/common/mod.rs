@@ -19,7 +19,7 @@ use lanealign_core::grid::{self, GridSpec};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
-use lanealign_core::source_corrector::{correct_trajectory, Placement};
+use lanealign_core::source_corrector::{correct_stamped_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_wire::clock::monotonic_ns;
@@ -240,6 +240,16 @@ pub fn town_setup(sources: &[&str]) -> Setup {
 
 /// What offline correction gives for `source`, configured as the daemon configures it.
 pub fn offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Vec<Pose3> {
+    offline_stamped(setup, source, poses, None)
+}
+
+/// [`offline`] for poses stamped `stamps_s` (seconds).
+pub fn offline_stamped(
+    setup: &Setup,
+    source: &str,
+    poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
+) -> Vec<Pose3> {
     let (map, info) = tile::load(&setup.tile).unwrap();
     let anchor = setup.anchors.iter().find(|(n, _)| n == source).unwrap().1;
     let config = corrector(source);
@@ -248,12 +258,13 @@ pub fn offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Vec<Pose3> {
         anchored_from_odom: anchor.anchored_from_odom(&info.plane),
         smoothing: config.smoothing(),
     };
-    correct_trajectory(
+    correct_stamped_trajectory(
         Arc::new(map),
         config.params().unwrap(),
         config.match_mode,
         placement,
         poses,
+        stamps_s,
     )
     .into_iter()
     .map(|c| c.pose)
