@@ -218,4 +218,57 @@ mod tests {
         );
         assert_eq!(c.continued_from_odom, Se2::IDENTITY);
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 256, rng_seed: proptest::test_runner::RngSeed::Fixed(27), ..Default::default() })]
+        /// Any drive a car can make (speed changing by at most a fifth a pose, up to the limit,
+        /// turning as it likes) is no jump; the same drive whose odometry changes frame at one
+        /// pose, moving it by more than 30 m, is flagged there and only there, and every pose
+        /// after it lands where the unbroken drive's would, moved by the one predicted step's
+        /// error.
+        #[test]
+        fn a_frame_change_is_found_and_undone(
+            steps in proptest::collection::vec((0.8f64..1.2, -0.5f64..0.5), 20..200),
+            at in 1usize..20,
+            (yaw, dx, dy) in (-3.1f64..3.1, 20.0f64..5000.0, -5000.0f64..5000.0),
+        ) {
+            let params = Preset::KissIcp.robust_params();
+            let mut drive = vec![Se2::new(0.2, 10.0, -3.0)];
+            let mut speed = 3.0;
+            for &(growth, turn) in &steps {
+                speed = f64::min(speed * growth, 6.9);
+                let last = drive[drive.len() - 1];
+                drive.push(last * Se2::new(turn, speed, 0.0));
+            }
+            let mut c = Continuity::default();
+            for pose in &drive {
+                proptest::prop_assert_eq!(c.observe(*pose, f64::NAN, &params), Continued::Moved);
+            }
+            let change = Se2::new(yaw, dx, dy);
+            // A change that moves the pose it happens at less than a car's step and three times
+            // more is no jump to anyone: only the others are asked for.
+            let moved = |a: Se2, b: Se2| {
+                let ([ax, ay], [bx, by]) = (a.translation(), b.translation());
+                (ax - bx).hypot(ay - by)
+            };
+            proptest::prop_assume!(moved(change * drive[at], drive[at]) > 30.0);
+            let mut c = Continuity::default();
+            let mut landed = Vec::new();
+            for (i, pose) in drive.iter().enumerate() {
+                let published = if i < at { *pose } else { change * *pose };
+                let expected = if i == at { Continued::Jumped } else { Continued::Moved };
+                proptest::prop_assert_eq!(c.observe(published, f64::NAN, &params), expected, "pose {}", i);
+                landed.push(c.last.unwrap().0);
+            }
+            // After the jump, the poses differ from the drive's by one fixed transform: the
+            // prediction's error at the jumped pose.
+            let error = landed[at] * drive[at].inverse();
+            for i in at..drive.len() {
+                let want = error * drive[i];
+                let [gx, gy] = landed[i].translation();
+                let [wx, wy] = want.translation();
+                proptest::prop_assert!((gx - wx).abs() < 1e-6 && (gy - wy).abs() < 1e-6, "pose {}", i);
+            }
+        }
+    }
 }
