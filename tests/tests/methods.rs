@@ -8,11 +8,11 @@ use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::{ape_2d, calibration, output_jumps, Ape2d, Calibration, OutputJumps};
-use lanealign_core::params::{Method, Preset};
+use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::smoothing::Smoothing;
-use lanealign_core::source_corrector::{correct_trajectory, counts, Placement};
+use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -293,7 +293,7 @@ fn a_faster_source_is_corrected_as_at_the_presets_rate() {
         let correct = |params, poses: &[Pose3]| {
             correct_trajectory(map.clone(), params, MatchMode::Fast, placement, poses)
         };
-        let ape = |gt: &[Pose3], out: &[lanealign_core::source_corrector::CorrectedPose]| {
+        let ape = |gt: &[Pose3], out: &[CorrectedPose]| {
             let est: Vec<Pose3> = out.iter().map(|c| c.pose).collect();
             ape_2d(gt, &planar(&est)).unwrap().mean_m
         };
@@ -322,6 +322,54 @@ fn a_faster_source_is_corrected_as_at_the_presets_rate() {
     }
 }
 
+/// KITTI 00's LiDAR odometry placed by its anchor, corrected with the robust method's kiss-icp
+/// preset: the drive the tests that alter it start from.
+struct Drive00 {
+    sequence: Sequence,
+    placement: Placement,
+    /// The odometry (KITTI camera axes).
+    odom: Vec<Pose3>,
+    /// Ground truth, planar.
+    gt: Vec<Pose3>,
+}
+
+impl Drive00 {
+    const CAM: AxisConvention = AxisConvention::KittiCamera;
+
+    fn load(data: &std::path::Path) -> Drive00 {
+        let sequence = sequence(data, "00");
+        let odom = read(&data.join("odometry/lidar/00.txt"), Format::Kitti).unwrap();
+        Drive00 {
+            placement: Placement {
+                convention: Self::CAM,
+                anchored_from_odom: sequence.anchor.anchored_from_odom(&sequence.plane),
+                smoothing: None,
+            },
+            gt: Self::planar(&sequence.gt),
+            odom: odom.poses,
+            sequence,
+        }
+    }
+
+    fn params() -> Params {
+        Method::Robust.params(Preset::KissIcp)
+    }
+
+    fn correct(&self, params: Params, poses: &[Pose3]) -> Vec<CorrectedPose> {
+        let map = self.sequence.map.clone();
+        correct_trajectory(map, params, MatchMode::Fast, self.placement, poses)
+    }
+
+    fn planar(poses: &[Pose3]) -> Vec<Pose3> {
+        poses.iter().map(|p| Self::CAM.to_planar(p)).collect()
+    }
+
+    /// The mean APE-2D of `est` (one pose per ground-truth pose, camera axes).
+    fn ape(&self, est: &[Pose3]) -> f64 {
+        ape_2d(&self.gt, &Self::planar(est)).unwrap().mean_m
+    }
+}
+
 /// Cars stand at red lights; KITTI's drives hardly do. KITTI 00's LiDAR odometry with a minute's
 /// stop (600 poses, the odometry jittering by up to 2 cm about the stopping point) every 500
 /// poses: with the robust method the moving poses are corrected bit for bit as without the stops,
@@ -331,11 +379,9 @@ fn a_faster_source_is_corrected_as_at_the_presets_rate() {
 #[test]
 fn stops_at_red_lights_change_no_correction_of_the_drive() {
     let Some(data) = shared_data() else { return };
-    let s = sequence(&data, "00");
-    let cam = AxisConvention::KittiCamera;
-    let odom = read(&data.join("odometry/lidar/00.txt"), Format::Kitti).unwrap();
+    let drive = Drive00::load(&data);
     let mut stopped: Vec<(Pose3, Option<usize>)> = Vec::new();
-    for (i, &p) in odom.poses.iter().enumerate() {
+    for (i, &p) in drive.odom.iter().enumerate() {
         stopped.push((p, Some(i)));
         if i % 500 == 250 {
             stopped.extend((0..600).map(|k| {
@@ -348,28 +394,19 @@ fn stops_at_red_lights_change_no_correction_of_the_drive() {
         }
     }
     let poses: Vec<Pose3> = stopped.iter().map(|&(p, _)| p).collect();
-    let placement = Placement {
-        convention: cam,
-        anchored_from_odom: s.anchor.anchored_from_odom(&s.plane),
-        smoothing: None,
-    };
-    let params = Method::Robust.params(Preset::KissIcp);
-    let correct = |params, poses: &[Pose3]| {
-        correct_trajectory(s.map.clone(), params, MatchMode::Fast, placement, poses)
-    };
-    let planar = |v: &[Pose3]| v.iter().map(|p| cam.to_planar(p)).collect::<Vec<_>>();
-    let gt = planar(&s.gt);
+    let params = Drive00::params();
+    let correct = |params, poses: &[Pose3]| drive.correct(params, poses);
     // The mean APE-2D of the moving poses.
-    let moving_ape = |out: &[lanealign_core::source_corrector::CorrectedPose]| {
+    let moving_ape = |out: &[CorrectedPose]| {
         let est: Vec<Pose3> = stopped
             .iter()
             .zip(out)
             .filter(|((_, index), _)| index.is_some())
             .map(|(_, c)| c.pose)
             .collect();
-        ape_2d(&gt, &planar(&est)).unwrap().mean_m
+        drive.ape(&est)
     };
-    let without_stops = correct(params, &odom.poses);
+    let without_stops = correct(params, &drive.odom);
     let with_stops = correct(params, &poses);
     for (j, (c, &(_, index))) in with_stops.iter().zip(&stopped).enumerate() {
         match index {
@@ -395,17 +432,12 @@ fn stops_at_red_lights_change_no_correction_of_the_drive() {
     let (stops_on, stops_off, none) = (
         moving_ape(&with_stops),
         moving_ape(&correct(off, &poses)),
-        ape_2d(
-            &gt,
-            &planar(&without_stops.iter().map(|c| c.pose).collect::<Vec<_>>()),
-        )
-        .unwrap()
-        .mean_m,
+        drive.ape(&without_stops.iter().map(|c| c.pose).collect::<Vec<_>>()),
     );
     println!(
         "KITTI 00 lidar, {} stops: {stops_on:.3} m on the moving poses ({none:.3} m without stops); \
          with standstill_speed_mps = 0 {stops_off:.3} m",
-        (stopped.len() - odom.poses.len()) / 600
+        (stopped.len() - drive.odom.len()) / 600
     );
     assert!(
         stops_off > none + 0.05,
@@ -415,16 +447,16 @@ fn stops_at_red_lights_change_no_correction_of_the_drive() {
     // Smoothed, a standing vehicle's output moves only as its odometry does: a correction
     // still gliding in waits until the vehicle moves again.
     let smoothed = correct_trajectory(
-        s.map.clone(),
+        drive.sequence.map.clone(),
         params,
         MatchMode::Fast,
         Placement {
             smoothing: Some(Smoothing::default()),
-            ..placement
+            ..drive.placement
         },
         &poses,
     );
-    let position = |p: &Pose3| cam.to_planar(p).translation;
+    let position = |p: &Pose3| Drive00::CAM.to_planar(p).translation;
     for j in 1..poses.len() {
         if stopped[j].1.is_none() {
             let out = (position(&smoothed[j].pose) - position(&smoothed[j - 1].pose)).norm();
@@ -438,17 +470,15 @@ fn stops_at_red_lights_change_no_correction_of_the_drive() {
 
     // An odometry that publishes faster than it updates repeats its last estimate: every pose
     // published twice is corrected as once, each repeat answered as its first.
-    let twice: Vec<Pose3> = odom.poses.iter().flat_map(|&p| [p, p]).collect();
+    let twice: Vec<Pose3> = drive.odom.iter().flat_map(|&p| [p, p]).collect();
     let repeated = correct(params, &twice);
     for (i, c) in without_stops.iter().enumerate() {
         assert_eq!(repeated[2 * i].pose, c.pose, "pose {i}");
         assert_eq!(repeated[2 * i].status, c.status, "pose {i}");
         assert_eq!(repeated[2 * i + 1].pose, c.pose, "pose {i}, repeated");
     }
-    let est = |out: &[lanealign_core::source_corrector::CorrectedPose]| {
-        planar(&out.iter().step_by(2).map(|c| c.pose).collect::<Vec<_>>())
-    };
-    let repeats_off = ape_2d(&gt, &est(&correct(off, &twice))).unwrap().mean_m;
+    let once = |out: &[CorrectedPose]| out.iter().step_by(2).map(|c| c.pose).collect::<Vec<_>>();
+    let repeats_off = drive.ape(&once(&correct(off, &twice)));
     println!("every pose twice: {none:.3} m; with standstill_speed_mps = 0 {repeats_off:.3} m");
     assert!(
         repeats_off > none + 0.05,
@@ -463,14 +493,13 @@ fn stops_at_red_lights_change_no_correction_of_the_drive() {
 #[test]
 fn an_odometry_that_jumps_is_continued_where_the_vehicle_was() {
     let Some(data) = shared_data() else { return };
-    let s = sequence(&data, "00");
-    let cam = AxisConvention::KittiCamera;
-    let odom = read(&data.join("odometry/lidar/00.txt"), Format::Kitti).unwrap();
+    let drive = Drive00::load(&data);
+    let cam = Drive00::CAM;
     let (restart, relocalised) = (1500, 3000);
-    let at_restart = cam.to_planar(&odom.poses[restart]).to_se2().inverse();
+    let at_restart = cam.to_planar(&drive.odom[restart]).to_se2().inverse();
     let relocalisation = Se2::new(30f64.to_radians(), 25.0, -10.0);
-    let poses: Vec<Pose3> = odom
-        .poses
+    let poses: Vec<Pose3> = drive
+        .odom
         .iter()
         .enumerate()
         .map(|(i, p)| {
@@ -484,26 +513,10 @@ fn an_odometry_that_jumps_is_continued_where_the_vehicle_was() {
             cam.from_planar(&planar)
         })
         .collect();
-    let placement = Placement {
-        convention: cam,
-        anchored_from_odom: s.anchor.anchored_from_odom(&s.plane),
-        smoothing: None,
-    };
-    let params = Method::Robust.params(Preset::KissIcp);
-    let correct = |params, poses: &[Pose3]| {
-        correct_trajectory(s.map.clone(), params, MatchMode::Fast, placement, poses)
-    };
-    let planar = |v: &[Pose3]| v.iter().map(|p| cam.to_planar(p)).collect::<Vec<_>>();
-    let gt = planar(&s.gt);
-    let ape = |out: &[lanealign_core::source_corrector::CorrectedPose]| {
-        ape_2d(
-            &gt,
-            &planar(&out.iter().map(|c| c.pose).collect::<Vec<_>>()),
-        )
-        .unwrap()
-        .mean_m
-    };
-    let unbroken = correct(params, &odom.poses);
+    let params = Drive00::params();
+    let correct = |params, poses: &[Pose3]| drive.correct(params, poses);
+    let ape = |out: &[CorrectedPose]| drive.ape(&out.iter().map(|c| c.pose).collect::<Vec<_>>());
+    let unbroken = correct(params, &drive.odom);
     let jumped = correct(params, &poses);
     let flagged: Vec<usize> = (0..poses.len())
         .filter(|&i| matches!(jumped[i].status, Status::OdometryJump { .. }))
@@ -521,7 +534,7 @@ fn an_odometry_that_jumps_is_continued_where_the_vehicle_was() {
             "pose {i}: {x}, {y} against {ux}, {uy}"
         );
         let in_map = jumped[i].map_from_odom.apply(position(&poses[i]));
-        let expected = (unbroken[i].map_from_odom).apply(position(&odom.poses[i]));
+        let expected = (unbroken[i].map_from_odom).apply(position(&drive.odom[i]));
         let off = (in_map[0] - expected[0]).hypot(in_map[1] - expected[1]);
         assert!(off < 0.5, "pose {i}: map_from_odom {off} m off");
     }
