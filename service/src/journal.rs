@@ -320,7 +320,10 @@ impl Snapshot {
             Some((pose, stamp_s)) => e.u32(1).se2(&pose).f64(stamp_s),
             None => e.u32(0).se2(&Se2::IDENTITY).f64(f64::NAN),
         };
-        e.se2(&continuity.last_motion);
+        match continuity.last_motion {
+            Some(motion) => e.u32(1).se2(&motion),
+            None => e.u32(0).se2(&Se2::IDENTITY),
+        };
         e.u64(c.window.len() as u64);
         for p in &c.window {
             e.f64s(p);
@@ -374,7 +377,10 @@ impl Snapshot {
             Continuity {
                 continued_from_odom,
                 last: flag(last.0)?.then_some((last.1, last.2)),
-                last_motion: d.se2()?,
+                last_motion: {
+                    let motion = (d.u32()?, d.se2()?);
+                    flag(motion.0)?.then_some(motion.1)
+                },
             }
         } else {
             Continuity::default()
@@ -806,16 +812,16 @@ mod tests {
                 continuity: Continuity {
                     continued_from_odom: Se2::new(-2.0, 300.0, 40.0),
                     last: Some((Se2::new(1.0, 7.0, 8.0), 12.5)),
-                    last_motion: Se2::new(0.01, 1.5, 0.0),
+                    last_motion: Some(Se2::new(0.01, 1.5, 0.0)),
                 },
             },
         };
         let bytes = snap.encode();
         assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
         // Where the map error starts; the count of carried poses follows it, and the odometry's
-        // continuity (108 bytes) comes after the last position and the smoothed correction.
+        // continuity (112 bytes) comes after the last position and the smoothed correction.
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
-        let (continuity_at, window_at) = (at + 100, at + 208);
+        let (continuity_at, window_at) = (at + 100, at + 212);
         let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
             for part in parts {
