@@ -26,6 +26,7 @@
 //! `continued_from_odom` is the identity until the first jump.
 
 use crate::params::Params;
+use crate::pose::{apply_planar_correction, Pose3};
 use crate::se2::Se2;
 
 /// How many times longer than the step before a step must be to be a jump. A car
@@ -71,6 +72,16 @@ pub enum Continued {
 }
 
 impl Continuity {
+    /// `odom_from_body` (a planar pose in the frame the source publishes in now) carried into
+    /// the `continued` frame; unchanged, bit for bit, until the first jump.
+    pub fn carry(&self, odom_from_body: &Pose3) -> Pose3 {
+        if self.continued_from_odom == Se2::IDENTITY {
+            *odom_from_body
+        } else {
+            apply_planar_correction(&self.continued_from_odom, odom_from_body)
+        }
+    }
+
     /// Takes the next valid pose (`odom_from_body`, planar) with its stamp (seconds; NaN without
     /// one); returns whether it jumped. After a jump, [`Continuity::continued_from_odom`] carries
     /// it (and the poses after it) to where the last motion leads from the last pose.

@@ -113,12 +113,9 @@ impl SourceCorrector {
     /// Where `pose` would lie in the map plane under the correction in force (metres): the
     /// position the next step queries around.
     pub fn predicted_position_in_map(&self, pose: &Pose3) -> [f64; 2] {
-        let mut in_odom = self.placement.convention.to_planar(pose).planar_position();
-        let continued_from_odom = self.continuity.continued_from_odom;
-        if continued_from_odom != Se2::IDENTITY {
-            in_odom = continued_from_odom.apply(in_odom);
-        }
-        let in_anchored = self.placement.anchored_from_odom.apply(in_odom);
+        let planar = self.placement.convention.to_planar(pose);
+        let in_continued = self.continuity.carry(&planar).planar_position();
+        let in_anchored = self.placement.anchored_from_odom.apply(in_continued);
         self.corrector.map_from_anchored().apply(in_anchored)
     }
 
@@ -202,13 +199,10 @@ impl SourceCorrector {
         let continued = self
             .continuity
             .observe(planar.to_se2(), stamp_s, self.corrector.params());
-        let continued_from_odom = self.continuity.continued_from_odom;
-        let planar = if continued_from_odom == Se2::IDENTITY {
-            planar
-        } else {
-            apply_planar_correction(&continued_from_odom, &planar)
-        };
-        let anchored = apply_planar_correction(&placement.anchored_from_odom, &planar);
+        let anchored = apply_planar_correction(
+            &placement.anchored_from_odom,
+            &self.continuity.carry(&planar),
+        );
         let (status, covariance, timing, published) = if continued == Continued::Jumped {
             let held = self.corrector.map_from_anchored();
             let published = match &mut self.smoother {

@@ -152,11 +152,6 @@ pub fn first_seq(input: &OdomPose) -> u64 {
     }
 }
 
-/// The sensor stamp of `input` in seconds (what the corrector judges an odometry's speed by).
-fn stamp_s(input: &OdomPose) -> f64 {
-    input.stamp_ns as f64 * 1e-9
-}
-
 /// The answer to `input` for a pass-through source (no session state).
 pub fn pass_through(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> CorrectedPose {
     let mut a = blank_answer(input, received_mono_ns, epoch);
@@ -294,7 +289,7 @@ impl Session {
         // the corrector on (the daemon does it between poses, in `prepare`).
         let failure = self.roll_journal(setup).err();
         let uncovered_before = self.corrector.map().uncovered_queries();
-        let (record, timing) = self.corrector.correct_at(&pose, stamp_s(input));
+        let (record, timing) = self.corrector.correct_at(&pose, input.stamp_s());
         let uncovered_queries = self.corrector.map().uncovered_queries() - uncovered_before;
         let [x, y] = record.map_from_odom.translation();
         if record.status != Status::InvalidInput {
@@ -559,7 +554,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
                     let next = corrector.predicted_position_in_map(&pose);
                     follow_grid(&mut cells, &mut corrector, next)?;
                 }
-                let (again, _) = corrector.correct_at(&pose, stamp_s(&r.input));
+                let (again, _) = corrector.correct_at(&pose, r.input.stamp_s());
                 let (status, _) = wire_status(&again.status);
                 if again.pose.to_row_major() != r.answer.pose || status as u32 != r.answer.status {
                     return Err(RestoreError::Inconsistent(format!(

@@ -359,7 +359,7 @@ impl Worker {
         };
         answer.published_mono_ns = monotonic_ns();
         if matches!(outcome, Outcome::Corrected(_)) {
-            let rate = live.rate_probe.observe(input.stamp_ns as f64 * 1e-9);
+            let rate = live.rate_probe.observe(input.stamp_s());
             if let Some(warning) = rate.and_then(|r| rate_warning(r, &setup.params)) {
                 tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), "{warning}");
             }

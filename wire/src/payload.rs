@@ -219,6 +219,13 @@ pub struct CorrectedPose {
     pub anchor_yaw: f64,
 }
 
+impl OdomPose {
+    /// The sensor stamp in seconds.
+    pub fn stamp_s(&self) -> f64 {
+        self.stamp_ns as f64 * 1e-9
+    }
+}
+
 impl CorrectedPose {
     /// The status, if this build knows its code.
     pub fn status(&self) -> Option<StatusCode> {
