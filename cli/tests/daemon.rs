@@ -176,9 +176,11 @@ fn a_source_faster_than_its_corrector_is_set_for_is_told_in_the_log() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
-/// Always runs: an odometry that paused for 3 s, with its stamps, is corrected as offline with
-/// them (no jump); the same poses without stamps are read at 10 Hz, the pause is taken for a
-/// jump, the answers are offline's without stamps, and the daemon's log says where.
+/// Always runs: an odometry that paused for 3 s (30 m of the town's road), with its stamps, is
+/// corrected as offline with them (no jump). Without stamps (the replay's are the poses'
+/// indices) the pause reads as poses missing: on a straight the step drives on and is motion;
+/// over a corner it turns unlike the road and is taken for a jump. Either way the answers are
+/// offline's without stamps, and the daemon's log says where it jumped.
 #[test]
 fn a_paused_odometry_is_judged_by_its_stamps() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -186,43 +188,50 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
-    let poses: Vec<Pose3> = odometry[..600]
-        .iter()
-        .chain(&odometry[630..900])
-        .copied()
-        .collect();
-    let stamps_s: Vec<f64> = (0..poses.len())
-        .map(|i| 1000.0 + i as f64 * 0.1 + if i < 600 { 0.0 } else { 3.0 })
-        .collect();
-    let stamps: Vec<i64> = stamps_s.iter().map(|t| (t * 1e9).round() as i64).collect();
-    let answered = |stamps: &[i64]| {
-        let mut conn = connect(&setup, &name);
-        let r = replay(
-            &mut conn,
-            &name,
-            &poses,
-            stamps,
-            Rate::Max(16),
-            Duration::from_secs(10),
-            Duration::from_secs(10),
-        )
-        .unwrap();
-        let jumps: Vec<u64> = r
-            .answers
+    // The town's first corner is 720 m (poses) into the drive.
+    for (paused_at, corner) in [(600, false), (710, true)] {
+        let poses: Vec<Pose3> = odometry[..paused_at]
             .iter()
-            .filter(|a| a.status() == Some(StatusCode::OdometryJump))
-            .map(|a| a.seq)
+            .chain(&odometry[paused_at + 30..paused_at + 300])
+            .copied()
             .collect();
-        (poses_of(&r.answers), jumps)
-    };
-    let (stamped, jumps) = answered(&stamps);
-    assert!(jumps.is_empty(), "{jumps:?}");
-    assert!(stamped == offline_stamped(&setup, &name, &poses, Some(&stamps_s)));
-    assert!(!daemon.log().contains("the odometry jumped"));
-    let (unstamped, jumps) = answered(&[]);
-    assert_eq!(jumps, [601], "the pose after the pause (seq 601)");
-    assert!(unstamped == offline(&setup, &name, &poses));
-    assert!(unstamped != stamped);
+        let stamps_s: Vec<f64> = (0..poses.len())
+            .map(|i| 1000.0 + i as f64 * 0.1 + if i < paused_at { 0.0 } else { 3.0 })
+            .collect();
+        let stamps: Vec<i64> = stamps_s.iter().map(|t| (t * 1e9).round() as i64).collect();
+        let answered = |stamps: &[i64]| {
+            let mut conn = connect(&setup, &name);
+            let r = replay(
+                &mut conn,
+                &name,
+                &poses,
+                stamps,
+                Rate::Max(16),
+                Duration::from_secs(10),
+                Duration::from_secs(10),
+            )
+            .unwrap();
+            let jumps: Vec<u64> = r
+                .answers
+                .iter()
+                .filter(|a| a.status() == Some(StatusCode::OdometryJump))
+                .map(|a| a.seq)
+                .collect();
+            (poses_of(&r.answers), jumps)
+        };
+        let (stamped, jumps) = answered(&stamps);
+        assert!(jumps.is_empty(), "{jumps:?}");
+        assert!(stamped == offline_stamped(&setup, &name, &poses, Some(&stamps_s)));
+        let (unstamped, jumps) = answered(&[]);
+        assert!(unstamped == offline(&setup, &name, &poses));
+        if corner {
+            let seq = paused_at as u64 + 1;
+            assert_eq!(jumps, [seq], "the pose after the pause");
+            assert!(unstamped != stamped);
+        } else {
+            assert!(jumps.is_empty(), "{jumps:?}");
+        }
+    }
     let log = daemon.log();
     assert_eq!(log.matches("the odometry jumped").count(), 1, "{log}");
     assert!(daemon.stop().unwrap(), "clean exit");

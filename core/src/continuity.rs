@@ -16,10 +16,17 @@
 //! source that updates its heading less often than its position; the synthetic town's corners,
 //! 90 degrees in one pose), and a turn taken for a jump would be lost for good; a jump of the
 //! heading alone (an odometry restarted within a few metres of its origin) is left to the
-//! alignment, which corrects heading. Without stamps, a gap in the poses (a file with poses
-//! missing) reads as a jump when the missing road is longer than the speed limit allows in one
-//! period and three times the step before, and the turn over the gap is then lost; stamps tell
-//! a gap from a jump.
+//! alignment, which corrects heading.
+//!
+//! Without stamps (or with stamps only at the set rate) the time between two poses is not
+//! known, and poses can be missing (an odometry that lost track for a second, a file written only
+//! while it tracked): the step over the gap is then longer than the speed limit allows in one
+//! period. Such a step is motion when
+//! it continues the last step as a car drives on, at that step's curvature, whatever the speed
+//! ([`MAX_GAP_CHORD_DEVIATION`], [`MAX_GAP_TURN_CHANGE`]): the chord of an arc leaves at half its
+//! turn. An odometry that restarts or relocalises lands somewhere its last motion does not lead
+//! to, and is a jump. Stamps that show poses missing (more than one period and a half between
+//! two poses) time the gap, and the speed alone judges it.
 //!
 //! Frames: `odom` is the source's planar odometry frame as it publishes it now; `continued` is
 //! the frame of the session's first pose, which the corrector sees throughout.
@@ -27,17 +34,50 @@
 
 use crate::params::Params;
 use crate::pose::{apply_planar_correction, Pose3};
-use crate::se2::Se2;
+use crate::se2::{wrap_angle, Se2};
 
 /// How many times longer than the step before a step must be to be a jump. A car
 /// does not triple its speed between two poses: from the fastest step the speed limit allows at
 /// the presets' rate (7 m at 10 Hz), the step before would have been at least 2.3 m (23 m/s).
 pub const MAX_STEP_GROWTH: f64 = 3.0;
 
+/// How far (radians) the chord of a step over missing poses may point from where the last
+/// step's arc, continued, leads: 10 degrees. Entering or leaving a bend during the gap moves the
+/// chord by a sixth of the gap's turn (a clothoid's chord leaves at a third or two thirds of its
+/// turn, an arc's at half), so a bend of up to 60 degrees taken unseen is motion; an odometry
+/// that restarts passes only when its origin happens to lie this close to straight ahead.
+pub const MAX_GAP_CHORD_DEVIATION: f64 = 10.0 * std::f64::consts::PI / 180.0;
+
+/// How much more (radians) a step over missing poses may turn than the last step's curvature
+/// gives over its length: 45 degrees, a bend begun or ended during the gap.
+pub const MAX_GAP_TURN_CHANGE: f64 = 45.0 * std::f64::consts::PI / 180.0;
+
 /// The length of a planar step (metres).
 fn length(step: &Se2) -> f64 {
     let [dx, dy] = step.translation();
     dx.hypot(dy)
+}
+
+/// Whether `motion` (a step too long for one period, `before_from_after`, planar) continues
+/// `last_motion` (the step before it) as a car driving on through poses that are missing: its
+/// turn within [`MAX_GAP_TURN_CHANGE`] of the last step's curvature over its length, its chord
+/// within [`MAX_GAP_CHORD_DEVIATION`] of the direction of travel turned by half that turn. A
+/// last step shorter than `min_step_m` (a standing car) gives no direction to continue.
+fn continues_the_drive(last_motion: &Se2, motion: &Se2, min_step_m: f64) -> bool {
+    let last_length = length(last_motion);
+    if !(last_length >= min_step_m && last_length > 0.0) {
+        return false;
+    }
+    let [lx, ly] = last_motion.translation();
+    let last_turn = last_motion.yaw();
+    // The last step's chord leaves at half its turn: its arc ends heading half a turn further,
+    // which in the frame of the last pose (turned by the whole turn) is half a turn back.
+    let travel = ly.atan2(lx) - last_turn / 2.0;
+    let turn = motion.yaw();
+    let expected_turn = last_turn / last_length * length(motion);
+    let [x, y] = motion.translation();
+    wrap_angle(turn - expected_turn).abs() <= MAX_GAP_TURN_CHANGE
+        && wrap_angle(y.atan2(x) - travel - turn / 2.0).abs() <= MAX_GAP_CHORD_DEVIATION
 }
 
 /// What is known of the odometry's own motion, to tell a jump from a drive.
@@ -110,6 +150,18 @@ impl Continuity {
         if moved_m > params.max_speed_mps * elapsed_s
             && moved_m > MAX_STEP_GROWTH * length(&last_motion)
         {
+            // Stamps that show poses missing (more than one period and a half between the two)
+            // tell how long the gap took, and the speed has judged it. Without that (no stamps,
+            // stamps at the rate, repeated, reset or in a unit too small) the step may still
+            // span poses missing from the input.
+            let gap_timed = stamp_s - last_stamp_s > 1.5 / params.odometry_rate_hz;
+            let standing_step_m = params.standstill_speed_mps / params.odometry_rate_hz;
+            if !gap_timed && continues_the_drive(&last_motion, &motion, standing_step_m) {
+                // The last motion stays the step of one pose, for the next step to be judged
+                // against and a later jump to be predicted with.
+                self.last = Some((continued, stamp_s));
+                return Continued::Moved;
+            }
             let predicted = last * last_motion;
             self.continued_from_odom = predicted * odom_from_body.inverse();
             self.last = Some((predicted, stamp_s));
@@ -125,7 +177,6 @@ impl Continuity {
 mod tests {
     use super::*;
     use crate::params::Preset;
-    use crate::se2::wrap_angle;
 
     fn close(a: Se2, b: Se2) -> bool {
         let [ax, ay] = a.translation();
@@ -163,12 +214,12 @@ mod tests {
     #[test]
     fn speed_is_judged_by_the_stamps_and_a_turn_is_never_a_jump() {
         let params = Preset::KissIcp.robust_params();
-        // After a step of 1 m, 20 m in one period of 10 Hz is 200 m/s: a jump.
+        // After a step of 1 m, 20 m to the side in one period of 10 Hz is 200 m/s: a jump.
         let mut c = Continuity::default();
-        c.observe(Se2::IDENTITY, f64::NAN, &params);
-        c.observe(Se2::new(0.0, 1.0, 0.0), f64::NAN, &params);
+        c.observe(Se2::IDENTITY, 5.0, &params);
+        c.observe(Se2::new(0.0, 1.0, 0.0), 5.1, &params);
         assert_eq!(
-            c.observe(Se2::new(0.0, 21.0, 0.0), f64::NAN, &params),
+            c.observe(Se2::new(0.0, 1.0, 20.0), 5.2, &params),
             Continued::Jumped
         );
         // The same 20 m over a second the odometry paused (stamps 1 s apart) is 20 m/s: motion.
@@ -176,21 +227,21 @@ mod tests {
         c.observe(Se2::IDENTITY, 5.0, &params);
         c.observe(Se2::new(0.0, 1.0, 0.0), 5.1, &params);
         assert_eq!(
-            c.observe(Se2::new(0.0, 21.0, 0.0), 6.1, &params),
+            c.observe(Se2::new(0.0, 1.0, 20.0), 6.1, &params),
             Continued::Moved
         );
         // A stamp that does not move forward, or moves less than one period of the set rate
         // (stamps in a unit too small), counts as one period.
         assert_eq!(
-            c.observe(Se2::new(0.0, 100.0, 0.0), 6.1, &params),
+            c.observe(Se2::new(0.0, 81.0, 20.0), 6.1, &params),
             Continued::Jumped
         );
         assert_eq!(
-            c.observe(Se2::new(0.0, 100.5, 0.0), 6.100_001, &params),
+            c.observe(Se2::new(0.0, 81.5, 20.0), 6.100_001, &params),
             Continued::Moved
         );
         assert_eq!(
-            c.observe(Se2::new(0.0, 120.0, 0.0), 6.100_002, &params),
+            c.observe(Se2::new(0.0, 81.5, 40.0), 6.100_002, &params),
             Continued::Jumped
         );
         // A turn is never a jump, however sharp: a corner taken in one pose is not lost.
@@ -201,6 +252,43 @@ mod tests {
             c.observe(Se2::new(1.6, 2.0, 0.0), f64::NAN, &params),
             Continued::Moved
         );
+    }
+
+    #[test]
+    fn a_step_that_drives_on_spans_missing_poses_unless_the_stamps_time_it() {
+        let params = Preset::KissIcp.robust_params();
+        let walk = |stamps: [f64; 3], last: Se2| {
+            let mut c = Continuity::default();
+            c.observe(Se2::new(0.3, 0.0, 0.0), stamps[0], &params);
+            c.observe(Se2::new(0.3, 1.0, 0.0), stamps[1], &params);
+            (c.observe(last, stamps[2], &params), c.continued_from_odom)
+        };
+        // 1 m a pose along x (heading 0.3 rad: the direction of travel is the motion's, not the
+        // body's), then 20 m on: poses missing, without stamps or with stamps at the rate.
+        let on = Se2::new(0.3, 21.0, 0.0);
+        for stamps in [[f64::NAN; 3], [0.0, 0.1, 0.2], [7.0, 7.0, 7.0]] {
+            assert_eq!(
+                walk(stamps, on),
+                (Continued::Moved, Se2::IDENTITY),
+                "{stamps:?}"
+            );
+        }
+        // Bending 20 degrees on the way, as a road would (the chord at half the turn), is the
+        // same.
+        let bend = 20f64.to_radians();
+        let (sin, cos) = (bend / 2.0).sin_cos();
+        let bent = Se2::new(0.3 + bend, 1.0 + 20.0 * cos, 20.0 * sin);
+        assert_eq!(walk([f64::NAN; 3], bent).0, Continued::Moved);
+        // Stamps that show one pose missing time the gap: 20 m in 0.2 s is a jump.
+        assert_eq!(walk([0.0, 0.1, 0.3], on).0, Continued::Jumped);
+        // Off the direction of travel, or turned unlike the road, it is a jump.
+        for off in [
+            Se2::new(0.3, 21.0, 5.0),
+            Se2::new(0.3, -19.0, 0.0),
+            Se2::new(0.3 + 1.2, 21.0, 0.0),
+        ] {
+            assert_eq!(walk([f64::NAN; 3], off).0, Continued::Jumped, "{off:?}");
+        }
     }
 
     #[test]
@@ -254,8 +342,8 @@ mod tests {
         /// Any drive a car can make (speed changing by at most a fifth a pose, up to the limit,
         /// turning as it likes) is no jump; the same drive whose odometry changes frame at one
         /// pose after its first step, moving it by more than 30 m, is flagged there and only
-        /// there, and every pose after it lands where the unbroken drive's would, moved by the
-        /// one predicted step's error.
+        /// there (stamped at 10 Hz), and every pose after it lands where the unbroken drive's
+        /// would, moved by the one predicted step's error.
         #[test]
         fn a_frame_change_is_found_and_undone(
             steps in proptest::collection::vec((0.8f64..1.2, -0.5f64..0.5), 20..200),
@@ -270,9 +358,13 @@ mod tests {
                 let last = drive[drive.len() - 1];
                 drive.push(last * Se2::new(turn, speed, 0.0));
             }
-            let mut c = Continuity::default();
-            for pose in &drive {
-                proptest::prop_assert_eq!(c.observe(*pose, f64::NAN, &params), Continued::Moved);
+            let stamp = |i: usize| i as f64 / 10.0;
+            for stamped in [false, true] {
+                let mut c = Continuity::default();
+                for (i, pose) in drive.iter().enumerate() {
+                    let stamp_s = if stamped { stamp(i) } else { f64::NAN };
+                    proptest::prop_assert_eq!(c.observe(*pose, stamp_s, &params), Continued::Moved);
+                }
             }
             let change = Se2::new(yaw, dx, dy);
             // A change that moves the pose it happens at less than a car's step and three times
@@ -282,12 +374,17 @@ mod tests {
                 (ax - bx).hypot(ay - by)
             };
             proptest::prop_assume!(moved(change * drive[at], drive[at]) > 30.0);
+            // A change that happens to land where the drive would have gone on to (ahead, turned
+            // as the road turns) reads as poses missing: `missing_poses_are_motion`.
+            let last_motion = drive[at - 2].inverse() * drive[at - 1];
+            let step = drive[at - 1].inverse() * (change * drive[at]);
+            proptest::prop_assume!(!continues_the_drive(&last_motion, &step, 0.1));
             let mut c = Continuity::default();
             let mut landed = Vec::new();
             for (i, pose) in drive.iter().enumerate() {
                 let published = if i < at { *pose } else { change * *pose };
                 let expected = if i == at { Continued::Jumped } else { Continued::Moved };
-                let got = c.observe(published, f64::NAN, &params);
+                let got = c.observe(published, stamp(i), &params);
                 proptest::prop_assert_eq!(got, expected, "pose {}", i);
                 landed.push(c.last.unwrap().0);
             }
@@ -301,6 +398,41 @@ mod tests {
                 let off = (gx - wx).hypot(gy - wy);
                 proptest::prop_assert!(off < 1e-6, "pose {}: {} m", i, off);
             }
+        }
+
+        /// Without stamps, poses missing from a drive (up to a second and a half of a 10 Hz
+        /// odometry, anywhere after its first step) are motion: the drive's speed changing by
+        /// at most 5 % a pose (5 m/s^2 at 10 Hz), its turn by at most 0.005 rad a pose up to
+        /// 0.1 rad (entering and leaving bends), each step an arc.
+        #[test]
+        fn missing_poses_are_motion(
+            steps in proptest::collection::vec((0.95f64..1.05, -0.005f64..0.005), 20..200),
+            (from, missing) in (2usize..20, 2usize..16),
+        ) {
+            let params = Preset::KissIcp.robust_params();
+            let mut drive = vec![Se2::new(-1.0, 300.0, 40.0)];
+            let (mut speed, mut turn) = (4.0, 0.0);
+            for &(growth, bend) in &steps {
+                speed = (speed * growth).clamp(1.0, 6.9);
+                turn = f64::clamp(turn + bend, -0.1, 0.1);
+                let chord = Se2::new(turn, speed * (turn / 2.0).cos(), speed * (turn / 2.0).sin());
+                let last = drive[drive.len() - 1];
+                drive.push(last * chord);
+            }
+            proptest::prop_assume!(from + missing < drive.len());
+            let mut c = Continuity::default();
+            for (i, pose) in drive.iter().enumerate() {
+                if (from..from + missing).contains(&i) {
+                    continue;
+                }
+                proptest::prop_assert_eq!(
+                    c.observe(*pose, f64::NAN, &params),
+                    Continued::Moved,
+                    "pose {}",
+                    i
+                );
+            }
+            proptest::prop_assert_eq!(c.continued_from_odom, Se2::IDENTITY);
         }
     }
 }

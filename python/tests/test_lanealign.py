@@ -117,21 +117,25 @@ def test_overrides_and_smooth_are_the_command_lines_set_and_smooth(tmp_path):
         lanealign.correct(poses, odometry_rate_hz=100, overrides={"odometry_rate_hz": 100}, **args)
 
 
-def test_a_pause_with_stamps_is_motion_and_without_them_a_jump(tmp_path):
-    # Twenty poses missing (2 s of a drive at 12 m/s): read at 10 Hz, 25 m in one period is
-    # no vehicle's step, and the odometry is continued from where it was; with the stamps it
-    # is a pause, corrected as `lanealign correct` corrects the TUM file.
+def test_poses_missing_are_motion_unless_the_stamps_say_too_fast(tmp_path):
+    # Twenty poses missing (2 s of a drive at 12 m/s, 25 m): without stamps, or with stamps that
+    # show the pause, the drive goes on; stamps that say only 0.2 s passed make the 25 m a jump
+    # (125 m/s), and the odometry is continued from where it was, as `lanealign correct`
+    # continues the TUM file with those stamps.
     lanes, poses = straight_lane_and_drift(tmp_path)
     kept = np.r_[0:100, 120:200]
-    stamps = kept * 0.1
     gap = list(kept).index(120)
     unstamped = lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes)
-    names = [lanealign.STATUS_NAMES[c] for c in unstamped.status]
+    paused = lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=kept * 0.1)
+    for run in (unstamped, paused):
+        assert "odometry_jump" not in [lanealign.STATUS_NAMES[c] for c in run.status]
+    assert np.array_equal(unstamped.poses, paused.poses)
+    stamps = np.r_[0:100, 101:181] * 0.1
+    jumped = lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=stamps)
+    names = [lanealign.STATUS_NAMES[c] for c in jumped.status]
     assert names.count("odometry_jump") == 1 and names[gap] == "odometry_jump"
-    stamped = lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=stamps)
-    assert "odometry_jump" not in [lanealign.STATUS_NAMES[c] for c in stamped.status]
-    assert abs(stamped.poses[-1, 0, 3] - unstamped.poses[-1, 0, 3]) > 20.0
-    tum = tmp_path / "paused.tum"
+    assert abs(jumped.poses[-1, 0, 3] - unstamped.poses[-1, 0, 3]) > 20.0
+    tum = tmp_path / "jumped.tum"
     rows = []
     for t, p in zip(stamps, poses[kept]):
         x, y, z = map(float, p[:, 3])
@@ -140,7 +144,7 @@ def test_a_pause_with_stamps_is_motion_and_without_them_a_jump(tmp_path):
     out = tmp_path / "out.tum"
     cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--format", "tum", tum, "-o", out)
     corrected = np.loadtxt(out)
-    assert np.array_equal(corrected[:, 1:3], stamped.poses[:, :2, 3])
+    assert np.array_equal(corrected[:, 1:3], jumped.poses[:, :2, 3])
     with pytest.raises(ValueError, match="stamps: 3 stamps for 180 poses"):
         lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=stamps[:3])
 

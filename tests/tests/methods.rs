@@ -548,3 +548,47 @@ fn an_odometry_that_jumps_is_continued_where_the_vehicle_was() {
     assert!((on - none).abs() < 0.15, "{on} m against {none} m");
     assert!(taken_for_road > 10.0, "the jumps matter without the check");
 }
+
+/// An odometry that loses track for a second writes no poses meanwhile, and a file without
+/// stamps does not say how long the gap took. KITTI 00's LiDAR odometry with ten poses missing
+/// every 500: the steps over the gaps are longer than the speed limit allows in one period, but
+/// each drives on as the step before did, and is motion. Taken for jumps, each gap's road was lost.
+#[test]
+fn poses_missing_from_a_file_without_stamps_are_motion() {
+    let Some(data) = shared_data() else { return };
+    let drive = Drive00::load(&data);
+    let kept: Vec<usize> = (0..drive.odom.len())
+        .filter(|&i| i == 0 || i % 500 >= 10)
+        .collect();
+    let poses: Vec<Pose3> = kept.iter().map(|&i| drive.odom[i]).collect();
+    let params = Drive00::params();
+    // Not vacuous: most gaps are past the limit of one period.
+    let position = |p: &Pose3| Drive00::CAM.to_planar(p).planar_position();
+    let past_the_limit = poses
+        .windows(2)
+        .filter(|w| {
+            let ([ax, ay], [bx, by]) = (position(&w[0]), position(&w[1]));
+            (bx - ax).hypot(by - ay) > params.max_speed_mps / params.odometry_rate_hz
+        })
+        .count();
+    assert!(past_the_limit >= 5, "{past_the_limit} steps past the limit");
+    let out = drive.correct(params, &poses);
+    let jumps = out
+        .iter()
+        .filter(|c| matches!(c.status, Status::OdometryJump { .. }))
+        .count();
+    assert_eq!(jumps, 0);
+    let gt: Vec<Pose3> = kept.iter().map(|&i| drive.gt[i]).collect();
+    let est: Vec<Pose3> = out
+        .iter()
+        .map(|c| Drive00::CAM.to_planar(&c.pose))
+        .collect();
+    let missing = ape_2d(&gt, &est).unwrap().mean_m;
+    let unbroken = drive.correct(params, &drive.odom);
+    let none = drive.ape(&unbroken.iter().map(|c| c.pose).collect::<Vec<_>>());
+    println!(
+        "KITTI 00 lidar, ten poses missing every 500 ({past_the_limit} steps past the limit): \
+         {missing:.3} m ({none:.3} m with every pose)"
+    );
+    assert!((missing - none).abs() < 0.1, "{missing} m against {none} m");
+}
