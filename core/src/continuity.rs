@@ -21,12 +21,12 @@
 //! Without stamps (or with stamps only at the set rate) the time between two poses is not
 //! known, and poses can be missing (an odometry that lost track for a second, a file written only
 //! while it tracked): the step over the gap is then longer than the speed limit allows in one
-//! period. Such a step is motion when
-//! it continues the last step as a car drives on, at that step's curvature, whatever the speed
-//! ([`MAX_GAP_CHORD_DEVIATION`], [`MAX_GAP_TURN_CHANGE`]): the chord of an arc leaves at half its
-//! turn. An odometry that restarts or relocalises lands somewhere its last motion does not lead
-//! to, and is a jump. Stamps that show poses missing (more than one period and a half between
-//! two poses) time the gap, and the speed alone judges it.
+//! period. Such a step is motion when it continues the last step as a car drives on, at that
+//! step's curvature, whatever the speed ([`MAX_GAP_CHORD_DEVIATION`], [`MAX_GAP_TURN_CHANGE`]):
+//! the chord of an arc leaves at half its turn. An odometry that restarts or relocalises lands
+//! somewhere its last motion does not lead to, and is a jump. Stamps that show poses missing
+//! (more than one period and a half between two poses) time the gap, and the speed alone judges
+//! it.
 //!
 //! Frames: `odom` is the source's planar odometry frame as it publishes it now; `continued` is
 //! the frame of the session's first pose, which the corrector sees throughout.

@@ -65,7 +65,9 @@ def correct(
     an unknown name or a value of the wrong type is a ``ValueError``. ``stamps``: each pose's
     time in seconds (N), as a TUM file gives them: the odometry's speed, which tells its jumps
     (status ``"odometry_jump"``) from its motion, is then judged by them, so that a pause in the
-    poses is not taken for a jump; without them the poses come at ``odometry_rate_hz``.
+    poses is not taken for a jump even over a bend; without them the poses come at
+    ``odometry_rate_hz``, and a step too long for one period is motion only where it drives on
+    as the step before did (poses missing).
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
     out, status, covariance = _lanealign.correct(
