@@ -79,7 +79,9 @@ pub struct Params {
     /// `max_window`, `max_failures`) were chosen for [`PRESET_RATE_HZ`] odometry; a faster
     /// source has only every `round(odometry_rate_hz / PRESET_RATE_HZ)`-th pose enter the window,
     /// and the poses between are answered with the correction in force
-    /// ([`crate::corrector::Status::Carried`]), so that its window spans the same stretch of road.
+    /// ([`crate::corrector::Status::Carried`]); a slower source has the counts scaled down by
+    /// `odometry_rate_hz / PRESET_RATE_HZ` ([`Params::min_window_poses`]). Either way its window
+    /// spans the same time and stretch of road.
     pub odometry_rate_hz: f64,
     /// Beyond the paper: how far the odometry must have travelled since the last accepted
     /// alignment before the next is attempted (metres). A pose that comes sooner enters the window
@@ -459,6 +461,34 @@ impl Params {
         (self.odometry_rate_hz / PRESET_RATE_HZ).round().max(1.0) as usize
     }
 
+    /// A pose count chosen for [`PRESET_RATE_HZ`] odometry (the presets' `min_window`,
+    /// `max_window`, `max_failures`) for a source at [`Params::odometry_rate_hz`]: scaled by the
+    /// rate over [`PRESET_RATE_HZ`] for a slower source, so that it spans the same time (rounded,
+    /// never below 2 unless the count is); unchanged for a faster one, whose window takes every
+    /// [`Params::window_stride`]-th pose instead.
+    fn count_at_rate(&self, count: usize) -> usize {
+        if self.odometry_rate_hz >= PRESET_RATE_HZ {
+            return count;
+        }
+        let scaled = (count as f64 * self.odometry_rate_hz / PRESET_RATE_HZ).round() as usize;
+        scaled.max(count.min(2))
+    }
+
+    /// [`Params::min_window`] for the source's rate (poses; see [`Params::odometry_rate_hz`]).
+    pub fn min_window_poses(&self) -> usize {
+        self.count_at_rate(self.min_window)
+    }
+
+    /// [`Params::max_window`] for the source's rate (poses; see [`Params::odometry_rate_hz`]).
+    pub fn max_window_poses(&self) -> usize {
+        self.count_at_rate(self.max_window)
+    }
+
+    /// [`Params::max_failures`] for the source's rate (see [`Params::odometry_rate_hz`]).
+    pub fn max_failures_at_rate(&self) -> u32 {
+        u32::try_from(self.count_at_rate(self.max_failures as usize)).unwrap_or(u32::MAX)
+    }
+
     /// How close to the last moving pose a pose stands still (metres): the distance
     /// [`Params::standstill_speed_mps`] covers between two poses at [`Params::odometry_rate_hz`].
     pub fn standstill_distance_m(&self) -> f64 {
@@ -720,6 +750,27 @@ impl CorrectorConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_slower_source_has_its_pose_counts_scaled_and_a_faster_one_a_stride() {
+        let p = Preset::KissIcp.robust_params();
+        let at = |hz: f64| {
+            let mut q = p;
+            q.odometry_rate_hz = hz;
+            (
+                q.min_window_poses(),
+                q.max_window_poses(),
+                q.max_failures_at_rate(),
+                q.window_stride(),
+            )
+        };
+        assert_eq!(at(10.0), (150, 1000, 1000, 1));
+        assert_eq!(at(100.0), (150, 1000, 1000, 10));
+        assert_eq!(at(5.0), (75, 500, 500, 1));
+        assert_eq!(at(2.0), (30, 200, 200, 1));
+        // Never below two poses, so that a window has a direction.
+        assert_eq!(at(0.01), (2, 2, 2, 1));
+    }
 
     #[test]
     fn presets_match_the_paper_table() {

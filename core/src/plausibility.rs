@@ -131,8 +131,9 @@ pub fn odometry_jump_warning(run: &[CorrectedPose], params: &Params) -> Option<S
     ))
 }
 
-/// How much faster than the corrector's [`Params::odometry_rate_hz`] a source's stamps may say it
-/// is before its window is suspect of spanning too short a stretch of road.
+/// How much faster (or slower) than the corrector's [`Params::odometry_rate_hz`] a source's
+/// stamps may say it is before its window is suspect of spanning too short (or too long) a
+/// stretch of road.
 pub const MAX_RATE_RATIO: f64 = 1.5;
 
 /// Stamps closer than this (seconds) are no sensor's: counters or a fixed value, not time.
@@ -155,18 +156,29 @@ pub fn rate_from_stamps(stamps_s: &[f64]) -> Option<f64> {
     Some(1.0 / *median)
 }
 
-/// A warning when a source's measured `rate_hz` is well above the rate `params` are set for: its
-/// window then spans a fraction of the road the preset was chosen for.
+/// A warning when a source's measured `rate_hz` is well above or below the rate `params` are set
+/// for: its window then spans a fraction of the road the preset was chosen for, or a multiple of
+/// it (and its first correction comes as many times later).
 pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
-    (rate_hz > MAX_RATE_RATIO * params.odometry_rate_hz).then(|| {
-        format!(
-            "the poses come at about {rate_hz:.0} Hz (their stamps) but the corrector is set for \
-             {:.0} Hz, so its window spans only part of the road its preset was chosen for: set \
-             odometry_rate_hz = {rate_hz:.0} (--set odometry_rate_hz={rate_hz:.0}, or in the \
-             source's overrides)",
-            params.odometry_rate_hz
-        )
-    })
+    let set_hz = params.odometry_rate_hz;
+    let consequence = if rate_hz > MAX_RATE_RATIO * set_hz {
+        "only part of the road its preset was chosen for"
+    } else if rate_hz * MAX_RATE_RATIO < set_hz {
+        "more time and road than its preset was chosen for, and its first correction comes later"
+    } else {
+        return None;
+    };
+    // Whole hertz above 10 Hz; below, a tenth matters (2.5 Hz is not 2 or 3).
+    let rate = if rate_hz >= 10.0 {
+        format!("{rate_hz:.0}")
+    } else {
+        format!("{rate_hz:.1}")
+    };
+    Some(format!(
+        "the poses come at about {rate} Hz (their stamps) but the corrector is set for {set_hz} \
+         Hz, so its window spans {consequence}: set odometry_rate_hz = {rate} (--set \
+         odometry_rate_hz={rate}, or in the source's overrides)"
+    ))
 }
 
 /// Gathers a session's first stamps to tell its rate once (see [`rate_from_stamps`]).
@@ -240,7 +252,7 @@ mod tests {
     }
 
     #[test]
-    fn a_source_faster_than_its_preset_is_noticed_and_the_setting_named() {
+    fn a_source_faster_or_slower_than_its_preset_is_noticed_and_the_setting_named() {
         let params = crate::params::Preset::KissIcp.robust_params();
         let stamps = |hz: f64| {
             (0..100)
@@ -253,6 +265,14 @@ mod tests {
         assert!(w.contains("odometry_rate_hz=100"), "{w}");
         assert!(rate_warning(rate_from_stamps(&stamps(10.0)).unwrap(), &params).is_none());
         assert!(rate_warning(rate_from_stamps(&stamps(14.0)).unwrap(), &params).is_none());
+        assert!(rate_warning(rate_from_stamps(&stamps(7.0)).unwrap(), &params).is_none());
+        // A slower source too: its window would span twice the time and road.
+        let w = rate_warning(rate_from_stamps(&stamps(5.0)).unwrap(), &params).unwrap();
+        assert!(
+            w.contains("about 5.0 Hz") && w.contains("odometry_rate_hz=5.0"),
+            "{w}"
+        );
+        assert!(w.contains("first correction comes later"), "{w}");
         let mut set = params;
         set.odometry_rate_hz = 100.0;
         assert!(rate_warning(rate, &set).is_none());

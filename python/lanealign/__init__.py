@@ -58,8 +58,9 @@ def correct(
     ``tile``); ``projection``: ``"tangent"`` (default for osm) or
     ``"kitti"``. ``preset``: liodom, basalt, kiss-icp or orb-slam3; ``method``: robust or paper;
     ``frame``: ``"flu"`` or ``"kitti-camera"``. ``odometry_rate_hz``: the poses' rate when it is
-    above the presets' 10 Hz (only every ``round(rate / 10)``-th pose then enters the window,
-    the others get the correction in force, status ``"carried"``). ``smooth``: publish smoothed
+    not the presets' 10 Hz (above, only every ``round(rate / 10)``-th pose then enters the window,
+    the others get the correction in force, status ``"carried"``; below, the window's pose counts
+    shrink by ``rate / 10``). ``smooth``: publish smoothed
     poses, as ``--smooth``. ``overrides``: parameters by name, as ``--set KEY=VALUE`` takes them
     (``lanealign params`` lists them), e.g. ``{"max_window": 800, "lane_tolerance_m": 0.5}``;
     an unknown name or a value of the wrong type is a ``ValueError``. ``stamps``: each pose's
