@@ -477,6 +477,7 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
         .unwrap();
     assert_eq!(params["params"], printed["params"]);
     assert_eq!(params["corrector"], printed["corrector"]);
+    assert_eq!(params["at_rate"], printed["at_rate"]);
     assert_eq!(params["run"]["map"].as_str(), Some("lanes-csv"));
 
     let metrics: serde_json::Value =

@@ -166,6 +166,27 @@ fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
     assert!(!err.contains("jumped"), "{err}");
 }
 
+/// `lanealign params` shows the pose counts the corrector uses at the source's rate: a stride
+/// above 10 Hz, the counts scaled down below it.
+#[test]
+fn params_show_the_pose_counts_at_the_sources_rate() {
+    let at_rate = |hz: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args(["params", "--preset", "kiss-icp", "--set"])
+            .arg(format!("odometry_rate_hz={hz}"))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+        let printed: toml::Table = String::from_utf8(out.stdout).unwrap().parse().unwrap();
+        let counts = &printed["at_rate"];
+        ["window_stride", "min_window", "max_window", "max_failures"]
+            .map(|key| counts[key].as_integer().unwrap())
+    };
+    assert_eq!(at_rate("10"), [1, 150, 1000, 1000]);
+    assert_eq!(at_rate("100"), [10, 150, 1000, 1000]);
+    assert_eq!(at_rate("2"), [1, 30, 200, 200]);
+}
+
 /// `lanealign eval ... | head -1`: a reader that goes away ends the command as it ends Unix
 /// filters (SIGPIPE), not with a panic on stderr.
 #[test]

@@ -24,6 +24,8 @@ use lanealign_map::compile::InputReport;
 use lanealign_map::osm_lanes::LaneOptions;
 use serde::Serialize;
 
+use super::params::AtRate;
+
 /// Where the lanes come from and where the odometry lies on them.
 #[derive(Args)]
 pub struct MapArgs {
@@ -184,6 +186,7 @@ struct ParamsFile<'a> {
     run: RunRecord<'a>,
     corrector: CorrectorConfig,
     params: Params,
+    at_rate: AtRate,
 }
 
 /// The input and the map of a run.
@@ -331,6 +334,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             unmarked_offset_scale: config.unmarked_offset_scale(),
             run: RunRecord::new(args, &source),
             corrector: config,
+            at_rate: AtRate::of(&params),
             params,
         };
         let path = dir.join("params.toml");
