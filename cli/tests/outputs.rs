@@ -166,6 +166,60 @@ fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
     assert!(!err.contains("jumped"), "{err}");
 }
 
+/// A TUM source at 2 Hz is told to set its rate; set, it is corrected without the warning, and
+/// its first alignment comes after a fifth of the presets' 150 poses.
+#[test]
+fn a_tum_source_slower_than_its_preset_is_told_the_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path(), 200);
+    // 2 Hz along the lane at 10 m/s, 0.5 m beside it.
+    let poses = dir.path().join("poses.tum");
+    let lines: String = (0..100)
+        .map(|i| {
+            format!(
+                "{} {} 0.5 0 0 0 0 1\n",
+                1.7e9 + i as f64 * 0.5,
+                i as f64 * 5.0
+            )
+        })
+        .collect();
+    std::fs::write(&poses, lines).unwrap();
+    let run = |set: &[&str]| {
+        let status = dir.path().join("status.csv");
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args([
+                "correct", "--preset", "kiss-icp", "--format", "tum", "--lanes",
+            ])
+            .arg(&lanes)
+            .args(set)
+            .arg(&poses)
+            .arg("-o")
+            .arg(dir.path().join("out.tum"))
+            .arg("--status")
+            .arg(&status)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        let warming = std::fs::read_to_string(&status)
+            .unwrap()
+            .lines()
+            .filter(|l| l.contains(",warming_up,"))
+            .count();
+        (err, warming)
+    };
+    let (err, warming) = run(&[]);
+    assert!(
+        err.contains("WARN the poses come at about 2.0 Hz")
+            && err.contains("--set odometry_rate_hz=2.0"),
+        "{err}"
+    );
+    assert_eq!(warming, 100, "150 poses are more than the run has");
+    let (err, warming) = run(&["--set", "odometry_rate_hz=2.0"]);
+    assert!(!err.contains("Hz (their stamps)"), "{err}");
+    assert_eq!(warming, 29, "a window of 30 poses");
+}
+
 /// `lanealign params` shows the pose counts the corrector uses at the source's rate: a stride
 /// above 10 Hz, the counts scaled down below it.
 #[test]
