@@ -15,6 +15,40 @@ fn straight_lane(dir: &Path, points: usize) -> PathBuf {
     lanes
 }
 
+/// `lanealign correct --preset kiss-icp --format tum --lanes LANES [SET] POSES` into `dir`: its
+/// standard error and how many poses of its status file have `status`.
+fn correct_tum(
+    dir: &Path,
+    lanes: &Path,
+    poses: &Path,
+    set: &[&str],
+    status: &str,
+) -> (String, usize) {
+    let status_path = dir.join("status.csv");
+    let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+        .args([
+            "correct", "--preset", "kiss-icp", "--format", "tum", "--lanes",
+        ])
+        .arg(lanes)
+        .args(set)
+        .arg(poses)
+        .arg("-o")
+        .arg(dir.join("out.tum"))
+        .arg("--status")
+        .arg(&status_path)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{err}");
+    let column = format!(",{status},");
+    let count = std::fs::read_to_string(&status_path)
+        .unwrap()
+        .lines()
+        .filter(|l| l.contains(&column))
+        .count();
+    (err, count)
+}
+
 #[test]
 fn outputs_appear_only_when_the_whole_run_succeeded() {
     let dir = tempfile::tempdir().unwrap();
@@ -72,30 +106,7 @@ fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
         })
         .collect();
     std::fs::write(&poses, lines).unwrap();
-    let run = |set: &[&str]| {
-        let status = dir.path().join("status.csv");
-        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
-            .args([
-                "correct", "--preset", "kiss-icp", "--format", "tum", "--lanes",
-            ])
-            .arg(&lanes)
-            .args(set)
-            .arg(&poses)
-            .arg("-o")
-            .arg(dir.path().join("out.tum"))
-            .arg("--status")
-            .arg(&status)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr).to_string();
-        assert!(out.status.success(), "{err}");
-        let carried = std::fs::read_to_string(&status)
-            .unwrap()
-            .lines()
-            .filter(|l| l.contains(",carried,"))
-            .count();
-        (err, carried)
-    };
+    let run = |set: &[&str]| correct_tum(dir.path(), &lanes, &poses, set, "carried");
     // An alignment on every window pose and no standstill (the robust method's spacing of 1 m
     // would carry poses 0.1 m apart too, and its standstill of 1 m/s, taken at the presets'
     // 10 Hz, those that came a rounding closer than 0.1 m), so that the count is the stride's.
@@ -184,30 +195,7 @@ fn a_tum_source_slower_than_its_preset_is_told_the_setting() {
         })
         .collect();
     std::fs::write(&poses, lines).unwrap();
-    let run = |set: &[&str]| {
-        let status = dir.path().join("status.csv");
-        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
-            .args([
-                "correct", "--preset", "kiss-icp", "--format", "tum", "--lanes",
-            ])
-            .arg(&lanes)
-            .args(set)
-            .arg(&poses)
-            .arg("-o")
-            .arg(dir.path().join("out.tum"))
-            .arg("--status")
-            .arg(&status)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr).to_string();
-        assert!(out.status.success(), "{err}");
-        let warming = std::fs::read_to_string(&status)
-            .unwrap()
-            .lines()
-            .filter(|l| l.contains(",warming_up,"))
-            .count();
-        (err, warming)
-    };
+    let run = |set: &[&str]| correct_tum(dir.path(), &lanes, &poses, set, "warming_up");
     let (err, warming) = run(&[]);
     assert!(
         err.contains("WARN the poses come at about 2.0 Hz")
