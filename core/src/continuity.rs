@@ -142,7 +142,8 @@ impl Continuity {
         // The stamps can only lengthen the time between two poses beyond one period of the set
         // rate (an odometry that paused): stamps that are absent, repeated, reset or in a unit too
         // small would otherwise make every step a jump.
-        let elapsed_s = (stamp_s - last_stamp_s).max(1.0 / params.odometry_rate_hz);
+        let (since_last_s, period_s) = (stamp_s - last_stamp_s, 1.0 / params.odometry_rate_hz);
+        let elapsed_s = since_last_s.max(period_s);
         let moved_m = length(&motion);
         // A step is a jump when the vehicle could not drive it in the time, and when it is
         // more than [`MAX_STEP_GROWTH`] times the step before: a source slower than its set
@@ -154,9 +155,10 @@ impl Continuity {
             // tell how long the gap took, and the speed has judged it. Without that (no stamps,
             // stamps at the rate, repeated, reset or in a unit too small) the step may still
             // span poses missing from the input.
-            let gap_timed = stamp_s - last_stamp_s > 1.5 / params.odometry_rate_hz;
-            let standing_step_m = params.standstill_speed_mps / params.odometry_rate_hz;
-            if !gap_timed && continues_the_drive(&last_motion, &motion, standing_step_m) {
+            let gap_timed = since_last_s > 1.5 * period_s;
+            if !gap_timed
+                && continues_the_drive(&last_motion, &motion, params.standstill_distance_m())
+            {
                 // The last motion stays the step of one pose, for the next step to be judged
                 // against and a later jump to be predicted with.
                 self.last = Some((continued, stamp_s));

@@ -543,17 +543,18 @@ impl Corrector {
         if let Matcher::Fast(cache) = &mut self.matcher {
             cache.push();
         }
+        let min_window = p.min_window_poses();
         if self.window.len() > p.max_window_poses() {
             self.drop_oldest(1);
         }
         if p.max_window_path_m.is_finite() {
             let excess = self
                 .window
-                .excess_over_path(p.max_window_path_m, p.min_window_poses());
+                .excess_over_path(p.max_window_path_m, min_window);
             self.drop_oldest(excess);
         }
         let window_len = self.window.len();
-        if window_len < p.min_window_poses() || !self.window.path_at_least(p.min_path_length_m) {
+        if window_len < min_window || !self.window.path_at_least(p.min_path_length_m) {
             return self.step(Status::WarmingUp { window_len });
         }
         if self.travelled_m < p.alignment_spacing_m {
@@ -630,7 +631,7 @@ impl Corrector {
         self.drop_oldest(1);
         self.failures += 1;
         if self.failures > p.max_failures_at_rate() {
-            let keep = p.min_window_poses() - 1;
+            let keep = min_window - 1;
             self.drop_oldest(self.window.len().saturating_sub(keep));
             self.failures = 0;
             return self.step(Status::Reset {
