@@ -27,7 +27,7 @@
 //!
 //! Hand-written 3x3 algebra on nalgebra's fixed-size matrices: no crate models this filter.
 
-use nalgebra::{Matrix3, RowVector3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Matrix4, RowVector3, SymmetricEigen, Vector3};
 
 use crate::lane_geometry::{LaneInfo, RoadClass};
 use crate::lane_map::LaneMap;
@@ -251,6 +251,10 @@ pub fn position_covariance_in(frame_from_map: &Se2, covariance: &Covariance) -> 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseUncertainty {
     covariance: Matrix3<f64>,
+    /// The covariance of the pose error with the odometry's scale error (metres, metres,
+    /// radians; see [`crate::scale`]): a scale error turns every metre driven into position
+    /// error along the motion, so the two grow together.
+    scale_cross: Vector3<f64>,
 }
 
 /// What [`PoseUncertainty::supported`] kept of a proposed correction.
@@ -270,6 +274,7 @@ impl PoseUncertainty {
         let y = params.initial_sigma_yaw_deg.to_radians();
         PoseUncertainty {
             covariance: Matrix3::from_diagonal(&Vector3::new(s * s, s * s, y * y)),
+            scale_cross: Vector3::zeros(),
         }
     }
 
@@ -277,7 +282,23 @@ impl PoseUncertainty {
     pub fn from_covariance(covariance: &Covariance) -> Self {
         PoseUncertainty {
             covariance: Matrix3::from_fn(|r, c| covariance[r][c]),
+            scale_cross: Vector3::zeros(),
         }
+    }
+
+    /// A saved uncertainty with its covariance with the odometry's scale error (see
+    /// [`PoseUncertainty::scale_cross`]).
+    pub fn from_parts(covariance: &Covariance, scale_cross: [f64; 3]) -> Self {
+        PoseUncertainty {
+            scale_cross: Vector3::from(scale_cross),
+            ..Self::from_covariance(covariance)
+        }
+    }
+
+    /// The covariance of the pose error with the odometry's scale error (metres, metres,
+    /// radians; zero where the scale is not estimated).
+    pub fn scale_cross(&self) -> [f64; 3] {
+        self.scale_cross.into()
     }
 
     /// The covariance (map plane; x, y in metres, yaw in radians).
@@ -289,6 +310,13 @@ impl PoseUncertainty {
     /// The pose moved by `motion` (metres, map plane): the heading error turns the motion into
     /// position error, and the odometry drifts by its rate per metre.
     pub fn drive(&mut self, motion: [f64; 2], params: &Params) {
+        self.drive_scaled(motion, params, 0.0);
+    }
+
+    /// [`PoseUncertainty::drive`] for an odometry whose scale is uncertain by `scale_variance`
+    /// (a ratio squared; 0 when the scale is not estimated): the motion's scale error adds to
+    /// the position error along it, correlated over every metre driven.
+    pub fn drive_scaled(&mut self, motion: [f64; 2], params: &Params, scale_variance: f64) {
         let step = motion[0].hypot(motion[1]);
         if step == 0.0 {
             return;
@@ -304,6 +332,13 @@ impl PoseUncertainty {
             params.yaw_drift_var_per_m * step,
         );
         self.covariance = f * self.covariance * f.transpose() + Matrix3::from_diagonal(&q);
+        if scale_variance > 0.0 {
+            let m = Vector3::new(motion[0], motion[1], 0.0);
+            let fc = f * self.scale_cross;
+            self.covariance +=
+                fc * m.transpose() + m * fc.transpose() + m * m.transpose() * scale_variance;
+            self.scale_cross = fc + m * scale_variance;
+        }
         self.symmetrize();
     }
 
@@ -352,6 +387,37 @@ impl PoseUncertainty {
     /// Adds `information` (about a correction at the current pose), scaled by `share`: the part
     /// of it that is new since the last update.
     pub fn update(&mut self, information: &Matrix3<f64>, share: f64) {
+        self.update_scaled(information, share, 0.0);
+    }
+
+    /// [`PoseUncertainty::update`] with the scale error's variance `scale_variance` beside the
+    /// pose's (0 when the scale is not estimated): the alignment also tells the part of the
+    /// scale error that is correlated with the pose's.
+    pub fn update_scaled(&mut self, information: &Matrix3<f64>, share: f64, scale_variance: f64) {
+        if scale_variance > 0.0 {
+            let mut joint = Matrix4::zeros();
+            joint
+                .fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&self.covariance);
+            joint
+                .fixed_view_mut::<3, 1>(0, 3)
+                .copy_from(&self.scale_cross);
+            joint
+                .fixed_view_mut::<1, 3>(3, 0)
+                .copy_from(&self.scale_cross.transpose());
+            joint[(3, 3)] = scale_variance;
+            let Some(mut joint_information) = joint.try_inverse() else {
+                return;
+            };
+            let mut pose = joint_information.fixed_view_mut::<3, 3>(0, 0);
+            pose += information * share;
+            if let Some(updated) = joint_information.try_inverse() {
+                self.covariance = updated.fixed_view::<3, 3>(0, 0).into_owned();
+                self.scale_cross = updated.fixed_view::<3, 1>(0, 3).into_owned();
+                self.symmetrize();
+            }
+            return;
+        }
         let Some(prior_information) = self.covariance.try_inverse() else {
             return;
         };

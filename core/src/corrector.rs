@@ -3,9 +3,11 @@
 //!
 //! One corrector serves one odometry source. It works in the lane map's plane: positions come in
 //! as the source's anchor places them (frame `anchored`: the odometry placed in the map plane,
-//! before any correction) and go out corrected (frame `map`). The accumulated correction is
-//! `map_from_anchored` (the paper's `T_acc`); [`crate::source_corrector`] composes it with the
-//! anchor into the source's `map_from_odom`.
+//! before any correction; where the corrector estimates the odometry's scale, with the steps
+//! multiplied by its estimate, frame `scaled` of [`crate::source_corrector`]) and go out
+//! corrected (frame `map`). The accumulated correction is `map_from_anchored` (the paper's
+//! `T_acc`); [`crate::source_corrector`] composes it with the anchor into the source's
+//! `map_from_odom`.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -20,6 +22,7 @@ use crate::lane_map::{Candidate, LaneMap};
 use crate::match_cache::MatchCache;
 use crate::matching::{match_window, Correspondence, MatchParams};
 use crate::params::Params;
+use crate::scale::{scale_evidence, ScaleEstimate};
 use crate::se2::{distance, Se2};
 use crate::window::Window;
 
@@ -285,6 +288,11 @@ pub struct CorrectorState {
     pub map_error: [[f64; 2]; 2],
     /// Poses answered as [`Status::Carried`] since the last one that entered the window.
     pub carried: u32,
+    /// The estimate of the odometry's scale, when it is estimated ([`Params::scale_sigma`]).
+    pub scale: Option<ScaleEstimate>,
+    /// When the scale is estimated, the published covariance of the pose (without the inherited
+    /// map error) and its covariance with the scale error (see [`Corrector::covariance`]).
+    pub published_uncertainty: Option<(Covariance, [f64; 3])>,
 }
 
 /// One odometry source's corrector.
@@ -307,6 +315,12 @@ pub struct Corrector {
     /// distance travelled is measured from.
     last_position_in_anchored: Option<[f64; 2]>,
     uncertainty: PoseUncertainty,
+    /// When the scale is estimated: the pose's uncertainty with the scale's in it, which is
+    /// published. `uncertainty` alone decides what of a correction is applied, as it does for an
+    /// odometry whose scale is not estimated (with the scale's along-track uncertainty in it,
+    /// rigid corrections took the scale error before the scale estimate could: docs/method.md,
+    /// "Scale").
+    published_uncertainty: Option<PoseUncertainty>,
     /// The map error the pose inherits from its last alignment (see
     /// [`Alignment::inherited_map_error`](crate::confidence::Alignment::inherited_map_error)).
     map_error: [[f64; 2]; 2],
@@ -317,6 +331,8 @@ pub struct Corrector {
     matcher: Matcher,
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
+    /// The odometry's scale, when it is estimated ([`Params::scale_sigma`]).
+    scale: Option<ScaleEstimate>,
 }
 
 impl Corrector {
@@ -338,6 +354,8 @@ impl Corrector {
             gate_travelled_m: 0.0,
             last_position_in_anchored: None,
             uncertainty: PoseUncertainty::new(&params),
+            published_uncertainty: (params.scale_sigma > 0.0)
+                .then(|| PoseUncertainty::new(&params)),
             map_error: [[0.0; 2]; 2],
             carried: 0,
             stood_still: false,
@@ -347,6 +365,7 @@ impl Corrector {
             },
             correspondences: Vec::new(),
             icp: IcpScratch::default(),
+            scale: (params.scale_sigma > 0.0).then(|| ScaleEstimate::new(params.scale_sigma)),
         }
     }
 
@@ -373,6 +392,10 @@ impl Corrector {
             covariance: self.uncertainty.covariance(),
             map_error: self.map_error,
             carried: self.carried,
+            scale: self.scale,
+            published_uncertainty: self
+                .published_uncertainty
+                .map(|u| (u.covariance(), u.scale_cross())),
         }
     }
 
@@ -398,6 +421,14 @@ impl Corrector {
         c.uncertainty = PoseUncertainty::from_covariance(&state.covariance);
         c.map_error = state.map_error;
         c.carried = state.carried;
+        // A state saved before the scale was estimated starts the estimate afresh.
+        c.scale = state.scale.filter(|_| c.scale.is_some()).or(c.scale);
+        if c.published_uncertainty.is_some() {
+            c.published_uncertainty = Some(match state.published_uncertainty {
+                Some((covariance, cross)) => PoseUncertainty::from_parts(&covariance, cross),
+                None => c.uncertainty,
+            });
+        }
         c
     }
 
@@ -419,7 +450,10 @@ impl Corrector {
     /// The covariance of the current corrected pose (see [`Step::covariance`]): the filter's,
     /// plus the map error inherited from the last alignment.
     pub fn covariance(&self) -> Covariance {
-        let mut covariance = self.uncertainty.covariance();
+        let mut covariance = self
+            .published_uncertainty
+            .unwrap_or(self.uncertainty)
+            .covariance();
         for (row, inherited) in covariance.iter_mut().zip(&self.map_error) {
             row[0] += inherited[0];
             row[1] += inherited[1];
@@ -430,6 +464,17 @@ impl Corrector {
     /// The current correction (the paper's `T_acc`).
     pub fn map_from_anchored(&self) -> Se2 {
         self.map_from_anchored
+    }
+
+    /// Whether the corrector estimates the odometry's scale ([`Params::scale_sigma`]).
+    pub fn estimates_scale(&self) -> bool {
+        self.scale.is_some()
+    }
+
+    /// What the odometry's steps are multiplied by now: the estimate of its scale (a ratio; 1
+    /// where the scale is not estimated, [`Params::scale_sigma`]).
+    pub fn odometry_scale(&self) -> f64 {
+        self.scale.map_or(1.0, |s| s.factor)
     }
 
     /// Whether the last finite pose pushed stood still ([`Params::standstill_speed_mps`]): it
@@ -519,8 +564,14 @@ impl Corrector {
                     position_in_anchored[0] - last[0],
                     position_in_anchored[1] - last[1],
                 ];
-                self.uncertainty
-                    .drive(self.map_from_anchored.rotate(motion), &p);
+                let motion_in_map = self.map_from_anchored.rotate(motion);
+                if let (Some(scale), Some(published)) =
+                    (&mut self.scale, &mut self.published_uncertainty)
+                {
+                    scale.drive(moved, p.scale_drift_var_per_m);
+                    published.drive_scaled(motion_in_map, &p, scale.variance);
+                }
+                self.uncertainty.drive(motion_in_map, &p);
             }
             self.last_position_in_anchored = Some(position_in_anchored);
         }
@@ -601,12 +652,13 @@ impl Corrector {
                     self.map_from_anchored = correction * self.map_from_anchored;
                     // A step that changes nothing (a quarter of the steps on KITTI 00, LiDAR,
                     // kiss-icp) leaves the window's positions, and so its spacings, as they are.
-                    let changed = correction != Se2::IDENTITY;
+                    let mut changed = correction != Se2::IDENTITY;
                     if changed {
                         for x in self.window.as_mut_slice() {
                             *x = correction.apply(*x);
                         }
                     }
+                    changed |= self.rescale(&correction);
                     self.failures = 0;
                     self.travelled_m = 0.0;
                     // A step that changed nothing closes the gate only if its newest pose was
@@ -684,10 +736,45 @@ impl Corrector {
             }
         }
         self.uncertainty.update(&information, share);
+        if let (Some(scale), Some(published)) = (&self.scale, &mut self.published_uncertainty) {
+            published.update_scaled(&information, share, scale.variance);
+        }
         if let Some(inherited) = alignment.inherited_map_error {
             self.map_error = inherited;
         }
         applied
+    }
+
+    /// Folds what the accepted alignment `correction` (already applied) says of the odometry's
+    /// scale into its estimate, and scales the window about its newest pose by the change
+    /// (see [`crate::scale`]). Whether the window moved.
+    fn rescale(&mut self, correction: &Se2) -> bool {
+        let Some(scale) = &mut self.scale else {
+            return false;
+        };
+        let center = self.window.as_slice()[self.window.len() - 1];
+        let Some(evidence) = scale_evidence(
+            &self.map,
+            &self.correspondences,
+            self.icp.kept(),
+            correction,
+            center,
+            self.window.spacings(),
+            self.params.lane_tolerance_m,
+        ) else {
+            return false;
+        };
+        let share = if self.window.path_m() > 0.0 {
+            (self.travelled_m / self.window.path_m()).min(1.0)
+        } else {
+            1.0
+        };
+        let change = scale.update(&evidence, share);
+        if change == 0.0 {
+            return false;
+        }
+        self.window.scale_about(center, 1.0 + change);
+        true
     }
 
     /// `base` widened by the drift the odometry may have accumulated since the gate last closed

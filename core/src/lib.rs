@@ -48,6 +48,7 @@ pub mod params;
 pub mod plausibility;
 pub mod pose;
 pub mod report;
+pub mod scale;
 pub mod se2;
 pub mod smoothing;
 pub mod source_corrector;

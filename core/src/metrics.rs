@@ -205,6 +205,24 @@ pub fn output_jumps(raw: &[Pose3], output: &[Pose3]) -> Result<OutputJumps, Metr
     Ok(jumps)
 }
 
+/// `raw` (planar, `flu`) with each step's translation multiplied by the scale the corrector
+/// applied to it: step `i` (from pose `i - 1` to `i`) by `scale_after[i - 1]`, the estimate in
+/// force after the pose before ([`crate::source_corrector::CorrectedPose::odometry_scale`]).
+/// The odometry as the corrector moved it: what [`output_jumps`] measures a corrected output's
+/// jumps beyond when the corrector estimates the scale ([`crate::scale`]). `raw` itself where
+/// every factor is 1.
+pub fn scaled_steps(raw: &[Pose3], scale_after: &[f64]) -> Vec<Pose3> {
+    let mut scaled = raw.to_vec();
+    for i in 1..raw.len().min(scale_after.len() + 1) {
+        let factor = scale_after[i - 1];
+        for k in 0..2 {
+            let step = raw[i].translation[k] - raw[i - 1].translation[k];
+            scaled[i].translation[k] = scaled[i - 1].translation[k] + factor * step;
+        }
+    }
+    scaled
+}
+
 /// Pairs two timestamped trajectories: for each estimate stamp, the ground-truth pose with the
 /// nearest stamp if it is within `max_dt` seconds (each ground-truth pose used at most once, as
 /// evo's association does). Both stamp lists must be sorted. Returns `(gt index, est index)`.

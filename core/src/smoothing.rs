@@ -3,7 +3,8 @@
 //!
 //! The rate is bounded where it matters, at the current pose: from one pose to the next, the
 //! output moves at most `max_step_m` and turns at most `max_yaw_step_rad` more than the odometry
-//! itself did. The exact estimate is untouched; only what is published is smoothed. While the
+//! itself did (as the scale estimate scales its steps, where the corrector estimates the scale:
+//! [`crate::scale`]). The exact estimate is untouched; only what is published is smoothed. While the
 //! vehicle stands still the published correction is held ([`Smoother::hold`]): a standing
 //! vehicle's output does not creep.
 

@@ -4,8 +4,11 @@
 //!
 //! Frames: `odom` is the source's planar odometry frame (after its axis convention is turned
 //! into `flu`); `anchored` is the map plane as the anchor places the odometry, before any
-//! correction; `map` is the corrected map plane. `map_from_odom = map_from_anchored *
-//! anchored_from_odom`.
+//! correction; `scaled` is `anchored` with the odometry's steps multiplied by the estimate of its
+//! scale ([`crate::scale`]; the same as `anchored` where the scale is not estimated), the plane
+//! the corrector works in; `map` is the corrected map plane. `map_from_odom = map_from_scaled *
+//! scaled_from_anchored * anchored_from_odom`, where `scaled_from_anchored` is a translation
+//! that changes with every step while the scale estimate is not 1.
 
 use std::sync::Arc;
 
@@ -15,6 +18,7 @@ use crate::corrector::{Corrector, CorrectorState, MatchMode, Status, StepTiming}
 use crate::lane_map::LaneMap;
 use crate::params::Params;
 use crate::pose::{apply_planar_correction, AxisConvention, Pose3};
+use crate::scale::ScaledOdometry;
 use crate::se2::Se2;
 use crate::smoothing::{Smoother, Smoothing};
 
@@ -35,6 +39,9 @@ pub struct CorrectedPose {
     pub covariance: Covariance,
     /// What the corrector did.
     pub status: Status,
+    /// What the odometry's steps are multiplied by after this pose: the estimate of its scale
+    /// (a ratio; 1 where the scale is not estimated, [`Params::scale_sigma`]).
+    pub odometry_scale: f64,
 }
 
 /// How a source's poses are read and placed on the lane map.
@@ -68,6 +75,8 @@ pub struct SourceState {
     pub smoothed: Option<Se2>,
     /// The odometry's own recent motion and its jumps so far.
     pub continuity: Continuity,
+    /// The odometry's steps as the scale estimate multiplied them so far.
+    pub scaled: ScaledOdometry,
 }
 
 /// A corrector for one source: converts, places, corrects and converts back.
@@ -78,6 +87,7 @@ pub struct SourceCorrector {
     anchor_yaw: f64,
     smoother: Option<Smoother>,
     continuity: Continuity,
+    scaled: ScaledOdometry,
 }
 
 impl SourceCorrector {
@@ -90,6 +100,7 @@ impl SourceCorrector {
             anchor_yaw: placement.anchored_from_odom.yaw(),
             smoother: placement.smoothing.map(Smoother::new),
             continuity: Continuity::default(),
+            scaled: ScaledOdometry::default(),
             placement,
         }
     }
@@ -116,7 +127,10 @@ impl SourceCorrector {
         let planar = self.placement.convention.to_planar(pose);
         let in_continued = self.continuity.carry(&planar).planar_position();
         let in_anchored = self.placement.anchored_from_odom.apply(in_continued);
-        self.corrector.map_from_anchored().apply(in_anchored)
+        let in_scaled = self
+            .scaled
+            .predict(in_anchored, self.corrector.odometry_scale());
+        self.corrector.map_from_anchored().apply(in_scaled)
     }
 
     /// The lane map in use.
@@ -135,6 +149,7 @@ impl SourceCorrector {
             corrector: self.corrector.state(),
             smoothed: self.smoother.as_ref().and_then(Smoother::output_from_odom),
             continuity: self.continuity,
+            scaled: self.scaled,
         }
     }
 
@@ -154,6 +169,7 @@ impl SourceCorrector {
                 .smoothing
                 .map(|limits| Smoother::restore(limits, state.smoothed)),
             continuity: state.continuity,
+            scaled: state.scaled,
             placement,
         }
     }
@@ -191,6 +207,7 @@ impl SourceCorrector {
                 map_from_odom: self.map_from_odom(),
                 covariance: self.corrector.covariance(),
                 status: Status::InvalidInput,
+                odometry_scale: self.corrector.odometry_scale(),
             };
             return (record, StepTiming::default());
         }
@@ -199,10 +216,15 @@ impl SourceCorrector {
         let continued = self
             .continuity
             .observe(planar.to_se2(), stamp_s, self.corrector.params());
-        let anchored = apply_planar_correction(
+        let mut anchored = apply_planar_correction(
             &placement.anchored_from_odom,
             &self.continuity.carry(&planar),
         );
+        if self.corrector.estimates_scale() {
+            self.scaled
+                .place(anchored.planar_position(), self.corrector.odometry_scale());
+            anchored = apply_planar_correction(&self.scaled.scaled_from_anchored(), &anchored);
+        }
         let (status, covariance, timing, published) = if continued == Continued::Jumped {
             let held = self.corrector.map_from_anchored();
             let published = match &mut self.smoother {
@@ -238,6 +260,7 @@ impl SourceCorrector {
             map_from_odom: self.map_from_odom(),
             covariance,
             status,
+            odometry_scale: self.corrector.odometry_scale(),
         };
         (record, timing)
     }
@@ -246,6 +269,7 @@ impl SourceCorrector {
     /// publishes in now) onto the corrected map plane.
     fn map_from_odom(&self) -> Se2 {
         self.corrector.map_from_anchored()
+            * self.scaled.scaled_from_anchored()
             * self.placement.anchored_from_odom
             * self.continuity.continued_from_odom
     }
@@ -412,6 +436,124 @@ mod tests {
             SourceCorrector::restore(map, params, MatchMode::Fast, placement, first.state());
         for pose in &restarted[350..] {
             assert_eq!(first.correct(pose).0, second.correct(pose).0);
+        }
+    }
+
+    /// A block of lanes 300 m by 201 m, driven counter-clockwise from its south-west corner,
+    /// a point every 3 m.
+    fn block_map() -> Arc<LaneMap> {
+        let side = |from: [f64; 2], to: [f64; 2], points: usize| -> Vec<[f64; 2]> {
+            (0..=points)
+                .map(|i| {
+                    let f = i as f64 / points as f64;
+                    [
+                        from[0] + f * (to[0] - from[0]),
+                        from[1] + f * (to[1] - from[1]),
+                    ]
+                })
+                .collect()
+        };
+        let corners = [[0.0, 0.0], [300.0, 0.0], [300.0, 201.0], [0.0, 201.0]];
+        let lanes: Vec<Lane> = (0..4)
+            .map(|k| {
+                let (from, to) = (corners[k], corners[(k + 1) % 4]);
+                let points = (crate::se2::distance(from, to) / 3.0) as usize;
+                Lane::new(k as u64 + 1, side(from, to, points))
+            })
+            .collect();
+        Arc::new(LaneMap::new(&lanes).unwrap())
+    }
+
+    /// `laps` of the block at 1 m a pose (10 m/s at the presets' rate): true planar poses.
+    fn block_drive(laps: usize) -> Vec<Pose3> {
+        let corners = [[0.0, 0.0], [300.0, 0.0], [300.0, 201.0], [0.0, 201.0]];
+        let mut poses = Vec::new();
+        for _ in 0..laps {
+            for k in 0..4 {
+                let (from, to) = (corners[k], corners[(k + 1) % 4]);
+                let length = crate::se2::distance(from, to);
+                let yaw = (to[1] - from[1]).atan2(to[0] - from[0]);
+                for i in 0..length as usize {
+                    let f = i as f64 / length;
+                    poses.push(Pose3::planar(
+                        from[0] + f * (to[0] - from[0]),
+                        from[1] + f * (to[1] - from[1]),
+                        yaw,
+                        0.0,
+                    ));
+                }
+            }
+        }
+        poses
+    }
+
+    #[test]
+    fn an_odometry_three_percent_long_has_its_scale_estimated_and_taken_out() {
+        let truth = block_drive(4);
+        let odometry: Vec<Pose3> = truth
+            .iter()
+            .map(|p| {
+                let [x, y] = p.planar_position();
+                Pose3::planar(1.03 * x, 1.03 * y, p.planar_heading(), 0.0)
+            })
+            .collect();
+        let placement = Placement {
+            convention: AxisConvention::Flu,
+            anchored_from_odom: Se2::IDENTITY,
+            smoothing: None,
+        };
+        let mut params = Preset::KissIcp.robust_params();
+        params.scale_sigma = 0.05;
+        let mut unscaled = params;
+        unscaled.scale_sigma = 0.0;
+        let last_lap_error = |run: &[CorrectedPose]| {
+            let lap = run.len() - run.len() / 4;
+            run[lap..]
+                .iter()
+                .zip(&truth[lap..])
+                .map(|(c, t)| crate::se2::distance(c.pose.planar_position(), t.planar_position()))
+                .sum::<f64>()
+                / (run.len() - lap) as f64
+        };
+        let run = correct_trajectory(block_map(), params, MatchMode::Fast, placement, &odometry);
+        let without =
+            correct_trajectory(block_map(), unscaled, MatchMode::Fast, placement, &odometry);
+        let (with_m, without_m) = (last_lap_error(&run), last_lap_error(&without));
+        let factor = run[run.len() - 1].odometry_scale;
+        println!("last lap: {with_m:.3} m with the scale estimated ({factor:.5}), {without_m:.3} m without");
+        // 1 / 1.03 = 0.971; the lanes' band leaves what fits within it (0.977 here).
+        assert!((0.965..0.98).contains(&factor), "{factor}");
+        assert!(without[without.len() - 1].odometry_scale == 1.0);
+        assert!(with_m < 0.5 * without_m, "{with_m} vs {without_m}");
+        // The published map_from_odom holds exactly for the pose it came with.
+        for c in &run {
+            let [x, y] = c.map_from_odom.apply(odometry[0].planar_position());
+            assert!(x.is_finite() && y.is_finite());
+        }
+        for (i, c) in run.iter().enumerate().step_by(97) {
+            let mapped = c.map_from_odom.apply(odometry[i].planar_position());
+            let [x, y] = c.pose.planar_position();
+            assert!(
+                (mapped[0] - x).abs() < 1e-9 && (mapped[1] - y).abs() < 1e-9,
+                "pose {i}"
+            );
+        }
+        // A corrector restored mid-drive goes on as the one saved, bit for bit.
+        for cut in [700, 1900, 3100] {
+            let mut first = SourceCorrector::new(block_map(), params, MatchMode::Fast, placement);
+            for pose in &odometry[..cut] {
+                first.correct(pose);
+            }
+            let mut restored = SourceCorrector::restore(
+                block_map(),
+                params,
+                MatchMode::Fast,
+                placement,
+                first.state(),
+            );
+            for (i, pose) in odometry.iter().enumerate().skip(cut) {
+                assert_eq!(restored.correct(pose).0, run[i], "cut at {cut}, pose {i}");
+            }
         }
     }
 }

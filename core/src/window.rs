@@ -32,6 +32,18 @@ impl Window {
         &mut self.buf[self.start..]
     }
 
+    /// Scales the positions about `center` by `factor` (metres, map plane), and the path with
+    /// them.
+    pub(crate) fn scale_about(&mut self, center: [f64; 2], factor: f64) {
+        for x in self.as_mut_slice() {
+            *x = [
+                center[0] + factor * (x[0] - center[0]),
+                center[1] + factor * (x[1] - center[1]),
+            ];
+        }
+        self.path_m *= factor;
+    }
+
     /// A window of `positions` with path length `path_m` (metres).
     pub(crate) fn restored(positions: Vec<[f64; 2]>, path_m: f64) -> Self {
         Window {

@@ -43,6 +43,7 @@ use memmap2::MmapMut;
 
 use lanealign_core::continuity::Continuity;
 use lanealign_core::corrector::CorrectorState;
+use lanealign_core::scale::{ScaleEstimate, ScaledOdometry};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::SourceState;
 use lanealign_wire::payload::{CorrectedPose, OdomPose, MAX_IN_FLIGHT};
@@ -55,7 +56,10 @@ pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
 const ANSWER_LEN: usize = 272;
 const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP06";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP07";
+/// Snapshots before the odometry's scale was estimated (read with the estimate at its start
+/// when the session's parameters estimate it).
+const SNAPSHOT_MAGIC_V6: &[u8; 8] = b"LASNAP06";
 /// Snapshots before jumps of the odometry were told from motion (read with none so far and no
 /// last pose: the pose after the restore cannot be judged a jump).
 const SNAPSHOT_MAGIC_V5: &[u8; 8] = b"LASNAP05";
@@ -324,6 +328,26 @@ impl Snapshot {
             Some(motion) => e.u32(1).se2(&motion),
             None => e.u32(0).se2(&Se2::IDENTITY),
         };
+        match c.scale {
+            Some(scale) => e.u32(1).f64(scale.factor).f64(scale.variance),
+            None => e.u32(0).f64(1.0).f64(0.0),
+        };
+        let scaled = &self.state.scaled;
+        match scaled.last_in_anchored {
+            Some(last) => e.u32(1).f64s(&last),
+            None => e.u32(0).f64s(&[0.0, 0.0]),
+        };
+        e.f64s(&scaled.offset);
+        match &c.published_uncertainty {
+            Some((covariance, cross)) => {
+                e.u32(1);
+                for row in covariance {
+                    e.f64s(row);
+                }
+                e.f64s(cross)
+            }
+            None => e.u32(0).f64s(&[0.0; 12]),
+        };
         e.u64(c.window.len() as u64);
         for p in &c.window {
             e.f64s(p);
@@ -341,12 +365,13 @@ impl Snapshot {
             return None;
         }
         let magic = body.get(..8)?;
-        let (has_map_error, has_carried, has_unanchored, has_continuity) = match magic {
-            m if m == SNAPSHOT_MAGIC => (true, true, true, true),
-            m if m == SNAPSHOT_MAGIC_V5 => (true, true, true, false),
-            m if m == SNAPSHOT_MAGIC_V4 => (true, true, false, false),
-            m if m == SNAPSHOT_MAGIC_V3 => (true, false, false, false),
-            m if m == SNAPSHOT_MAGIC_V2 => (false, false, false, false),
+        let (has_map_error, has_carried, has_unanchored, has_continuity, has_scale) = match magic {
+            m if m == SNAPSHOT_MAGIC => (true, true, true, true, true),
+            m if m == SNAPSHOT_MAGIC_V6 => (true, true, true, true, false),
+            m if m == SNAPSHOT_MAGIC_V5 => (true, true, true, false, false),
+            m if m == SNAPSHOT_MAGIC_V4 => (true, true, false, false, false),
+            m if m == SNAPSHOT_MAGIC_V3 => (true, false, false, false, false),
+            m if m == SNAPSHOT_MAGIC_V2 => (false, false, false, false, false),
             _ => return None,
         };
         let mut d = Decoder(&body[8..]);
@@ -385,6 +410,22 @@ impl Snapshot {
         } else {
             Continuity::default()
         };
+        let (scale, scaled, published_uncertainty) = if has_scale {
+            let (flag_value, factor, variance) = (d.u32()?, d.f64()?, d.f64()?);
+            let scale = flag(flag_value)?.then_some(ScaleEstimate { factor, variance });
+            let last = (d.u32()?, d.f64s::<2>()?);
+            let scaled = ScaledOdometry {
+                last_in_anchored: flag(last.0)?.then_some(last.1),
+                offset: d.f64s::<2>()?,
+            };
+            let published = (d.u32()?, d.f64s::<9>()?, d.f64s::<3>()?);
+            let [a, b, c, e, f, g, h, i, j] = published.1;
+            let published =
+                flag(published.0)?.then_some(([[a, b, c], [e, f, g], [h, i, j]], published.2));
+            (scale, scaled, published)
+        } else {
+            (None, ScaledOdometry::default(), None)
+        };
         let n = d.u64()?;
         if n > MAX_WINDOW || d.0.len() as u64 != n * 16 {
             return None;
@@ -395,7 +436,14 @@ impl Snapshot {
             && travelled_m.is_finite()
             && gate_travelled_m.is_finite()
             && covariance.iter().flatten().all(|v| v.is_finite())
-            && map_error.iter().flatten().all(|v| v.is_finite());
+            && map_error.iter().flatten().all(|v| v.is_finite())
+            && scale.is_none_or(|s| s.is_valid())
+            && published_uncertainty
+                .is_none_or(|(c, x)| c.iter().flatten().chain(&x).all(|v| v.is_finite()))
+            && scaled.offset.iter().all(|v| v.is_finite())
+            && scaled
+                .last_in_anchored
+                .is_none_or(|p| p.iter().all(|v| v.is_finite()));
         let state = SourceState {
             corrector: CorrectorState {
                 map_from_anchored,
@@ -408,9 +456,12 @@ impl Snapshot {
                 covariance,
                 map_error,
                 carried,
+                scale,
+                published_uncertainty,
             },
             smoothed: flag(smoothed.0)?.then_some(smoothed.1),
             continuity,
+            scaled,
         };
         finite.then_some(Snapshot {
             last_seq,
@@ -807,6 +858,14 @@ mod tests {
                     covariance: [[0.5, 0.1, 1e-3], [0.1, 0.7, -2e-3], [1e-3, -2e-3, 1e-4]],
                     map_error: [[0.4, -0.1], [-0.1, 0.3]],
                     carried: 7,
+                    scale: Some(ScaleEstimate {
+                        factor: 0.985,
+                        variance: 2.5e-4,
+                    }),
+                    published_uncertainty: Some((
+                        [[0.6, 0.1, 1e-3], [0.1, 0.9, -2e-3], [1e-3, -2e-3, 2e-4]],
+                        [0.02, -0.01, 1e-5],
+                    )),
                 },
                 smoothed: None,
                 continuity: Continuity {
@@ -814,14 +873,20 @@ mod tests {
                     last: Some((Se2::new(1.0, 7.0, 8.0), 12.5)),
                     last_motion: Some(Se2::new(0.01, 1.5, 0.0)),
                 },
+                scaled: ScaledOdometry {
+                    last_in_anchored: Some([310.5, -20.25]),
+                    offset: [-4.5, 0.75],
+                },
             },
         };
         let bytes = snap.encode();
         assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
-        // Where the map error starts; the count of carried poses follows it, and the odometry's
-        // continuity (112 bytes) comes after the last position and the smoothed correction.
+        // Where the map error starts; the count of carried poses follows it, the odometry's
+        // continuity (112 bytes) comes after the last position and the smoothed correction, and
+        // the scale estimate, the scaled odometry and the published uncertainty (156 bytes)
+        // after that.
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
-        let (continuity_at, window_at) = (at + 100, at + 212);
+        let (continuity_at, scale_at, window_at) = (at + 100, at + 212, at + 368);
         let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
             for part in parts {
@@ -831,8 +896,14 @@ mod tests {
             v
         };
         let tail = window_at..bytes.len() - 8;
-        // The format before: no continuity, read as no jump so far and no last pose.
+        // The format before: no scale estimate, read as none.
         let mut old = snap.clone();
+        old.state.corrector.scale = None;
+        old.state.corrector.published_uncertainty = None;
+        old.state.scaled = ScaledOdometry::default();
+        let v6 = frame(SNAPSHOT_MAGIC_V6, &[8..scale_at, tail.clone()]);
+        assert_eq!(Snapshot::decode(&v6), Some(old.clone()));
+        // The one before: no continuity, read as no jump so far and no last pose.
         old.state.continuity = Continuity::default();
         let v5 = frame(SNAPSHOT_MAGIC_V5, &[8..continuity_at, tail.clone()]);
         assert_eq!(Snapshot::decode(&v5), Some(old.clone()));

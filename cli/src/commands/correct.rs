@@ -369,6 +369,14 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         c.accepted,
         c.resets
     );
+    if params.scale_sigma > 0.0 {
+        if let Some(last) = run.last() {
+            eprintln!(
+                "odometry scale: steps multiplied by {:.4} at the end (estimated from the lanes)",
+                last.odometry_scale
+            );
+        }
+    }
     let warnings = [
         plausibility::axis_convention_warning(&input.poses, args.frame),
         plausibility::anchor_warning(
