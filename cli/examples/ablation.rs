@@ -36,7 +36,7 @@ use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::metrics::{ape_2d, calibration, output_jumps, Calibration};
+use lanealign_core::metrics::{ape_2d, calibration, output_jumps, scaled_steps, Calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
@@ -129,6 +129,7 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
         "robust, gate since the last accepted step:gate_widens_through_null_steps=false",
         "robust, an alignment on every pose:alignment_spacing_m=0",
         "robust, every standing pose in the window:standstill_speed_mps=0",
+        "robust, no scale estimate:scale_sigma=0",
         "robust, smooth:+smooth",
     ]
     .into_iter()
@@ -239,7 +240,9 @@ fn run(
     let est: Vec<Pose3> = out.iter().map(|c| cam.to_planar(&c.pose)).collect();
     let raw_ape = ape_2d(&gt, &raw)?;
     let ape = ape_2d(&gt, &est)?;
-    let jumps = output_jumps(&raw, &est)?;
+    // Beyond the odometry as the corrector scaled it (the orb-slam3 preset estimates the scale).
+    let scale_after: Vec<f64> = out.iter().map(|c| c.odometry_scale).collect();
+    let jumps = output_jumps(&scaled_steps(&raw, &scale_after), &est)?;
     let odom_from_map = map.anchored_from_odom.inverse();
     let cov: Vec<[[f64; 2]; 2]> = out
         .iter()
