@@ -29,6 +29,9 @@ class Corrected(NamedTuple):
     status: np.ndarray
     #: (N, 3, 3) covariance of each corrected pose (map plane; x, y in metres, yaw in radians).
     covariance: np.ndarray
+    #: (N) what the odometry's steps are multiplied by after each pose: the estimate of its scale
+    #: (1 where it is not estimated; the orb-slam3 preset and ``scale_sigma`` estimate it).
+    odometry_scale: np.ndarray
 
 
 def correct(
@@ -68,10 +71,12 @@ def correct(
     (status ``"odometry_jump"``) from its motion, is then judged by them, so that a pause in the
     poses is not taken for a jump even over a bend; without them the poses come at
     ``odometry_rate_hz``, and a step too long for one period is motion only where it drives on
-    as the step before did (poses missing).
+    as the step before did (poses missing). An odometry whose scale may be off by more than
+    about 1 % (wheel odometry) has it estimated with ``overrides={"scale_sigma": 0.05}``; the
+    orb-slam3 preset does so by default; ``odometry_scale`` says what came of it.
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
-    out, status, covariance = _lanealign.correct(
+    out, status, covariance, odometry_scale = _lanealign.correct(
         array,
         preset=preset,
         osm=osm,
@@ -86,7 +91,7 @@ def correct(
         overrides=overrides,
         stamps=None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64),
     )
-    return Corrected(out, status, covariance)
+    return Corrected(out, status, covariance, odometry_scale)
 
 
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = "flu") -> dict:  # noqa: A001

@@ -135,6 +135,7 @@ type Corrected<'py> = (
     Bound<'py, PyArrayDyn<f64>>,
     Bound<'py, PyArray1<u8>>,
     Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray1<f64>>,
 );
 
 /// Parameter overrides from a dict of names to numbers and bools, read as the command line's
@@ -293,10 +294,12 @@ fn correct<'py>(
             }
         }
     }
+    let odometry_scale: Array1<f64> = run.iter().map(|c| c.odometry_scale).collect();
     Ok((
         poses_into(&corrected, &shape).into_pyarray(py),
         codes.into_pyarray(py),
         covariance.into_pyarray(py),
+        odometry_scale.into_pyarray(py),
     ))
 }
 

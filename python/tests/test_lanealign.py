@@ -228,6 +228,32 @@ def test_shared_kitti_runs_equal_the_command_line_bit_for_bit(tmp_path, seq):
             assert np.array_equal(got.poses, read_kitti(out)), (run, method)
 
 
+def test_the_odometry_scale_is_estimated_where_asked_and_said_as_the_command_line_says(tmp_path):
+    needs_data()
+    anchor = anchor_of("01")
+    osm = DATA / "osm" / "kitti_01.osm"
+    odometry = DATA / "odometry" / "stereo_vo" / "01.txt"
+    poses = np.loadtxt(odometry).reshape(-1, 3, 4)
+    common = dict(osm=str(osm), anchor=anchor, projection="kitti", frame="kitti-camera")
+    visual = lanealign.correct(poses, preset="orb-slam3", **common)
+    # 01's visual odometry measures 0.917 of the road: its steps are lengthened.
+    assert visual.odometry_scale.shape == (len(poses),)
+    assert visual.odometry_scale[0] == 1.0 and visual.odometry_scale[-1] > 1.02
+    out = tmp_path / "out.txt"
+    run = subprocess.run([str(BIN), "correct", "--osm", str(osm), "--anchor",
+                          ",".join(repr(v) for v in anchor), "--projection", "kitti",
+                          "--preset", "orb-slam3", "--frame", "kitti-camera", str(odometry),
+                          "-o", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert f"multiplied by {visual.odometry_scale[-1]:.4f} at the end" in run.stderr
+    assert np.array_equal(visual.poses, read_kitti(out))
+    # The LiDAR preset leaves the scale alone unless asked.
+    lidar = lanealign.correct(poses, preset="kiss-icp", **common)
+    assert np.all(lidar.odometry_scale == 1.0)
+    asked = lanealign.correct(poses, preset="kiss-icp", overrides={"scale_sigma": 0.05}, **common)
+    assert asked.odometry_scale[-1] != 1.0
+
+
 def test_a_grid_corrects_as_its_tile(tmp_path):
     needs_data()
     anchor = anchor_of("00")
