@@ -178,7 +178,13 @@ fn town(setup_of: fn(&[&str]) -> Setup) -> Town {
 }
 
 fn town_driven(setup_of: fn(&[&str]) -> Setup, poses: Vec<Pose3>) -> Town {
-    let name = unique("town");
+    town_named("town", setup_of, poses)
+}
+
+/// [`town_driven`] for a source whose name starts with `prefix` (which chooses its corrector:
+/// `common::corrector`).
+fn town_named(prefix: &str, setup_of: fn(&[&str]) -> Setup, poses: Vec<Pose3>) -> Town {
+    let name = unique(prefix);
     let setup = setup_of(&[&name]);
     let input = setup.dir.path().join("town-odometry.txt");
     write(
@@ -278,6 +284,30 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_restarts() {
     assert!(moved(&t.poses) > 20.0, "{} m", moved(&t.poses));
     assert!(moved(&out) < 5.0, "{} m", moved(&out));
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 14, "800");
+}
+
+/// The same with a session that estimates its odometry's scale (the orb-slam3 preset; the town's
+/// odometry 3 % long): the restored sessions continue the estimate, the odometry's steps scaled
+/// so far and the covariance that carries the scale, as offline correction does.
+#[test]
+fn killed_daemons_lose_nothing_of_a_session_estimating_the_scale() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, poses) = synthetic::drive(2, 7);
+    let long: Vec<Pose3> = poses
+        .iter()
+        .map(|p| Pose3 {
+            rotation: p.rotation,
+            translation: p.translation * 1.03,
+        })
+        .collect();
+    let t = town_named("visual", town_setup, long);
+    let scale = offline_run(&t.setup, &t.name, &t.poses, None)
+        .last()
+        .map(|c| c.odometry_scale)
+        .unwrap();
+    println!("the scale estimate ends at {scale}");
+    assert!(scale < 0.999, "the session estimates the scale: {scale}");
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 15, "800");
 }
 
 /// The same on a grid: a restored session asks for its cells again and, behind the poses the

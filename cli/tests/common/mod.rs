@@ -82,9 +82,15 @@ pub fn wait_of(name: &str) -> WaitStrategy {
 /// Sources whose name starts with `smooth` are configured with smooth output, `pass` as
 /// pass-through.
 fn corrector(name: &str) -> CorrectorConfig {
+    // Sources named `visual...` take the visual odometry preset, which estimates the scale.
+    let preset = if name.starts_with("visual") {
+        Preset::OrbSlam3
+    } else {
+        Preset::KissIcp
+    };
     CorrectorConfig {
         smooth: name.starts_with("smooth"),
-        ..CorrectorConfig::new(Preset::KissIcp, Method::Robust)
+        ..CorrectorConfig::new(preset, Method::Robust)
     }
 }
 
@@ -250,6 +256,19 @@ pub fn offline_stamped(
     poses: &[Pose3],
     stamps_s: Option<&[f64]>,
 ) -> Vec<Pose3> {
+    offline_run(setup, source, poses, stamps_s)
+        .into_iter()
+        .map(|c| c.pose)
+        .collect()
+}
+
+/// [`offline_stamped`]'s whole records: status, covariance, scale estimate.
+pub fn offline_run(
+    setup: &Setup,
+    source: &str,
+    poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
+) -> Vec<lanealign_core::source_corrector::CorrectedPose> {
     let (map, info) = tile::load(&setup.tile).unwrap();
     let anchor = setup.anchors.iter().find(|(n, _)| n == source).unwrap().1;
     let config = corrector(source);
@@ -266,9 +285,6 @@ pub fn offline_stamped(
         poses,
         stamps_s,
     )
-    .into_iter()
-    .map(|c| c.pose)
-    .collect()
 }
 
 /// Starts the daemon and waits until it is ready.
