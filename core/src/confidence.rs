@@ -105,27 +105,16 @@ pub fn alignment_information(
     // `a_i` and a shared `b`, the stretch's information is
     // sum(J'J / a) - b / (1 + b sum(1 / a)) (sum J / a)'(sum J / a) (Sherman-Morrison).
     let mut block = Block::default();
-    let mut block_start = f64::NEG_INFINITY;
-    let mut along = 0.0;
-    let mut last_index = None;
-    for &k in kept {
-        let pair = &pairs[k as usize];
-        let Some(direction) = map.direction_of(pair.point) else {
-            continue;
-        };
-        if let Some(last) = last_index {
-            // Kept pairs are mostly neighbours: one spacing, which its sum equals exactly.
-            along += if pair.index == last + 1 {
-                spacing_m[last]
-            } else {
-                spacing_m[last..pair.index].iter().sum::<f64>()
-            };
-        }
-        last_index = Some(pair.index);
-        if along - block_start >= MAP_CORRELATION_M {
+    for KeptPair {
+        k,
+        pair,
+        direction,
+        new_stretch,
+    } in kept_pairs_by_stretch(map, pairs, kept, spacing_m)
+    {
+        if new_stretch {
             information += block.information();
             block = Block::default();
-            block_start = along;
         }
         let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
         let normal = [-direction[1], direction[0]];
@@ -137,7 +126,7 @@ pub fn alignment_information(
             }
         }
         inherited_count += 1;
-        let p = fitted_sources[k as usize];
+        let p = fitted_sources[k];
         let arm = [p[0] - center[0], p[1] - center[1]];
         // d(normal . p) / d(dx, dy, dyaw) for p moved by a rotation about `center`.
         let j = RowVector3::new(
@@ -153,6 +142,56 @@ pub fn alignment_information(
         inherited_map_error: (inherited_count > 0)
             .then(|| inherited.map(|row| row.map(|v| v / inherited_count as f64))),
     }
+}
+
+/// A kept pair whose lane has a direction, as [`kept_pairs_by_stretch`] yields it.
+pub(crate) struct KeptPair<'a> {
+    /// Its index into the pairs.
+    pub k: usize,
+    /// The pair.
+    pub pair: &'a Correspondence,
+    /// The unit direction of its lane segment (map plane).
+    pub direction: [f64; 2],
+    /// Whether it begins a new stretch of [`MAP_CORRELATION_M`] of road (the first pair does).
+    pub new_stretch: bool,
+}
+
+/// The kept pairs (indices into `pairs`, ascending) whose lane has a direction, in window order,
+/// each marked where a new stretch of [`MAP_CORRELATION_M`] of road begins: the pairs of one
+/// stretch share its map offset error. `spacing_m[i]` is the path length from window pose `i`
+/// to the next (metres).
+pub(crate) fn kept_pairs_by_stretch<'a>(
+    map: &'a LaneMap,
+    pairs: &'a [Correspondence],
+    kept: &'a [u32],
+    spacing_m: &'a [f64],
+) -> impl Iterator<Item = KeptPair<'a>> + 'a {
+    let mut stretch_start = f64::NEG_INFINITY;
+    let mut along = 0.0;
+    let mut last_index: Option<usize> = None;
+    kept.iter().filter_map(move |&k| {
+        let pair = &pairs[k as usize];
+        let direction = map.direction_of(pair.point)?;
+        if let Some(last) = last_index {
+            // Kept pairs are mostly neighbours: one spacing, which its sum equals exactly.
+            along += if pair.index == last + 1 {
+                spacing_m[last]
+            } else {
+                spacing_m[last..pair.index].iter().sum::<f64>()
+            };
+        }
+        last_index = Some(pair.index);
+        let new_stretch = along - stretch_start >= MAP_CORRELATION_M;
+        if new_stretch {
+            stretch_start = along;
+        }
+        Some(KeptPair {
+            k: k as usize,
+            pair,
+            direction,
+            new_stretch,
+        })
+    })
 }
 
 /// How much larger than its lanes' sigmas ([`lane_sigma_m`], as variances) the offset error a

@@ -23,7 +23,9 @@
 use nalgebra::{Matrix4, RowVector4, Vector4};
 use serde::{Deserialize, Serialize};
 
-use crate::confidence::{lane_sigma_m, MAP_CORRELATION_M, WANDER_CORRELATION_M, WANDER_SIGMA_M};
+use crate::confidence::{
+    kept_pairs_by_stretch, lane_sigma_m, WANDER_CORRELATION_M, WANDER_SIGMA_M,
+};
 use crate::lane_map::LaneMap;
 use crate::matching::Correspondence;
 use crate::se2::Se2;
@@ -57,23 +59,12 @@ pub fn scale_evidence(
     let mut information = Matrix4::zeros();
     let mut gradient = Vector4::zeros();
     let mut block = Block::default();
-    let mut block_start = f64::NEG_INFINITY;
-    let mut along = 0.0;
-    let mut last_index = None;
-    for &k in kept {
-        let pair = &pairs[k as usize];
-        let Some(direction) = map.direction_of(pair.point) else {
-            continue;
-        };
-        if let Some(last) = last_index {
-            along += spacing_m[last..pair.index].iter().sum::<f64>();
-        }
-        last_index = Some(pair.index);
-        if along - block_start >= MAP_CORRELATION_M {
+    for kept_pair in kept_pairs_by_stretch(map, pairs, kept, spacing_m) {
+        if kept_pair.new_stretch {
             block.add_to(&mut information, &mut gradient);
             block = Block::default();
-            block_start = along;
         }
+        let (pair, direction) = (kept_pair.pair, kept_pair.direction);
         let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
         let normal = [-direction[1], direction[0]];
         let p = correction.apply(pair.source);
