@@ -220,6 +220,8 @@ impl SourceCorrector {
             &placement.anchored_from_odom,
             &self.continuity.carry(&planar),
         );
+        // From here on the pose is in frame `scaled`, the corrector's (the same as `anchored`
+        // where the scale is not estimated).
         if self.corrector.estimates_scale() {
             self.scaled
                 .place(anchored.planar_position(), self.corrector.odometry_scale());
