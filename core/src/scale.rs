@@ -323,4 +323,33 @@ mod tests {
         assert!((estimate.factor - 0.985).abs() < 1e-12);
         assert!((estimate.variance - 2.5e-4).abs() < 1e-15);
     }
+
+    #[test]
+    fn the_scaled_odometry_multiplies_each_step_by_the_factor_in_force() {
+        let close =
+            |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12;
+        let mut scaled = ScaledOdometry::default();
+        // The first position has no step before it: it stays where the anchor put it.
+        scaled.place([10.0, 0.0], 1.1);
+        assert_eq!(scaled.scaled_from_anchored(), Se2::IDENTITY);
+        // The step (10, 5) becomes (11, 5.5); predicting it places nothing.
+        let predicted = scaled.predict([20.0, 5.0], 1.1);
+        assert!(close(predicted, [21.0, 5.5]), "{predicted:?}");
+        assert!(close(scaled.predict([20.0, 5.0], 1.1), predicted));
+        scaled.place([20.0, 5.0], 1.1);
+        assert!(close(
+            scaled.scaled_from_anchored().apply([20.0, 5.0]),
+            predicted
+        ));
+        // The next step with another factor: (0, 10) becomes (0, 9), from where the last was.
+        scaled.place([20.0, 15.0], 0.9);
+        let now = scaled.scaled_from_anchored().apply([20.0, 15.0]);
+        assert!(close(now, [21.0, 14.5]), "{now:?}");
+        // A factor of 1 leaves the offset as it is.
+        scaled.place([30.0, 15.0], 1.0);
+        assert!(close(
+            scaled.scaled_from_anchored().apply([30.0, 15.0]),
+            [31.0, 14.5]
+        ));
+    }
 }
