@@ -49,6 +49,20 @@ fn correct_tum(
     (err, count)
 }
 
+/// `poses` TUM poses at `rate_hz` along the lane of [`straight_lane`] at 10 m/s, 0.5 m beside
+/// it, written to `poses.tum` in `dir`.
+fn tum_along_the_lane(dir: &Path, poses: usize, rate_hz: f64) -> PathBuf {
+    let path = dir.join("poses.tum");
+    let lines: String = (0..poses)
+        .map(|i| {
+            let t = i as f64 / rate_hz;
+            format!("{} {} 0.5 0 0 0 0 1\n", 1.7e9 + t, 10.0 * t)
+        })
+        .collect();
+    std::fs::write(&path, lines).unwrap();
+    path
+}
+
 #[test]
 fn outputs_appear_only_when_the_whole_run_succeeded() {
     let dir = tempfile::tempdir().unwrap();
@@ -94,18 +108,7 @@ fn outputs_appear_only_when_the_whole_run_succeeded() {
 fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
-    // 100 Hz along the lane at 10 m/s, 0.5 m beside it.
-    let poses = dir.path().join("poses.tum");
-    let lines: String = (0..2000)
-        .map(|i| {
-            format!(
-                "{} {} 0.5 0 0 0 0 1\n",
-                1.7e9 + i as f64 * 0.01,
-                i as f64 * 0.1
-            )
-        })
-        .collect();
-    std::fs::write(&poses, lines).unwrap();
+    let poses = tum_along_the_lane(dir.path(), 2000, 100.0);
     let run = |set: &[&str]| correct_tum(dir.path(), &lanes, &poses, set, "carried");
     // An alignment on every window pose and no standstill (the robust method's spacing of 1 m
     // would carry poses 0.1 m apart too, and its standstill of 1 m/s, taken at the presets'
@@ -183,18 +186,7 @@ fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
 fn a_tum_source_slower_than_its_preset_is_told_the_setting() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
-    // 2 Hz along the lane at 10 m/s, 0.5 m beside it.
-    let poses = dir.path().join("poses.tum");
-    let lines: String = (0..100)
-        .map(|i| {
-            format!(
-                "{} {} 0.5 0 0 0 0 1\n",
-                1.7e9 + i as f64 * 0.5,
-                i as f64 * 5.0
-            )
-        })
-        .collect();
-    std::fs::write(&poses, lines).unwrap();
+    let poses = tum_along_the_lane(dir.path(), 100, 2.0);
     let run = |set: &[&str]| correct_tum(dir.path(), &lanes, &poses, set, "warming_up");
     let (err, warming) = run(&[]);
     assert!(

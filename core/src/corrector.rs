@@ -315,12 +315,6 @@ pub struct Corrector {
     /// distance travelled is measured from.
     last_position_in_anchored: Option<[f64; 2]>,
     uncertainty: PoseUncertainty,
-    /// When the scale is estimated: the pose's uncertainty with the scale's in it, which is
-    /// published. `uncertainty` alone decides what of a correction is applied, as it does for an
-    /// odometry whose scale is not estimated (with the scale's along-track uncertainty in it,
-    /// rigid corrections took the scale error before the scale estimate could: docs/method.md,
-    /// "Scale").
-    published_uncertainty: Option<PoseUncertainty>,
     /// The map error the pose inherits from its last alignment (see
     /// [`Alignment::inherited_map_error`](crate::confidence::Alignment::inherited_map_error)).
     map_error: [[f64; 2]; 2],
@@ -332,7 +326,20 @@ pub struct Corrector {
     correspondences: Vec<Correspondence>,
     icp: IcpScratch,
     /// The odometry's scale, when it is estimated ([`Params::scale_sigma`]).
-    scale: Option<ScaleEstimate>,
+    scale: Option<ScaleTracking>,
+}
+
+/// What a corrector that estimates the odometry's scale keeps of it.
+#[derive(Clone, Copy, Debug)]
+struct ScaleTracking {
+    /// The estimate.
+    estimate: ScaleEstimate,
+    /// The pose's uncertainty with the scale's in it, which is published. The corrector's
+    /// `uncertainty` alone decides what of a correction is applied, as it does for an odometry
+    /// whose scale is not estimated (with the scale's along-track uncertainty in it, rigid
+    /// corrections took the scale error before the scale estimate could: docs/method.md,
+    /// "Scale").
+    published: PoseUncertainty,
 }
 
 impl Corrector {
@@ -354,8 +361,6 @@ impl Corrector {
             gate_travelled_m: 0.0,
             last_position_in_anchored: None,
             uncertainty: PoseUncertainty::new(&params),
-            published_uncertainty: (params.scale_sigma > 0.0)
-                .then(|| PoseUncertainty::new(&params)),
             map_error: [[0.0; 2]; 2],
             carried: 0,
             stood_still: false,
@@ -365,7 +370,10 @@ impl Corrector {
             },
             correspondences: Vec::new(),
             icp: IcpScratch::default(),
-            scale: (params.scale_sigma > 0.0).then(|| ScaleEstimate::new(params.scale_sigma)),
+            scale: (params.scale_sigma > 0.0).then(|| ScaleTracking {
+                estimate: ScaleEstimate::new(params.scale_sigma),
+                published: PoseUncertainty::new(&params),
+            }),
         }
     }
 
@@ -392,10 +400,10 @@ impl Corrector {
             covariance: self.uncertainty.covariance(),
             map_error: self.map_error,
             carried: self.carried,
-            scale: self.scale,
+            scale: self.scale.map(|s| s.estimate),
             published_uncertainty: self
-                .published_uncertainty
-                .map(|u| (u.covariance(), u.scale_cross())),
+                .scale
+                .map(|s| (s.published.covariance(), s.published.scale_cross())),
         }
     }
 
@@ -422,12 +430,12 @@ impl Corrector {
         c.map_error = state.map_error;
         c.carried = state.carried;
         // A state saved before the scale was estimated starts the estimate afresh.
-        c.scale = state.scale.filter(|_| c.scale.is_some()).or(c.scale);
-        if c.published_uncertainty.is_some() {
-            c.published_uncertainty = Some(match state.published_uncertainty {
+        if let Some(scale) = &mut c.scale {
+            scale.estimate = state.scale.unwrap_or(scale.estimate);
+            scale.published = match state.published_uncertainty {
                 Some((covariance, cross)) => PoseUncertainty::from_parts(&covariance, cross),
                 None => c.uncertainty,
-            });
+            };
         }
         c
     }
@@ -451,8 +459,8 @@ impl Corrector {
     /// plus the map error inherited from the last alignment.
     pub fn covariance(&self) -> Covariance {
         let mut covariance = self
-            .published_uncertainty
-            .unwrap_or(self.uncertainty)
+            .scale
+            .map_or(self.uncertainty, |s| s.published)
             .covariance();
         for (row, inherited) in covariance.iter_mut().zip(&self.map_error) {
             row[0] += inherited[0];
@@ -474,7 +482,7 @@ impl Corrector {
     /// What the odometry's steps are multiplied by now: the estimate of its scale (a ratio; 1
     /// where the scale is not estimated, [`Params::scale_sigma`]).
     pub fn odometry_scale(&self) -> f64 {
-        self.scale.map_or(1.0, |s| s.factor)
+        self.scale.map_or(1.0, |s| s.estimate.factor)
     }
 
     /// Whether the last finite pose pushed stood still ([`Params::standstill_speed_mps`]): it
@@ -565,11 +573,10 @@ impl Corrector {
                     position_in_anchored[1] - last[1],
                 ];
                 let motion_in_map = self.map_from_anchored.rotate(motion);
-                if let (Some(scale), Some(published)) =
-                    (&mut self.scale, &mut self.published_uncertainty)
-                {
-                    scale.drive(moved, p.scale_drift_var_per_m);
-                    published.drive_scaled(motion_in_map, &p, scale.variance);
+                if let Some(scale) = &mut self.scale {
+                    scale.estimate.drive(moved, p.scale_drift_var_per_m);
+                    let variance = scale.estimate.variance;
+                    scale.published.drive_scaled(motion_in_map, &p, variance);
                 }
                 self.uncertainty.drive(motion_in_map, &p);
             }
@@ -716,11 +723,7 @@ impl Corrector {
             self.window.spacings(),
         );
         let information = alignment.information;
-        let share = if self.window.path_m() > 0.0 {
-            (self.travelled_m / self.window.path_m()).min(1.0)
-        } else {
-            1.0
-        };
+        let share = self.new_share();
         let min_ratio = self.params.min_evidence_ratio;
         let mut applied = (*proposed, 3);
         if min_ratio > 0.0 {
@@ -736,8 +739,9 @@ impl Corrector {
             }
         }
         self.uncertainty.update(&information, share);
-        if let (Some(scale), Some(published)) = (&self.scale, &mut self.published_uncertainty) {
-            published.update_scaled(&information, share, scale.variance);
+        if let Some(scale) = &mut self.scale {
+            let variance = scale.estimate.variance;
+            scale.published.update_scaled(&information, share, variance);
         }
         if let Some(inherited) = alignment.inherited_map_error {
             self.map_error = inherited;
@@ -749,6 +753,7 @@ impl Corrector {
     /// scale into its estimate, and scales the window about its newest pose by the change
     /// (see [`crate::scale`]). Whether the window moved.
     fn rescale(&mut self, correction: &Se2) -> bool {
+        let share = self.new_share();
         let Some(scale) = &mut self.scale else {
             return false;
         };
@@ -764,17 +769,22 @@ impl Corrector {
         ) else {
             return false;
         };
-        let share = if self.window.path_m() > 0.0 {
-            (self.travelled_m / self.window.path_m()).min(1.0)
-        } else {
-            1.0
-        };
-        let change = scale.update(&evidence, share);
+        let change = scale.estimate.update(&evidence, share);
         if change == 0.0 {
             return false;
         }
         self.window.scale_about(center, 1.0 + change);
         true
+    }
+
+    /// The share of the window's evidence an accepted alignment adds: the distance travelled
+    /// since the last accepted step over the window's path length (at most 1).
+    fn new_share(&self) -> f64 {
+        if self.window.path_m() > 0.0 {
+            (self.travelled_m / self.window.path_m()).min(1.0)
+        } else {
+            1.0
+        }
     }
 
     /// `base` widened by the drift the odometry may have accumulated since the gate last closed

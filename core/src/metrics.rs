@@ -1,6 +1,7 @@
 //! Accuracy metrics in the plane, without alignment (evo's APE with `--project_to_plane xy`).
 
-use crate::pose::Pose3;
+use crate::pose::{apply_planar_correction, Pose3};
+use crate::scale::ScaledOdometry;
 use crate::se2::wrap_angle;
 
 /// Absolute pose error of an estimate against ground truth, both planar (`flu`) and paired.
@@ -212,15 +213,18 @@ pub fn output_jumps(raw: &[Pose3], output: &[Pose3]) -> Result<OutputJumps, Metr
 /// jumps beyond when the corrector estimates the scale ([`crate::scale`]). `raw` itself where
 /// every factor is 1.
 pub fn scaled_steps(raw: &[Pose3], scale_after: &[f64]) -> Vec<Pose3> {
-    let mut scaled = raw.to_vec();
-    for i in 1..raw.len().min(scale_after.len() + 1) {
-        let factor = scale_after[i - 1];
-        for k in 0..2 {
-            let step = raw[i].translation[k] - raw[i - 1].translation[k];
-            scaled[i].translation[k] = scaled[i - 1].translation[k] + factor * step;
-        }
-    }
-    scaled
+    let mut odometry = ScaledOdometry::default();
+    // The first pose has no step before it; steps past `scale_after` keep their length.
+    let factors = std::iter::once(1.0)
+        .chain(scale_after.iter().copied())
+        .chain(std::iter::repeat(1.0));
+    raw.iter()
+        .zip(factors)
+        .map(|(pose, factor)| {
+            odometry.place(pose.planar_position(), factor);
+            apply_planar_correction(&odometry.scaled_from_anchored(), pose)
+        })
+        .collect()
 }
 
 /// Pairs two timestamped trajectories: for each estimate stamp, the ground-truth pose with the
