@@ -17,6 +17,7 @@ use lanealign_core::confidence::{position_covariance_in, Covariance};
 use lanealign_core::input::{Lines, Outputs};
 use lanealign_core::number_text::{push_f64, push_separated};
 use lanealign_core::se2::Se2;
+use lanealign_core::source_corrector::CorrectedPose;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 
 /// The header line of the status CSV.
@@ -35,8 +36,10 @@ pub struct Row<'a> {
     pub match_ratio: f64,
     /// Poses in the window.
     pub window_len: usize,
-    /// The exact correction (odometry plane to map plane).
-    pub map_from_odom: Se2,
+    /// The exact correction (odometry plane to map plane) as x (metres), y (metres), yaw
+    /// (radians): the wire's numbers as they are (a yaw through a rotation matrix and back may
+    /// change in its last bit).
+    pub map_from_odom: [f64; 3],
     /// Directions of the correction applied on an accepted step (0 otherwise).
     pub applied_directions: u8,
     /// Covariance of the corrected pose (map plane).
@@ -57,18 +60,40 @@ pub fn format<'a>(rows: impl ExactSizeIterator<Item = Row<'a>>) -> String {
 }
 
 fn push_row(out: &mut String, index: usize, row: &Row<'_>) {
-    let [x, y] = row.map_from_odom.translation();
     let c = &row.covariance;
     let _ = write!(out, "{index},{},{},", row.status, row.reason);
     push_separated(out, &[row.residual_m, row.match_ratio], ',');
     let _ = write!(out, ",{},", row.window_len);
-    push_separated(out, &[x, y, row.map_from_odom.yaw()], ',');
+    push_separated(out, &row.map_from_odom, ',');
     let _ = write!(out, ",{},", row.applied_directions);
     let covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
     push_separated(out, &covariance, ',');
     out.push(',');
     push_f64(out, row.anchor_yaw);
     out.push('\n');
+}
+
+/// The status CSV of a run corrected offline (`lanealign correct`), whose source the anchor
+/// placed by `anchored_from_odom`.
+pub fn of_run(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
+    let anchor_yaw = anchored_from_odom.yaw();
+    format(run.iter().map(|c| {
+        let s = &c.status;
+        Row {
+            status: s.name(),
+            reason: s.reason().map_or("", |r| r.name()),
+            residual_m: s.residual_m().unwrap_or(f64::NAN),
+            match_ratio: s.match_ratio().unwrap_or(f64::NAN),
+            window_len: s.window_len(),
+            map_from_odom: {
+                let [x, y] = c.map_from_odom.translation();
+                [x, y, c.map_from_odom.yaw()]
+            },
+            applied_directions: s.applied_directions(),
+            covariance: c.covariance,
+            anchor_yaw,
+        }
+    }))
 }
 
 /// Writes a corrected trajectory to `output` and, when asked, its status CSV to `status`: both

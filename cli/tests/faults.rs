@@ -28,6 +28,7 @@ fn between(rng: &mut Lcg, lo: f64, hi: f64) -> Duration {
 }
 
 /// `lanealign replay` of `input` to `output` as a process.
+/// `lanealign replay` of `input` into `output`, its status CSV beside it ([`status_of`]).
 fn spawn_replay(setup: &Setup, source: &str, input: &Path, output: &Path, rate: &str) -> Child {
     Command::new(env!("CARGO_BIN_EXE_lanealign"))
         .args([
@@ -42,10 +43,17 @@ fn spawn_replay(setup: &Setup, source: &str, input: &Path, output: &Path, rate: 
         .arg(input)
         .arg("-o")
         .arg(output)
+        .arg("--status")
+        .arg(status_of(output))
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap()
+}
+
+/// Where [`spawn_replay`] writes the status CSV of `output`.
+fn status_of(output: &Path) -> PathBuf {
+    output.with_extension("csv")
 }
 
 fn finish(child: Child) -> String {
@@ -152,6 +160,17 @@ fn killed_daemons(
     assert!(
         got == offline(setup, source, poses),
         "bit for bit through daemon kills: {summary}"
+    );
+    // Every answer's status and covariance too.
+    let status = std::fs::read_to_string(status_of(&output)).unwrap();
+    let expected = offline_status_csv(setup, source, poses);
+    let differs = status
+        .lines()
+        .zip(expected.lines())
+        .find(|(got, offline)| got != offline);
+    assert!(
+        status == expected,
+        "the status CSV through daemon kills is offline's; first difference {differs:?}: {summary}"
     );
     assert!(
         summary.contains("3 daemon restarts"),

@@ -231,25 +231,6 @@ impl<'a> RunRecord<'a> {
     }
 }
 
-/// The status CSV ([`status_file`]) of a corrected run.
-pub fn status_csv(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
-    let anchor_yaw = anchored_from_odom.yaw();
-    status_file::format(run.iter().map(|c| {
-        let s = &c.status;
-        status_file::Row {
-            status: s.name(),
-            reason: s.reason().map_or("", |r| r.name()),
-            residual_m: s.residual_m().unwrap_or(f64::NAN),
-            match_ratio: s.match_ratio().unwrap_or(f64::NAN),
-            window_len: s.window_len(),
-            map_from_odom: c.map_from_odom,
-            applied_directions: s.applied_directions(),
-            covariance: c.covariance,
-            anchor_yaw,
-        }
-    }))
-}
-
 /// Runs `lanealign correct`.
 pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     input::check_outputs_apart(
@@ -311,7 +292,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     };
     // Formatting the status CSV is a few percent of a whole run: only when a file takes it.
     let status = (args.status.is_some() || args.results.is_some())
-        .then(|| status_csv(&run, &anchored_from_odom));
+        .then(|| status_file::of_run(&run, &anchored_from_odom));
     if let Some(path) = &args.output {
         let status = args.status.as_deref().zip(status.as_deref());
         status_file::write_run(path, &output, args.format, status)?;

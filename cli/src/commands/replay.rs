@@ -10,7 +10,6 @@ use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::input;
 use lanealign_core::pose::Pose3;
-use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName};
@@ -53,7 +52,6 @@ pub struct ReplayArgs {
 /// The status CSV ([`status_file`]) of the daemon's answers.
 fn status_csv(answers: &[CorrectedPose]) -> String {
     status_file::format(answers.iter().map(|a| {
-        let [x, y, yaw] = a.map_from_odom;
         let [xx, xy, xt, yy, yt, tt] = a.covariance;
         status_file::Row {
             status: a.status().map_or("unknown", StatusCode::name),
@@ -61,7 +59,7 @@ fn status_csv(answers: &[CorrectedPose]) -> String {
             residual_m: a.residual_m,
             match_ratio: a.match_ratio,
             window_len: a.window_len as usize,
-            map_from_odom: Se2::new(yaw, x, y),
+            map_from_odom: a.map_from_odom,
             applied_directions: a.applied_directions.min(3) as u8,
             covariance: [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]],
             anchor_yaw: a.anchor_yaw,

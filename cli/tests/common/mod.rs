@@ -269,6 +269,24 @@ pub fn offline_run(
     poses: &[Pose3],
     stamps_s: Option<&[f64]>,
 ) -> Vec<lanealign_core::source_corrector::CorrectedPose> {
+    offline_with_placement(setup, source, poses, stamps_s).0
+}
+
+/// The status CSV `lanealign correct --status` writes for `poses` of `source`, unstamped.
+pub fn offline_status_csv(setup: &Setup, source: &str, poses: &[Pose3]) -> String {
+    let (run, placement) = offline_with_placement(setup, source, poses, None);
+    lanealign_cli::status_file::of_run(&run, &placement.anchored_from_odom)
+}
+
+fn offline_with_placement(
+    setup: &Setup,
+    source: &str,
+    poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
+) -> (
+    Vec<lanealign_core::source_corrector::CorrectedPose>,
+    Placement,
+) {
     let (map, info) = tile::load(&setup.tile).unwrap();
     let anchor = setup.anchors.iter().find(|(n, _)| n == source).unwrap().1;
     let config = corrector(source);
@@ -277,14 +295,15 @@ pub fn offline_run(
         anchored_from_odom: anchor.anchored_from_odom(&info.plane),
         smoothing: config.smoothing(),
     };
-    correct_stamped_trajectory(
+    let run = correct_stamped_trajectory(
         Arc::new(map),
         config.params().unwrap(),
         config.match_mode,
         placement,
         poses,
         stamps_s,
-    )
+    );
+    (run, placement)
 }
 
 /// Starts the daemon and waits until it is ready.
