@@ -4,10 +4,13 @@
 //!
 //! Columns: `index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,
 //! map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,
-//! cov_yawyaw,anchor_yaw`. The covariance is in the map plane (metres^2, metre-radians,
-//! radians^2); `anchor_yaw` (radians) is the rotation of the anchor's placement, which turns the
-//! source's planar odometry frame into the map plane before any correction: the error of a
-//! corrected pose in the map plane is that rotation applied to its error in the odometry frame.
+//! cov_yawyaw,anchor_yaw,odometry_scale,odometry_scale_sd`. The covariance is in the map plane
+//! (metres^2, metre-radians, radians^2); `anchor_yaw` (radians) is the rotation of the anchor's
+//! placement, which turns the source's planar odometry frame into the map plane before any
+//! correction: the error of a corrected pose in the map plane is that rotation applied to its
+//! error in the odometry frame. `odometry_scale` is what the odometry's steps are multiplied by
+//! after the pose (1 where the scale is not estimated), `odometry_scale_sd` its standard
+//! deviation (0 there).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -15,13 +18,13 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use lanealign_core::confidence::{position_covariance_in, Covariance};
 use lanealign_core::input::{Lines, Outputs};
-use lanealign_core::number_text::{push_f64, push_separated};
+use lanealign_core::number_text::push_separated;
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::CorrectedPose;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 
 /// The header line of the status CSV.
-pub const HEADER: &str = "index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw,anchor_yaw";
+pub const HEADER: &str = "index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw,anchor_yaw,odometry_scale,odometry_scale_sd";
 
 /// One row of the status CSV.
 #[derive(Clone, Copy, Debug)]
@@ -46,6 +49,10 @@ pub struct Row<'a> {
     pub covariance: Covariance,
     /// The rotation of the source's anchor (radians).
     pub anchor_yaw: f64,
+    /// What the odometry's steps are multiplied by after the pose (a ratio).
+    pub odometry_scale: f64,
+    /// The standard deviation of `odometry_scale` (a ratio).
+    pub odometry_scale_sd: f64,
 }
 
 /// The status CSV of `rows`, header first, rows numbered from 0.
@@ -69,7 +76,11 @@ fn push_row(out: &mut String, index: usize, row: &Row<'_>) {
     let covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
     push_separated(out, &covariance, ',');
     out.push(',');
-    push_f64(out, row.anchor_yaw);
+    push_separated(
+        out,
+        &[row.anchor_yaw, row.odometry_scale, row.odometry_scale_sd],
+        ',',
+    );
     out.push('\n');
 }
 
@@ -92,6 +103,8 @@ pub fn of_run(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
             applied_directions: s.applied_directions(),
             covariance: c.covariance,
             anchor_yaw,
+            odometry_scale: c.odometry_scale,
+            odometry_scale_sd: c.odometry_scale_sd,
         }
     }))
 }

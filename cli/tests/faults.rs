@@ -129,7 +129,7 @@ fn killed_clients(setup: &Setup, source: &str, input: &Path, poses: &[Pose3], se
 
 /// Kills the daemon three times at random moments while one replay runs, restarting it each
 /// time after a random pause (as systemd would). The replay exits 0 and its output equals an
-/// uninterrupted offline run bit for bit.
+/// uninterrupted offline run bit for bit. Returns the replay's summary.
 fn killed_daemons(
     setup: &Setup,
     source: &str,
@@ -137,7 +137,7 @@ fn killed_daemons(
     poses: &[Pose3],
     seed: u64,
     rate: &str,
-) {
+) -> String {
     let mut rng = Lcg(seed);
     let mut daemon = start(setup);
     let output = setup.dir.path().join("through-kills.txt");
@@ -161,7 +161,7 @@ fn killed_daemons(
         got == offline(setup, source, poses),
         "bit for bit through daemon kills: {summary}"
     );
-    // Every answer's status and covariance too.
+    // Every answer's status, covariance and scale estimate too.
     let status = std::fs::read_to_string(status_of(&output)).unwrap();
     let expected = offline_status_csv(setup, source, poses);
     let differs = status
@@ -180,6 +180,7 @@ fn killed_daemons(
         restored >= 2,
         "the session was restored from its journal ({restored} of 3 restarts)"
     );
+    summary
 }
 
 /// A source on the synthetic town, its daemon setup (a tile, or a grid of 100 m cells), and two
@@ -282,7 +283,11 @@ fn a_daemon_restarted_between_poses_is_seen_in_its_answers() {
 fn killed_daemons_lose_nothing_on_the_town() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let t = town(town_setup);
-    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 12, "800");
+    let summary = killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 12, "800");
+    assert!(
+        !summary.contains("odometry scale"),
+        "the kiss-icp preset does not estimate it: {summary}"
+    );
 }
 
 /// The same with an odometry that restarts at its origin a third of the way: the sessions
@@ -326,7 +331,13 @@ fn killed_daemons_lose_nothing_of_a_session_estimating_the_scale() {
         .unwrap();
     println!("the scale estimate ends at {scale}");
     assert!(scale < 0.999, "the session estimates the scale: {scale}");
-    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 15, "800");
+    let summary = killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 15, "800");
+    assert!(
+        summary.contains(&format!(
+            "odometry scale: steps multiplied by {scale:.4} at the end"
+        )),
+        "replay says the estimate as correct does: {summary}"
+    );
 }
 
 /// The same on a grid: a restored session asks for its cells again and, behind the poses the
@@ -477,6 +488,40 @@ fn a_daemon_restarted_on_another_map_starts_its_sessions_afresh() {
     );
     assert_eq!(fresh_starts(&summary), 1, "{summary}");
     let k = afresh_at(&t, &got, &on_old_map, &summary);
+    assert!(0 < k && k < got.len(), "{k}: {summary}");
+}
+
+/// A journal an earlier daemon wrote (its session file of format 1, whose records lack the
+/// odometry's scale) found at the restart, as after an upgrade: it is not restored, the log says
+/// why, and the session starts afresh once. Every pose is answered: as offline up to that pose and
+/// as an offline run that starts there after it.
+#[test]
+fn a_journal_of_an_earlier_format_starts_its_session_afresh() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town(town_setup);
+    let whole = offline(&t.setup, &t.name, &t.poses);
+    let (daemon, client, output) = replay_on_town(&t, "800");
+    wait_for_files(&t.setup.state, "snapshot");
+    daemon.kill().unwrap();
+    for file in &wait_for_files(&t.setup.state, "session") {
+        let mut bytes = std::fs::read(file).unwrap();
+        bytes[..8].copy_from_slice(b"LASESS01");
+        std::fs::write(file, bytes).unwrap();
+    }
+    let daemon = DaemonProcess::start_ready(
+        &t.setup.config,
+        &daemon_log(&t.setup),
+        Duration::from_secs(20),
+    )
+    .unwrap();
+    let restart = daemon.log();
+    let (summary, _, got) = all_answered(&t, daemon, client, &output);
+    assert!(
+        restart.contains("written in an earlier journal format"),
+        "the log says why the journal was not restored: {restart}"
+    );
+    assert_eq!(fresh_starts(&summary), 1, "{summary}");
+    let k = afresh_at(&t, &got, &whole, &summary);
     assert!(0 < k && k < got.len(), "{k}: {summary}");
 }
 

@@ -485,6 +485,12 @@ impl Corrector {
         self.scale.map_or(1.0, |s| s.estimate.factor)
     }
 
+    /// The standard deviation of [`Corrector::odometry_scale`] (a ratio; 0 where the scale is not
+    /// estimated).
+    pub fn odometry_scale_sd(&self) -> f64 {
+        self.scale.map_or(0.0, |s| s.estimate.variance.sqrt())
+    }
+
     /// Whether the last finite pose pushed stood still ([`Params::standstill_speed_mps`]): it
     /// entered no window and counted no distance.
     pub fn stood_still(&self) -> bool {

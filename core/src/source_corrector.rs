@@ -42,6 +42,9 @@ pub struct CorrectedPose {
     /// What the odometry's steps are multiplied by after this pose: the estimate of its scale
     /// (a ratio; 1 where the scale is not estimated, [`Params::scale_sigma`]).
     pub odometry_scale: f64,
+    /// The standard deviation of `odometry_scale` (a ratio; 0 where the scale is not estimated:
+    /// it is then taken as exact).
+    pub odometry_scale_sd: f64,
 }
 
 /// How a source's poses are read and placed on the lane map.
@@ -208,6 +211,7 @@ impl SourceCorrector {
                 covariance: self.corrector.covariance(),
                 status: Status::InvalidInput,
                 odometry_scale: self.corrector.odometry_scale(),
+                odometry_scale_sd: self.corrector.odometry_scale_sd(),
             };
             return (record, StepTiming::default());
         }
@@ -263,6 +267,7 @@ impl SourceCorrector {
             covariance,
             status,
             odometry_scale: self.corrector.odometry_scale(),
+            odometry_scale_sd: self.corrector.odometry_scale_sd(),
         };
         (record, timing)
     }

@@ -448,7 +448,7 @@ struct Client {
 }
 
 /// An answer as a dict: `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom`
-/// (x, y, yaw) and `covariance` (3, 3).
+/// (x, y, yaw), `covariance` (3, 3), `odometry_scale` and `odometry_scale_sd` (ratios).
 fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
     let [xx, xy, xt, yy, yt, tt] = answer.covariance;
     let d = PyDict::new(py);
@@ -464,6 +464,8 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
     d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
     let covariance = numpy::ndarray::arr2(&[[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]);
     d.set_item("covariance", covariance.into_pyarray(py))?;
+    d.set_item("odometry_scale", answer.odometry_scale)?;
+    d.set_item("odometry_scale_sd", answer.odometry_scale_sd)?;
     Ok(d)
 }
 

@@ -405,6 +405,8 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     assert np.array_equal(np.stack([a["pose"] for a in answers]), offline.poses)
     assert [a["status"] for a in answers] == [lanealign.STATUS_NAMES[c] for c in offline.status]
     assert answers[-1]["covariance"].shape == (3, 3)
+    assert [a["odometry_scale"] for a in answers] == list(offline.odometry_scale)
+    assert all(a["odometry_scale_sd"] == 0.0 for a in answers), "kiss-icp does not estimate it"
 
 
 def test_one_client_publishes_on_one_thread_and_receives_on_another(tmp_path):

@@ -51,11 +51,14 @@ use xxhash_rust::xxh3::xxh3_64;
 
 /// Records per segment: the last full segment alone holds [`MAX_IN_FLIGHT`] answers.
 pub const SEGMENT_RECORDS: u64 = MAX_IN_FLIGHT;
-/// Bytes of one record: input (136), answer (272), checksum (8).
+/// Bytes of one record: input (136), answer (288), checksum (8).
 pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
-const ANSWER_LEN: usize = 272;
-const SESSION_MAGIC: &[u8; 8] = b"LASESS01";
+const ANSWER_LEN: usize = 288;
+const SESSION_MAGIC: &[u8; 8] = b"LASESS02";
+/// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
+/// records cannot be appended to, so their sessions are not restored (they start afresh).
+const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
 const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP07";
 /// Snapshots before the odometry's scale was estimated (read with the estimate at its start
 /// when the session's parameters estimate it).
@@ -208,7 +211,9 @@ fn encode_answer(e: &mut Encoder, a: &CorrectedPose) {
         .u32(a.reason)
         .u32(a.applied_directions)
         .f64s(&a.covariance)
-        .f64(a.anchor_yaw);
+        .f64(a.anchor_yaw)
+        .f64(a.odometry_scale)
+        .f64(a.odometry_scale_sd);
 }
 
 fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
@@ -231,6 +236,8 @@ fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
         applied_directions: d.u32()?,
         covariance: d.f64s::<6>()?,
         anchor_yaw: d.f64()?,
+        odometry_scale: d.f64()?,
+        odometry_scale_sd: d.f64()?,
     })
 }
 
@@ -517,6 +524,12 @@ impl Header {
         let sum = xxh3_64(&e.0);
         e.u64(sum);
         e.0
+    }
+
+    /// Whether the file's bytes are a session file of an earlier journal format (whose records
+    /// this daemon does not read).
+    pub fn is_older_format(bytes: &[u8]) -> bool {
+        bytes.starts_with(SESSION_MAGIC_V1)
     }
 
     /// A header from the file's bytes.
@@ -819,6 +832,8 @@ mod tests {
             applied_directions: 2,
             covariance: [0.5, 0.1, 1e-3, 0.7, -2e-3, 1e-4],
             anchor_yaw: 1.04,
+            odometry_scale: 1.03,
+            odometry_scale_sd: 0.004,
         };
         Record { input, answer }
     }
@@ -831,6 +846,10 @@ mod tests {
         assert_eq!(back.input, r.input);
         assert_eq!(back.answer.residual_m.to_bits(), f64::NAN.to_bits());
         assert_eq!(back.answer.pose, r.answer.pose);
+        assert_eq!(
+            (back.answer.odometry_scale, back.answer.odometry_scale_sd),
+            (1.03, 0.004)
+        );
         for at in [0, 100, RECORD_LEN - 1] {
             let mut bad = bytes;
             bad[at] ^= 1;
@@ -1061,5 +1080,10 @@ mod tests {
         assert_eq!(Header::decode(&bytes), Some(h));
         assert_ne!(fingerprint(&["ab", ""]), fingerprint(&["a", "b"]));
         assert!(Header::decode(&bytes[..39]).is_none());
+        assert!(!Header::is_older_format(&bytes));
+        let mut older = bytes.clone();
+        older[..8].copy_from_slice(SESSION_MAGIC_V1);
+        assert!(Header::is_older_format(&older));
+        assert!(Header::decode(&older).is_none());
     }
 }

@@ -139,6 +139,8 @@ fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> Correcte
         applied_directions: 0,
         covariance: [f64::NAN; 6],
         anchor_yaw: f64::NAN,
+        odometry_scale: f64::NAN,
+        odometry_scale_sd: f64::NAN,
     }
 }
 
@@ -306,6 +308,8 @@ impl Session {
         let c = &record.covariance;
         answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
         answer.anchor_yaw = self.corrector.anchor_yaw();
+        answer.odometry_scale = record.odometry_scale;
+        answer.odometry_scale_sd = record.odometry_scale_sd;
         self.expected_seq = input.seq + 1;
         answer.expected_seq = self.expected_seq;
         let entry = Record {
@@ -461,6 +465,9 @@ pub enum RestoreError {
     /// It belongs to another session id, configuration or tile.
     #[error("written under another configuration or tile")]
     Stale,
+    /// It was written by an earlier daemon in a journal format this one does not append to.
+    #[error("written in an earlier journal format (answers without the odometry's scale)")]
+    OlderFormat,
     /// Its content is inconsistent (a missing record, an answer that does not replay).
     #[error("{0}")]
     Inconsistent(String),
@@ -493,6 +500,9 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         source,
     };
     let header = std::fs::read(dir.join("session")).map_err(io)?;
+    if Header::is_older_format(&header) {
+        return Err(RestoreError::OlderFormat);
+    }
     let header = Header::decode(&header)
         .ok_or(RestoreError::Inconsistent("unreadable session file".into()))?;
     if header.fingerprint != setup.fingerprint {

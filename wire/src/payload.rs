@@ -217,6 +217,13 @@ pub struct CorrectedPose {
     /// map plane before any correction (turns an error in the odometry frame into the map plane).
     /// NaN for flagged, gap and pass-through answers.
     pub anchor_yaw: f64,
+    /// What the session multiplies the odometry's steps by after this pose: its estimate of the
+    /// odometry's scale (a ratio; 1 where the source does not estimate it). NaN where
+    /// `covariance` is.
+    pub odometry_scale: f64,
+    /// The standard deviation of `odometry_scale` (a ratio; 0 where the source does not estimate
+    /// the scale). NaN where `covariance` is.
+    pub odometry_scale_sd: f64,
 }
 
 impl OdomPose {
@@ -247,7 +254,7 @@ mod tests {
         assert_eq!(offset_of!(OdomPose, flags), 128);
         assert_eq!(
             (size_of::<CorrectedPose>(), align_of::<CorrectedPose>()),
-            (272, 8)
+            (288, 8)
         );
         assert_eq!(offset_of!(CorrectedPose, expected_seq), 8);
         assert_eq!(offset_of!(CorrectedPose, session), 16);
@@ -262,6 +269,8 @@ mod tests {
         assert_eq!(offset_of!(CorrectedPose, applied_directions), 212);
         assert_eq!(offset_of!(CorrectedPose, covariance), 216);
         assert_eq!(offset_of!(CorrectedPose, anchor_yaw), 264);
+        assert_eq!(offset_of!(CorrectedPose, odometry_scale), 272);
+        assert_eq!(offset_of!(CorrectedPose, odometry_scale_sd), 280);
     }
 
     #[test]

@@ -63,6 +63,8 @@ fn status_csv(answers: &[CorrectedPose]) -> String {
             applied_directions: a.applied_directions.min(3) as u8,
             covariance: [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]],
             anchor_yaw: a.anchor_yaw,
+            odometry_scale: a.odometry_scale,
+            odometry_scale_sd: a.odometry_scale_sd,
         }
     }))
 }
@@ -150,5 +152,18 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         percentile_us(&rt, 0.99),
         percentile_us(&rt, 1.0)
     );
+    // As `correct` says it, for a source whose session estimates the scale.
+    let estimated = result
+        .answers
+        .iter()
+        .rev()
+        .find(|a| a.odometry_scale.is_finite())
+        .filter(|a| a.odometry_scale_sd > 0.0);
+    if let Some(last) = estimated {
+        eprintln!(
+            "odometry scale: steps multiplied by {:.4} at the end (estimated from the lanes)",
+            last.odometry_scale
+        );
+    }
     Ok(())
 }
