@@ -24,7 +24,7 @@ use lanealign_client::Connection;
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
-use lanealign_wire::payload::StatusCode;
+use lanealign_wire::payload::{CorrectedPose, StatusCode};
 use rustix::process::Signal;
 
 /// The tests start daemons and count shared-memory files: one at a time.
@@ -425,6 +425,17 @@ fn kitti_on_a_grid_matches_the_whole_tile_bit_for_bit() {
     assert!(log.contains(" map_waits="), "waits are reported: {log}");
 }
 
+/// A flagged or gap answer has no correction, covariance, anchor or scale (docs/wire.md).
+fn assert_all_nan(a: &CorrectedPose) {
+    let numbers = [
+        &a.map_from_odom[..],
+        &a.covariance[..],
+        &[a.anchor_yaw, a.odometry_scale, a.odometry_scale_sd][..],
+    ]
+    .concat();
+    assert!(numbers.iter().all(|v| v.is_nan()), "{a:?}");
+}
+
 /// Always runs: through a raw wire client, the protocol of sequence numbers: non-finite poses
 /// use up their number and change nothing, a used number with another pose is flagged, a used
 /// number with the same pose gets the same answer again, a number beyond the next is a gap;
@@ -447,22 +458,24 @@ fn bad_input_is_flagged_and_changes_nothing() {
             let mut nan = p.to_row_major();
             nan[3] = f64::NAN;
             seq += 1;
-            assert_eq!(raw.send(seq, nan).status(), Some(StatusCode::InvalidInput));
+            let refused = raw.send(seq, nan);
+            assert_eq!(refused.status(), Some(StatusCode::InvalidInput));
+            assert_all_nan(&refused);
             let mut inf = p.to_row_major();
             inf[11] = f64::INFINITY;
             seq += 1;
             assert_eq!(raw.send(seq, inf).status(), Some(StatusCode::InvalidInput));
             let other = odometry[500].to_row_major();
-            assert_eq!(
-                raw.send(seq, other).status(),
-                Some(StatusCode::DuplicateSeq)
-            );
+            let duplicate = raw.send(seq, other);
+            assert_eq!(duplicate.status(), Some(StatusCode::DuplicateSeq));
+            assert_all_nan(&duplicate);
             assert_eq!(
                 raw.send(seq - 40, other).status(),
                 Some(StatusCode::OutOfOrderSeq)
             );
             let ahead = raw.send(seq + 5, other);
             assert_eq!(ahead.status(), Some(StatusCode::Gap));
+            assert_all_nan(&ahead);
             assert_eq!(ahead.expected_seq, seq + 1);
             // The same pose under a used number: the same answer again.
             let again = raw.send(seq - 3, good_poses[i - 1].to_row_major());

@@ -293,9 +293,16 @@ impl Session {
         let uncovered_before = self.corrector.map().uncovered_queries();
         let (record, timing) = self.corrector.correct_at(&pose, input.stamp_s());
         let uncovered_queries = self.corrector.map().uncovered_queries() - uncovered_before;
-        let [x, y] = record.map_from_odom.translation();
         if record.status != Status::InvalidInput {
+            // A pose that is no pose has no correction, covariance or scale of its own: those
+            // stay NaN, as docs/wire.md says of flagged answers.
+            let [x, y] = record.map_from_odom.translation();
             answer.map_from_odom = [x, y, record.map_from_odom.yaw()];
+            let c = &record.covariance;
+            answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
+            answer.anchor_yaw = self.corrector.anchor_yaw();
+            answer.odometry_scale = record.odometry_scale;
+            answer.odometry_scale_sd = record.odometry_scale_sd;
         }
         answer.pose = record.pose.to_row_major();
         let (status, reason) = wire_status(&record.status);
@@ -305,11 +312,6 @@ impl Session {
         answer.match_ratio = record.status.match_ratio().unwrap_or(f64::NAN);
         answer.window_len = record.status.window_len() as u32;
         answer.applied_directions = u32::from(record.status.applied_directions());
-        let c = &record.covariance;
-        answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
-        answer.anchor_yaw = self.corrector.anchor_yaw();
-        answer.odometry_scale = record.odometry_scale;
-        answer.odometry_scale_sd = record.odometry_scale_sd;
         self.expected_seq = input.seq + 1;
         answer.expected_seq = self.expected_seq;
         let entry = Record {
