@@ -19,7 +19,7 @@
 //!
 //! A pose with a finite gate (the robust method's) that lies farther from every lane than the
 //! gate plus half the longest segment can have no match within the gate: it is left unmatched
-//! without gathering candidates ([`Clearance`]). A corrector whose odometry jumped off the map
+//! without gathering candidates (`Clearance`). A corrector whose odometry jumped off the map
 //! would otherwise gather most of the map for each such pose.
 //!
 //! The answers are identical to [`crate::matching::match_window`], which the tests check on
@@ -241,7 +241,7 @@ impl MatchCache {
         }
     }
 
-    /// Readies the memory a window of `poses` poses needs ([`crate::headroom`]): room for
+    /// Readies the memory a window of `poses` poses needs (`crate::headroom`): room for
     /// their caches, and the candidate buffer the next pose to join takes when no pose left the
     /// window to free one.
     pub fn make_room(&mut self, poses: usize) {

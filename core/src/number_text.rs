@@ -6,7 +6,7 @@
 //! `zmij` finds the same shortest digits, but for two differences that are adapted here: the
 //! spelling (`std` writes no `.0` after a whole number and never an exponent), and ties. When
 //! two 17-digit decimals lie equally close to the value, `std` takes the larger digit and `zmij`
-//! the even one; those values are told by their bits ([`may_tie`]) and left to `std`.
+//! the even one; those values are told by their bits (`may_tie`) and left to `std`.
 
 /// Appends `v` to `out` as `write!(out, "{v}")` would.
 pub fn push_f64(out: &mut String, v: f64) {

@@ -175,7 +175,7 @@ impl LaneSpill {
     }
 }
 
-/// Runs merged at once at most: the merge holds a read buffer of [`READ_BYTES`] per run.
+/// Runs merged at once at most: the merge holds a read buffer of `READ_BYTES` per run.
 pub const FAN_IN: usize = 64;
 const READ_BYTES: usize = 64 << 10;
 
