@@ -22,7 +22,9 @@ use iceoryx2::prelude::{
     CallbackProgression, FileName, NodeName, Path as IoxPath, SemanticString, ServiceName,
 };
 use iceoryx2::service::builder::event::EventOpenOrCreateError;
-use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenOrCreateError;
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
 use iceoryx2::service::port_factory::{event, publish_subscribe, PortFactory as _};
 use iceoryx2::service::service_name::ServiceNameError;
 use iceoryx2::service::Service;
@@ -324,8 +326,19 @@ pub enum ServiceOpenError {
         #[source]
         source: ServiceNameError,
     },
+    /// A publish-subscribe service exists with another payload type than this build's: the
+    /// other side was built from another version of lanealign.
+    #[error("publish-subscribe service '{service}' exists with another layout of its payload than this build's {type_name} ({size} bytes): a client and a daemon of different lanealign versions (docs/wire.md gives this version's layout; rebuild the older side)")]
+    IncompatibleLayout {
+        /// The service name.
+        service: String,
+        /// The payload's type name, as this build declares it.
+        type_name: &'static str,
+        /// The payload's size in this build (bytes).
+        size: usize,
+    },
     /// A publish-subscribe service could not be opened or created (for example because it
-    /// exists with other settings, written by a build with another wire layout).
+    /// exists with other settings).
     #[error("opening publish-subscribe service '{service}' failed")]
     PublishSubscribe {
         /// The service name.
@@ -428,9 +441,18 @@ fn pubsub<S: Service, T: fmt::Debug + iceoryx2::prelude::ZeroCopySend + 'static>
         .max_publishers(publishers)
         .max_nodes(MAX_NODES)
         .open_or_create()
-        .map_err(|source| ServiceOpenError::PublishSubscribe {
-            service: service.to_string(),
-            source,
+        .map_err(|source| match source {
+            PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                PublishSubscribeOpenError::IncompatibleTypes,
+            ) => ServiceOpenError::IncompatibleLayout {
+                service: service.to_string(),
+                type_name: std::any::type_name::<T>(),
+                size: std::mem::size_of::<T>(),
+            },
+            source => ServiceOpenError::PublishSubscribe {
+                service: service.to_string(),
+                source,
+            },
         })
 }
 
@@ -744,6 +766,36 @@ mod tests {
         assert!(!shm_a_b.exists() && !root(&a_b).exists());
         // Gone already: no error.
         a_b.remove_files().unwrap();
+    }
+
+    use iceoryx2::prelude::ZeroCopySend;
+
+    /// The answer as a build before the odometry's scale was on the wire declared it.
+    #[derive(Debug, ZeroCopySend)]
+    #[type_name("lanealign::CorrectedPose")]
+    #[repr(C)]
+    struct AnswerOf272Bytes {
+        fields: [u64; 34],
+    }
+
+    #[test]
+    fn a_service_of_another_builds_layout_is_named_as_such() {
+        let namespace: Namespace = format!("l{}", std::process::id()).parse().unwrap();
+        let node = namespace.node::<Ipc>().unwrap();
+        let service = "lanealign/lidar/session/00000000000000ab";
+        let older = pubsub::<Ipc, AnswerOf272Bytes>(&node, service, (1, 1)).unwrap();
+        let error = pubsub::<Ipc, CorrectedPose>(&node, service, (1, 1)).unwrap_err();
+        let text = error.to_string();
+        drop((older, node));
+        namespace.remove_files().unwrap();
+        assert!(
+            matches!(
+                error,
+                ServiceOpenError::IncompatibleLayout { size: 288, .. }
+            ),
+            "{error:?}"
+        );
+        assert!(text.contains("different lanealign versions"), "{text}");
     }
 
     #[test]
