@@ -32,6 +32,8 @@ class Corrected(NamedTuple):
     #: (N) what the odometry's steps are multiplied by after each pose: the estimate of its scale
     #: (1 where it is not estimated; the orb-slam3 preset and ``scale_sigma`` estimate it).
     odometry_scale: np.ndarray
+    #: (N) the standard deviation of ``odometry_scale`` (0 where it is not estimated).
+    odometry_scale_sd: np.ndarray
 
 
 def correct(
@@ -76,7 +78,7 @@ def correct(
     orb-slam3 preset does so by default; ``odometry_scale`` says what came of it.
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
-    out, status, covariance, odometry_scale = _lanealign.correct(
+    out, status, covariance, odometry_scale, odometry_scale_sd = _lanealign.correct(
         array,
         preset=preset,
         osm=osm,
@@ -91,7 +93,7 @@ def correct(
         overrides=overrides,
         stamps=None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64),
     )
-    return Corrected(out, status, covariance, odometry_scale)
+    return Corrected(out, status, covariance, odometry_scale, odometry_scale_sd)
 
 
 def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = "flu") -> dict:  # noqa: A001

@@ -129,12 +129,14 @@ fn anchor_from(values: &[f64]) -> PyResult<Anchor> {
 }
 
 /// The corrected poses (the input's shape and frame), a status code per pose (an index into
-/// `STATUS_NAMES`) and the covariance of each corrected pose (N, 3, 3; map plane, x, y in metres
-/// and yaw in radians).
+/// `STATUS_NAMES`), the covariance of each corrected pose (N, 3, 3; map plane, x, y in metres
+/// and yaw in radians), and the odometry's scale estimate after each pose with its standard
+/// deviation (N each; ratios).
 type Corrected<'py> = (
     Bound<'py, PyArrayDyn<f64>>,
     Bound<'py, PyArray1<u8>>,
     Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray1<f64>>,
 );
 
@@ -295,11 +297,13 @@ fn correct<'py>(
         }
     }
     let odometry_scale: Array1<f64> = run.iter().map(|c| c.odometry_scale).collect();
+    let odometry_scale_sd: Array1<f64> = run.iter().map(|c| c.odometry_scale_sd).collect();
     Ok((
         poses_into(&corrected, &shape).into_pyarray(py),
         codes.into_pyarray(py),
         covariance.into_pyarray(py),
         odometry_scale.into_pyarray(py),
+        odometry_scale_sd.into_pyarray(py),
     ))
 }
 

@@ -239,6 +239,8 @@ def test_the_odometry_scale_is_estimated_where_asked_and_said_as_the_command_lin
     # 01's visual odometry measures 0.917 of the road: its steps are lengthened.
     assert visual.odometry_scale.shape == (len(poses),)
     assert visual.odometry_scale[0] == 1.0 and visual.odometry_scale[-1] > 1.02
+    # Its uncertainty starts at the preset's scale_sigma and shrinks as the lanes tell it.
+    assert visual.odometry_scale_sd[0] == 0.05 and 0 < visual.odometry_scale_sd[-1] < 0.05
     out = tmp_path / "out.txt"
     run = subprocess.run([str(BIN), "correct", "--osm", str(osm), "--anchor",
                           ",".join(repr(v) for v in anchor), "--projection", "kitti",
@@ -249,7 +251,7 @@ def test_the_odometry_scale_is_estimated_where_asked_and_said_as_the_command_lin
     assert np.array_equal(visual.poses, read_kitti(out))
     # The LiDAR preset leaves the scale alone unless asked.
     lidar = lanealign.correct(poses, preset="kiss-icp", **common)
-    assert np.all(lidar.odometry_scale == 1.0)
+    assert np.all(lidar.odometry_scale == 1.0) and np.all(lidar.odometry_scale_sd == 0.0)
     asked = lanealign.correct(poses, preset="kiss-icp", overrides={"scale_sigma": 0.05}, **common)
     assert asked.odometry_scale[-1] != 1.0
 
