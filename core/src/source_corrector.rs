@@ -35,15 +35,16 @@ pub struct CorrectedPose {
     /// odometry, with what carries its new frame onto its old one).
     pub map_from_odom: Se2,
     /// The covariance of the exact corrected pose's error (map plane; x, y in metres, yaw in
-    /// radians; see [`crate::confidence`]).
+    /// radians; see [`crate::confidence`]). NaN for invalid input, which has no corrected pose.
     pub covariance: Covariance,
     /// What the corrector did.
     pub status: Status,
     /// What the odometry's steps are multiplied by after this pose: the estimate of its scale
-    /// (a ratio; 1 where the scale is not estimated, [`Params::scale_sigma`]).
+    /// (a ratio; 1 where the scale is not estimated, [`Params::scale_sigma`]). NaN for invalid
+    /// input, as on the wire.
     pub odometry_scale: f64,
     /// The standard deviation of `odometry_scale` (a ratio; 0 where the scale is not estimated:
-    /// it is then taken as exact).
+    /// it is then taken as exact). NaN for invalid input.
     pub odometry_scale_sd: f64,
 }
 
@@ -208,10 +209,10 @@ impl SourceCorrector {
             let record = CorrectedPose {
                 pose: *pose,
                 map_from_odom: self.map_from_odom(),
-                covariance: self.corrector.covariance(),
+                covariance: [[f64::NAN; 3]; 3],
                 status: Status::InvalidInput,
-                odometry_scale: self.corrector.odometry_scale(),
-                odometry_scale_sd: self.corrector.odometry_scale_sd(),
+                odometry_scale: f64::NAN,
+                odometry_scale_sd: f64::NAN,
             };
             return (record, StepTiming::default());
         }
@@ -371,6 +372,9 @@ mod tests {
             v[row * 4 + col] = value;
             let (record, _) = c.correct(&Pose3::from_row_major(&v));
             assert_eq!(record.status, Status::InvalidInput);
+            // No corrected pose, so no covariance or scale of one (as the daemon answers).
+            assert!(record.covariance.iter().flatten().all(|v| v.is_nan()));
+            assert!(record.odometry_scale.is_nan() && record.odometry_scale_sd.is_nan());
             assert_eq!(
                 record.pose.to_row_major()[row * 4 + col].to_bits(),
                 value.to_bits()

@@ -27,7 +27,8 @@ class Corrected(NamedTuple):
     poses: np.ndarray
     #: One status code per pose (uint8), an index into :data:`STATUS_NAMES`.
     status: np.ndarray
-    #: (N, 3, 3) covariance of each corrected pose (map plane; x, y in metres, yaw in radians).
+    #: (N, 3, 3) covariance of each corrected pose (map plane; x, y in metres, yaw in radians);
+    #: NaN for a pose that is no pose (status ``invalid_input``), as are its scale entries.
     covariance: np.ndarray
     #: (N) what the odometry's steps are multiplied by after each pose: the estimate of its scale
     #: (1 where it is not estimated; the orb-slam3 preset and ``scale_sigma`` estimate it).
