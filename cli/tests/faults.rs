@@ -469,26 +469,11 @@ fn tampered_journals_are_refused_and_every_pose_is_answered() {
 fn a_daemon_restarted_on_another_map_starts_its_sessions_afresh() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let t = town(town_setup);
-    let on_old_map = offline(&t.setup, &t.name, &t.poses);
-    let (daemon, client, output) = replay_on_town(&t, "800");
-    wait_for_files(&t.setup.state, "snapshot");
-    daemon.kill().unwrap();
-    write_town_tile(&town_moved_north(), &t.setup.tile);
-    let daemon = DaemonProcess::start_ready(
-        &t.setup.config,
-        &daemon_log(&t.setup),
-        Duration::from_secs(20),
-    )
-    .unwrap();
-    let restart = daemon.log();
-    let (summary, _, got) = all_answered(&t, daemon, client, &output);
-    assert!(
-        restart.contains("a journal was not restored"),
-        "the old map's journal is refused: {restart}"
+    restarted_without_the_journal(
+        &t,
+        || write_town_tile(&town_moved_north(), &t.setup.tile),
+        "a journal was not restored",
     );
-    assert_eq!(fresh_starts(&summary), 1, "{summary}");
-    let k = afresh_at(&t, &got, &on_old_map, &summary);
-    assert!(0 < k && k < got.len(), "{k}: {summary}");
 }
 
 /// A journal an earlier daemon wrote (its session file of format 1, whose records lack the
@@ -499,15 +484,26 @@ fn a_daemon_restarted_on_another_map_starts_its_sessions_afresh() {
 fn a_journal_of_an_earlier_format_starts_its_session_afresh() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let t = town(town_setup);
-    let whole = offline(&t.setup, &t.name, &t.poses);
-    let (daemon, client, output) = replay_on_town(&t, "800");
+    let as_format_1 = || {
+        for file in &wait_for_files(&t.setup.state, "session") {
+            let mut bytes = std::fs::read(file).unwrap();
+            bytes[..8].copy_from_slice(b"LASESS01");
+            std::fs::write(file, bytes).unwrap();
+        }
+    };
+    restarted_without_the_journal(&t, as_format_1, "written in an earlier journal format");
+}
+
+/// Replays the town, kills the daemon once its session has a snapshot, applies `while_down`, and
+/// restarts it: its log must say `says` (why the journal was not restored), the session starts
+/// afresh once, and every pose is answered: as offline correction of the whole run up to that
+/// pose, and as an offline run on the tile as it now is from there.
+fn restarted_without_the_journal(t: &Town, while_down: impl FnOnce(), says: &str) {
+    let before = offline(&t.setup, &t.name, &t.poses);
+    let (daemon, client, output) = replay_on_town(t, "800");
     wait_for_files(&t.setup.state, "snapshot");
     daemon.kill().unwrap();
-    for file in &wait_for_files(&t.setup.state, "session") {
-        let mut bytes = std::fs::read(file).unwrap();
-        bytes[..8].copy_from_slice(b"LASESS01");
-        std::fs::write(file, bytes).unwrap();
-    }
+    while_down();
     let daemon = DaemonProcess::start_ready(
         &t.setup.config,
         &daemon_log(&t.setup),
@@ -515,13 +511,10 @@ fn a_journal_of_an_earlier_format_starts_its_session_afresh() {
     )
     .unwrap();
     let restart = daemon.log();
-    let (summary, _, got) = all_answered(&t, daemon, client, &output);
-    assert!(
-        restart.contains("written in an earlier journal format"),
-        "the log says why the journal was not restored: {restart}"
-    );
+    let (summary, _, got) = all_answered(t, daemon, client, &output);
+    assert!(restart.contains(says), "the log says {says:?}: {restart}");
     assert_eq!(fresh_starts(&summary), 1, "{summary}");
-    let k = afresh_at(&t, &got, &whole, &summary);
+    let k = afresh_at(t, &got, &before, &summary);
     assert!(0 < k && k < got.len(), "{k}: {summary}");
 }
 
