@@ -27,7 +27,7 @@
 //!
 //! Hand-written 3x3 algebra on nalgebra's fixed-size matrices: no crate models this filter.
 
-use nalgebra::{Matrix3, Matrix4, RowVector3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Matrix4, RowVector3, SMatrix, SVector, SymmetricEigen, Vector3};
 
 use crate::lane_geometry::{LaneInfo, RoadClass};
 use crate::lane_map::LaneMap;
@@ -101,10 +101,8 @@ pub fn alignment_information(
     let mut inherited = [[0.0; 2]; 2];
     let mut inherited_count = 0usize;
     let mut information = Matrix3::zeros();
-    // Pairs of one stretch of the window share its map offset error: with independent variances
-    // `a_i` and a shared `b`, the stretch's information is
-    // sum(J'J / a) - b / (1 + b sum(1 / a)) (sum J / a)'(sum J / a) (Sherman-Morrison).
-    let mut block = Block::default();
+    // Pairs of one stretch of the window share its map offset error ([`Stretch`]).
+    let mut block = Stretch::<3>::default();
     for KeptPair {
         k,
         pair,
@@ -114,7 +112,7 @@ pub fn alignment_information(
     {
         if new_stretch {
             information += block.information();
-            block = Block::default();
+            block = Stretch::default();
         }
         let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
         let normal = [-direction[1], direction[0]];
@@ -135,7 +133,7 @@ pub fn alignment_information(
             -normal[0] * arm[1] + normal[1] * arm[0],
         );
         let share = (spacing_m[pair.index] / WANDER_CORRELATION_M).clamp(1e-3, 1.0);
-        block.add(j, share / wander_var, sigma * sigma);
+        block.add(&j, share / wander_var, sigma * sigma);
     }
     Alignment {
         information: information + block.information(),
@@ -206,22 +204,44 @@ pub const MAP_ERROR_VAR_SCALE: f64 = 1.5;
 /// traced from the same imagery by the same mappers, so neighbouring lanes are off together.
 pub const MAP_CORRELATION_M: f64 = 100.0;
 
-/// The pairs of one stretch of the window, summed for its information.
-#[derive(Default)]
-struct Block {
-    sum_jj: Matrix3<f64>,
-    sum_j: RowVector3<f64>,
+/// The kept pairs of one stretch of the window, summed: each pair's row `J` of the derivative of
+/// its distance across its lane, with its own variance `a` (the car's wander) and the stretch's
+/// shared map offset variance `b` (the mean of the pairs'). By Sherman-Morrison the stretch's
+/// information is `sum(J'J / a) - c (sum J / a)'(sum J / a)` and, given the pairs' residuals `r`
+/// ([`Stretch::add_residual`]), its gradient `sum(J' r / a) - c (sum J / a)' (sum r / a)`, with
+/// `c = b / (1 + b sum(1 / a))`. `N` is the number of unknowns: 3 for the pose
+/// ([`alignment_information`]), 4 with the scale ([`crate::scale::scale_evidence`]).
+pub(crate) struct Stretch<const N: usize> {
+    sum_jj: SMatrix<f64, N, N>,
+    sum_j: SMatrix<f64, 1, N>,
+    sum_jr: SVector<f64, N>,
+    sum_r: f64,
     sum_inv_a: f64,
     sum_b: f64,
     count: usize,
 }
 
-impl Block {
-    fn add(&mut self, j: RowVector3<f64>, inv_a: f64, b: f64) {
+impl<const N: usize> Default for Stretch<N> {
+    fn default() -> Self {
+        Stretch {
+            sum_jj: SMatrix::zeros(),
+            sum_j: SMatrix::zeros(),
+            sum_jr: SVector::zeros(),
+            sum_r: 0.0,
+            sum_inv_a: 0.0,
+            sum_b: 0.0,
+            count: 0,
+        }
+    }
+}
+
+impl<const N: usize> Stretch<N> {
+    /// Adds a pair's row `j`, its inverse variance `inv_a` and its lane's offset variance `b`.
+    pub(crate) fn add(&mut self, j: &SMatrix<f64, 1, N>, inv_a: f64, b: f64) {
         // `j' j inv_a`, element by element as the matrix product forms it, its upper triangle
         // only: the pairs of a window are summed on every accepted step.
-        for r in 0..3 {
-            for c in r..3 {
+        for r in 0..N {
+            for c in r..N {
                 self.sum_jj[(r, c)] += j[r] * j[c] * inv_a;
             }
         }
@@ -231,18 +251,42 @@ impl Block {
         self.count += 1;
     }
 
-    fn information(&self) -> Matrix3<f64> {
+    /// Adds the residual of the pair last added (its row `j`, inverse variance `inv_a`), for the
+    /// gradient.
+    pub(crate) fn add_residual(&mut self, j: &SMatrix<f64, 1, N>, residual: f64, inv_a: f64) {
+        self.sum_jr += j.transpose() * (residual * inv_a);
+        self.sum_r += residual * inv_a;
+    }
+
+    /// `c` of the stretch's shared offset (zero for an empty stretch).
+    fn shared(&self) -> f64 {
         if self.count == 0 {
-            return Matrix3::zeros();
+            return 0.0;
         }
         let b = self.sum_b / self.count as f64;
+        b / (1.0 + b * self.sum_inv_a)
+    }
+
+    /// The stretch's information (zero for an empty stretch).
+    pub(crate) fn information(&self) -> SMatrix<f64, N, N> {
+        if self.count == 0 {
+            return SMatrix::zeros();
+        }
         let mut sum_jj = self.sum_jj;
-        for r in 0..3 {
+        for r in 0..N {
             for c in 0..r {
                 sum_jj[(r, c)] = sum_jj[(c, r)];
             }
         }
-        sum_jj - self.sum_j.transpose() * self.sum_j * (b / (1.0 + b * self.sum_inv_a))
+        sum_jj - self.sum_j.transpose() * self.sum_j * self.shared()
+    }
+
+    /// The stretch's gradient (zero for an empty stretch or one without residuals).
+    pub(crate) fn gradient(&self) -> SVector<f64, N> {
+        if self.count == 0 {
+            return SVector::zeros();
+        }
+        self.sum_jr - self.sum_j.transpose() * (self.sum_r * self.shared())
     }
 }
 

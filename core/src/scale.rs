@@ -24,7 +24,7 @@ use nalgebra::{Matrix4, RowVector4, Vector4};
 use serde::{Deserialize, Serialize};
 
 use crate::confidence::{
-    kept_pairs_by_stretch, lane_sigma_m, WANDER_CORRELATION_M, WANDER_SIGMA_M,
+    kept_pairs_by_stretch, lane_sigma_m, Stretch, WANDER_CORRELATION_M, WANDER_SIGMA_M,
 };
 use crate::lane_map::LaneMap;
 use crate::matching::Correspondence;
@@ -58,11 +58,12 @@ pub fn scale_evidence(
     let wander_var = WANDER_SIGMA_M * WANDER_SIGMA_M;
     let mut information = Matrix4::zeros();
     let mut gradient = Vector4::zeros();
-    let mut block = Block::default();
+    let mut block = Stretch::<4>::default();
     for kept_pair in kept_pairs_by_stretch(map, pairs, kept, spacing_m) {
         if kept_pair.new_stretch {
-            block.add_to(&mut information, &mut gradient);
-            block = Block::default();
+            information += block.information();
+            gradient += block.gradient();
+            block = Stretch::default();
         }
         let (pair, direction) = (kept_pair.pair, kept_pair.direction);
         let sigma = lane_sigma_m(map.lane_info()[map.lane_of(pair.point)]);
@@ -79,52 +80,18 @@ pub fn scale_evidence(
         let across = normal[0] * (pair.target[0] - p[0]) + normal[1] * (pair.target[1] - p[1]);
         let beyond_band = across.signum() * (across.abs() - band_m).max(0.0);
         let share = (spacing_m[pair.index] / WANDER_CORRELATION_M).clamp(1e-3, 1.0);
-        block.add(j, beyond_band, share / wander_var, sigma * sigma);
+        let inv_a = share / wander_var;
+        block.add(&j, inv_a, sigma * sigma);
+        block.add_residual(&j, beyond_band, inv_a);
     }
-    block.add_to(&mut information, &mut gradient);
+    information += block.information();
+    gradient += block.gradient();
     let covariance = information.try_inverse()?;
     let variance = covariance[(3, 3)];
     (variance.is_finite() && variance > 0.0).then(|| ScaleEvidence {
         scale_change: (covariance * gradient)[3],
         information: 1.0 / variance,
     })
-}
-
-/// The pairs of one stretch of the window with their residuals: with independent variances
-/// `a_i` and a shared offset variance `b`, the stretch's information is
-/// `sum(J'J / a) - c (sum J / a)'(sum J / a)` and its gradient `sum(J' r / a) - c (sum J / a)'
-/// (sum r / a)`, `c = b / (1 + b sum(1 / a))` (Sherman-Morrison).
-#[derive(Default)]
-struct Block {
-    sum_jj: Matrix4<f64>,
-    sum_j: RowVector4<f64>,
-    sum_jr: Vector4<f64>,
-    sum_r: f64,
-    sum_inv_a: f64,
-    sum_b: f64,
-    count: usize,
-}
-
-impl Block {
-    fn add(&mut self, j: RowVector4<f64>, residual: f64, inv_a: f64, b: f64) {
-        self.sum_jj += j.transpose() * j * inv_a;
-        self.sum_j += j * inv_a;
-        self.sum_jr += j.transpose() * (residual * inv_a);
-        self.sum_r += residual * inv_a;
-        self.sum_inv_a += inv_a;
-        self.sum_b += b;
-        self.count += 1;
-    }
-
-    fn add_to(&self, information: &mut Matrix4<f64>, gradient: &mut Vector4<f64>) {
-        if self.count == 0 {
-            return;
-        }
-        let b = self.sum_b / self.count as f64;
-        let c = b / (1.0 + b * self.sum_inv_a);
-        *information += self.sum_jj - self.sum_j.transpose() * self.sum_j * c;
-        *gradient += self.sum_jr - self.sum_j.transpose() * (self.sum_r * c);
-    }
 }
 
 /// The corrector's estimate of the odometry's scale error.
