@@ -372,15 +372,21 @@ impl Snapshot {
             return None;
         }
         let magic = body.get(..8)?;
-        let (has_map_error, has_carried, has_unanchored, has_continuity, has_scale) = match magic {
-            m if m == SNAPSHOT_MAGIC => (true, true, true, true, true),
-            m if m == SNAPSHOT_MAGIC_V6 => (true, true, true, true, false),
-            m if m == SNAPSHOT_MAGIC_V5 => (true, true, true, false, false),
-            m if m == SNAPSHOT_MAGIC_V4 => (true, true, false, false, false),
-            m if m == SNAPSHOT_MAGIC_V3 => (true, false, false, false, false),
-            m if m == SNAPSHOT_MAGIC_V2 => (false, false, false, false, false),
+        // Each format kept what the one before did and added a part.
+        let version = match magic {
+            m if m == SNAPSHOT_MAGIC => 7,
+            m if m == SNAPSHOT_MAGIC_V6 => 6,
+            m if m == SNAPSHOT_MAGIC_V5 => 5,
+            m if m == SNAPSHOT_MAGIC_V4 => 4,
+            m if m == SNAPSHOT_MAGIC_V3 => 3,
+            m if m == SNAPSHOT_MAGIC_V2 => 2,
             _ => return None,
         };
+        let has_map_error = version >= 3;
+        let has_carried = version >= 4;
+        let has_unanchored = version >= 5;
+        let has_continuity = version >= 6;
+        let has_scale = version >= 7;
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -425,10 +431,10 @@ impl Snapshot {
                 last_in_anchored: flag(last.0)?.then_some(last.1),
                 offset: d.f64s::<2>()?,
             };
-            let published = (d.u32()?, d.f64s::<9>()?, d.f64s::<3>()?);
-            let [a, b, c, e, f, g, h, i, j] = published.1;
-            let published =
-                flag(published.0)?.then_some(([[a, b, c], [e, f, g], [h, i, j]], published.2));
+            let published_flag = d.u32()?;
+            let covariance = [d.f64s::<3>()?, d.f64s::<3>()?, d.f64s::<3>()?];
+            let cross = d.f64s::<3>()?;
+            let published = flag(published_flag)?.then_some((covariance, cross));
             (scale, scaled, published)
         } else {
             (None, ScaledOdometry::default(), None)
