@@ -293,17 +293,18 @@ impl Session {
         let uncovered_before = self.corrector.map().uncovered_queries();
         let (record, timing) = self.corrector.correct_at(&pose, input.stamp_s());
         let uncovered_queries = self.corrector.map().uncovered_queries() - uncovered_before;
+        // The record of a pose that is no pose has NaN covariance and scale already; its
+        // correction in force and the anchor stay NaN here, as docs/wire.md says of flagged
+        // answers.
         if record.status != Status::InvalidInput {
-            // A pose that is no pose has no correction, covariance or scale of its own: those
-            // stay NaN, as docs/wire.md says of flagged answers.
             let [x, y] = record.map_from_odom.translation();
             answer.map_from_odom = [x, y, record.map_from_odom.yaw()];
-            let c = &record.covariance;
-            answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
             answer.anchor_yaw = self.corrector.anchor_yaw();
-            answer.odometry_scale = record.odometry_scale;
-            answer.odometry_scale_sd = record.odometry_scale_sd;
         }
+        let c = &record.covariance;
+        answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
+        answer.odometry_scale = record.odometry_scale;
+        answer.odometry_scale_sd = record.odometry_scale_sd;
         answer.pose = record.pose.to_row_major();
         let (status, reason) = wire_status(&record.status);
         answer.status = status as u32;
