@@ -272,10 +272,12 @@ pub fn offline_run(
     offline_with_placement(setup, source, poses, stamps_s).0
 }
 
-/// The status CSV `lanealign correct --status` writes for `poses` of `source`, unstamped.
-pub fn offline_status_csv(setup: &Setup, source: &str, poses: &[Pose3]) -> String {
+/// [`offline`]'s poses and the status CSV `lanealign correct --status` writes for them, from
+/// one run.
+pub fn offline_with_status(setup: &Setup, source: &str, poses: &[Pose3]) -> (Vec<Pose3>, String) {
     let (run, placement) = offline_with_placement(setup, source, poses, None);
-    lanealign_cli::status_file::of_run(&run, &placement.anchored_from_odom)
+    let status = lanealign_cli::status_file::of_run(&run, &placement.anchored_from_odom);
+    (run.into_iter().map(|c| c.pose).collect(), status)
 }
 
 fn offline_with_placement(
