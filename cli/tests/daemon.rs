@@ -5,7 +5,8 @@
 //! sessions (and refuses a bad one), nothing is left in shared memory, neither a cleaner of
 //! `/tmp` nor a private `/tmp` cuts a client off, a stop request survives the SIGCONT after it,
 //! a log nobody reads holds up no answer, one connection serves a publishing thread and a
-//! receiving one. Every test's namespace is as long as a
+//! receiving one, a daemon of another version is named at once. Every test's namespace is as
+//! long as a
 //! namespace may be. On the synthetic town always; on real KITTI data where `../shared/data` is
 //! present.
 
@@ -25,6 +26,7 @@ use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 use lanealign_wire::payload::{CorrectedPose, StatusCode};
+use lanealign_wire::service::{Ipc, DAEMON_NODE, WIRE_VERSION};
 use rustix::process::Signal;
 
 /// The tests start daemons and count shared-memory files: one at a time.
@@ -543,6 +545,66 @@ fn one_daemon_per_namespace() {
     let other = town_setup(&[&unique("other")]);
     let neighbour = start(&other);
     assert!(neighbour.stop().unwrap() && first.stop().unwrap());
+}
+
+/// Always runs: a daemon of another lanealign version (injected as what a client sees of one:
+/// a node of the namespace with an older daemon's name) is named at once, not waited for. A
+/// client cannot connect beside one from before wire versions were named; a daemon of this
+/// version does not start beside it; a daemon of an older numbered wire that replaces this
+/// version's under a running connection makes `recv` say so; and once a daemon of this version
+/// is back, the pose in flight is answered.
+#[test]
+fn a_daemon_of_another_version_is_named_not_waited_for() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("version");
+    let setup = town_setup(&[&name]);
+    let ns = namespace(&setup);
+    let older = ns.named_node::<Ipc>(DAEMON_NODE).unwrap();
+    let refused = Connection::connect_in(&ns, &name.parse().unwrap(), new_session_id())
+        .err()
+        .expect("no connection beside a daemon of another version");
+    let text = refused.to_string();
+    assert!(
+        text.contains(&format!("pid {}", std::process::id()))
+            && text.contains("a wire from before versions were named")
+            && text.contains(&format!("this build wire {WIRE_VERSION}")),
+        "{text}"
+    );
+    let log_path = setup.dir.path().join("beside.log");
+    let beside = DaemonProcess::start(&setup.config, &log_path).unwrap();
+    let status = beside.wait().unwrap();
+    let log = std::fs::read_to_string(&log_path).unwrap();
+    assert!(
+        !status.success()
+            && log.contains("another lanealignd serves namespace")
+            && log.contains(&format!("this build wire {WIRE_VERSION}")),
+        "{log}"
+    );
+    drop(older);
+
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    answer_of(&mut conn, &odometry[0]);
+    daemon.kill().unwrap();
+    let numbered = ns
+        .named_node::<Ipc>(&format!("{DAEMON_NODE} wire 1"))
+        .unwrap();
+    conn.publish(0, &odometry[1].to_row_major()).unwrap();
+    let error = conn
+        .recv(Duration::from_secs(5))
+        .expect_err("recv names the daemon of another version");
+    assert!(error.to_string().contains("speaks wire 1"), "{error}");
+    drop(numbered);
+    let daemon = start(&setup);
+    let answer = conn
+        .recv(Duration::from_secs(5))
+        .unwrap()
+        .expect("the pose in flight answered by this version's daemon");
+    assert_eq!(answer.seq, 2);
+    assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
+    assert!(daemon.stop().unwrap());
 }
 
 /// Always runs: with too few file descriptors for 100 sources, a worker cannot open its ports:

@@ -27,8 +27,8 @@ use lanealign_wire::payload::{
     CorrectedPose, OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START, MAX_IN_FLIGHT,
 };
 use lanealign_wire::service::{
-    NameError, Namespace, NodeCreateError, NodeListError, PortCreateError, PoseServices,
-    ServiceOpenError, SessionServices, SourceName, ThreadSafeIpc,
+    NameError, Namespace, NodeCreateError, NodeListError, OtherWireError, PortCreateError,
+    PoseServices, ServiceOpenError, SessionServices, SourceName, ThreadSafeIpc,
 };
 use lanealign_wire::shm::{self, ShmError};
 use lanealign_wire::wait::WaitStrategy;
@@ -61,6 +61,9 @@ pub enum ConnectError {
     /// Shared memory has no room for a session.
     #[error(transparent)]
     SharedMemory(#[from] ShmError),
+    /// The namespace's daemon is of another lanealign version: it could answer nothing.
+    #[error(transparent)]
+    OtherWire(#[from] OtherWireError),
 }
 
 /// Publishing a pose failed.
@@ -95,6 +98,11 @@ pub enum ReceiveError {
     /// Checking whether the daemon is alive failed.
     #[error(transparent)]
     Liveness(#[from] NodeListError),
+    /// The daemon that serves the namespace now is of another lanealign version: it answers
+    /// nothing of this connection's. Receiving again checks again, and goes on once a daemon of
+    /// this version is back.
+    #[error(transparent)]
+    OtherWire(#[from] OtherWireError),
 }
 
 /// Closing a connection failed; each case keeps what the connection had: the answers that
@@ -340,10 +348,15 @@ impl Connection {
         // full /dev/shm is a SIGBUS, not an error (`lanealign_wire::shm`).
         shm::check_room("a session", shm::SESSION_BYTES)?;
         let node = namespace.node()?;
+        // Before the services: a daemon of another version may have made them in its layout.
+        let daemon = namespace.daemons()?.first().copied();
+        if let Some(other) = daemon {
+            other.check_wire()?;
+        }
+        let daemon = daemon.map(|d| d.pid);
         let poses = PoseServices::open(&node, source)?;
         let session = session.max(1);
         let answers = SessionServices::open(&node, source, session)?;
-        let daemon = namespace.daemons()?.first().map(|d| d.pid);
         let (publisher, notifier) = (poses.publisher()?, poses.notifier()?);
         let (subscriber, listener) = (answers.subscriber()?, answers.listener()?);
         shm::reserve(namespace)?;
@@ -519,11 +532,16 @@ impl Connection {
     }
 
     /// Checks which daemon is alive; when one appeared or replaced another, everything
-    /// unanswered goes to it again.
+    /// unanswered goes to it again. A daemon of another version is an error, and nothing is
+    /// sent to it.
     fn look_for_daemon(&mut self) -> Result<(), ReceiveError> {
         self.last_check = Some(Instant::now());
         self.events.liveness_checks += 1;
-        let now = self.namespace.daemons()?.first().map(|d| d.pid);
+        let found = self.namespace.daemons()?.first().copied();
+        if let Some(other) = found {
+            other.check_wire()?;
+        }
+        let now = found.map(|d| d.pid);
         if now.is_some() && now != self.daemon {
             if self.last_daemon.is_some() && now != self.last_daemon {
                 self.events.daemon_restarts += 1;

@@ -22,7 +22,8 @@ use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::service::{
-    Ipc, Namespace, NodeCreateError, NodeListError, SourceName, DAEMON_NODE,
+    daemon_node_name, wire_name, Ipc, Namespace, NodeCreateError, NodeListError, SourceName,
+    WIRE_VERSION,
 };
 
 use crate::config::{Config, ConfigError, ResolvedSource};
@@ -340,9 +341,16 @@ fn unknown_sources(namespace: &Namespace, known: &[SourceName]) -> BTreeSet<Stri
 fn lock(namespace: &Namespace, state_dir: Option<&Path>) -> Result<Option<File>, DaemonError> {
     let others = namespace.daemons()?;
     if let Some(other) = others.first() {
+        let version = match other.speaks_this_wire() {
+            true => String::new(),
+            false => format!(
+                ", {}; this build wire {WIRE_VERSION}",
+                wire_name(other.wire)
+            ),
+        };
         return Err(DaemonError::AlreadyRunning {
             namespace: namespace.to_string(),
-            detail: format!(" (pid {})", other.pid),
+            detail: format!(" (pid {}{version})", other.pid),
         });
     }
     let Some(dir) = state_dir else {
@@ -521,7 +529,7 @@ pub fn run(
         }
         listed => listing.record(listed),
     }
-    let node = namespace.named_node::<Ipc>(DAEMON_NODE)?;
+    let node = namespace.named_node::<Ipc>(&daemon_node_name())?;
     let hangup = Arc::new(AtomicBool::new(false));
     if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
         tracing::warn!(error = %error_line(&e), "SIGHUP cannot reload the tile");

@@ -21,8 +21,8 @@ use lanealign_wire::payload::{
     CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START,
 };
 use lanealign_wire::service::{
-    Ipc, Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError,
-    SessionServices, DAEMON_NODE,
+    daemon_node_name, Ipc, Namespace, NodeCreateError, PortCreateError, PoseServices,
+    ServiceOpenError, SessionServices,
 };
 use lanealign_wire::shm::{self, ShmError};
 
@@ -441,7 +441,7 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         shm::check_room("a source", shm::SOURCE_BYTES).map_err(no_room)?;
         let node = setup
             .namespace
-            .named_node(DAEMON_NODE)
+            .named_node(&daemon_node_name())
             .map_err(|source| WorkerError::Node {
                 name: name.clone(),
                 source,

@@ -469,8 +469,36 @@ fn events<S: Service>(node: &Node<S>, service: &str) -> Result<EventService<S>, 
         })
 }
 
-/// The node name of `lanealignd`'s nodes: clients find the daemon by it.
+/// What the node names of every `lanealignd` begin with: clients find the daemon by it. A daemon
+/// from before [`WIRE_VERSION`] was named this alone.
 pub const DAEMON_NODE: &str = "lanealignd";
+
+/// The version of this build's wire: the layout and meaning of the payloads on a source's and a
+/// session's services (docs/wire.md). It grows by one with every change to either; a client and
+/// a daemon exchange poses only when theirs are equal. 2: the answer of 288 bytes, with the
+/// odometry's scale (2026-11-27). A daemon carries it in its nodes' names ([`daemon_node_name`]),
+/// so a client knows the daemon's before it sends a pose.
+pub const WIRE_VERSION: u32 = 2;
+
+/// The name of this build's daemon nodes: [`DAEMON_NODE`], then ` wire `, then
+/// [`WIRE_VERSION`].
+pub fn daemon_node_name() -> String {
+    format!("{DAEMON_NODE}{WIRE_TAG}{WIRE_VERSION}")
+}
+
+/// What separates [`DAEMON_NODE`] from the version in a daemon node's name.
+const WIRE_TAG: &str = " wire ";
+
+/// The wire version a daemon node's name says, if `name` is one: `Some(None)` for a daemon from
+/// before versions were named (or one whose version this build cannot read), `None` for a node
+/// that is not a daemon's.
+fn daemon_wire_of(name: &str) -> Option<Option<u32>> {
+    let rest = name.strip_prefix(DAEMON_NODE)?;
+    if rest.is_empty() {
+        return Some(None);
+    }
+    Some(rest.strip_prefix(WIRE_TAG)?.parse().ok())
+}
 
 /// A node of a running daemon, as a client sees it (a daemon has one node per worker and one
 /// for its supervisor, all in one process).
@@ -480,6 +508,46 @@ pub struct DaemonNode {
     pub id: u128,
     /// The daemon's process id: a restarted daemon has a new one.
     pub pid: i32,
+    /// The daemon's [`WIRE_VERSION`], as its node's name says; `None` for a daemon from before
+    /// versions were named (one of wire 1 or 2).
+    pub wire: Option<u32>,
+}
+
+impl DaemonNode {
+    /// Whether this daemon speaks this build's wire: it can answer this build's clients.
+    pub fn speaks_this_wire(&self) -> bool {
+        self.wire == Some(WIRE_VERSION)
+    }
+
+    /// An error unless this daemon speaks this build's wire.
+    pub fn check_wire(&self) -> Result<(), OtherWireError> {
+        if self.speaks_this_wire() {
+            return Ok(());
+        }
+        Err(OtherWireError {
+            pid: self.pid,
+            wire: self.wire,
+        })
+    }
+}
+
+/// The namespace's daemon speaks another wire than this build: it cannot answer this build's
+/// poses (iceoryx2 connects no ports whose payloads differ), so nothing would come back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the daemon of this namespace (pid {pid}) speaks {}, this build wire {WIRE_VERSION}: a client and a daemon of different lanealign versions exchange nothing; upgrade them together (docs/wire.md)", wire_name(*.wire))]
+pub struct OtherWireError {
+    /// The daemon's process id.
+    pub pid: i32,
+    /// The daemon's [`WIRE_VERSION`]; `None` for a daemon from before versions were named.
+    pub wire: Option<u32>,
+}
+
+/// How a daemon's wire version (a [`DaemonNode::wire`]) is named in messages.
+pub fn wire_name(wire: Option<u32>) -> String {
+    match wire {
+        Some(wire) => format!("wire {wire}"),
+        None => "a wire from before versions were named (1 or 2)".into(),
+    }
 }
 
 /// Listing the namespace's nodes failed.
@@ -519,10 +587,11 @@ impl Namespace {
         Node::<Ipc>::list(&self.config(), |state| {
             if let NodeState::Alive(view) = &state {
                 if let Some(details) = view.details() {
-                    if details.name().as_str() == DAEMON_NODE {
+                    if let Some(wire) = daemon_wire_of(details.name().as_str()) {
                         found.push(DaemonNode {
                             id: view.id().value(),
                             pid: details.process_id().value(),
+                            wire,
                         });
                     }
                 }
@@ -742,6 +811,40 @@ impl<S: Service> SessionServices<S> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_daemon_nodes_name_carries_its_wire_version() {
+        assert_eq!(
+            daemon_node_name(),
+            format!("lanealignd wire {WIRE_VERSION}")
+        );
+        assert_eq!(
+            daemon_wire_of(&daemon_node_name()),
+            Some(Some(WIRE_VERSION))
+        );
+        assert_eq!(daemon_wire_of("lanealignd wire 1"), Some(Some(1)));
+        // A daemon from before versions were named, and one whose version cannot be read: both
+        // daemons, of another wire than this build's.
+        assert_eq!(daemon_wire_of("lanealignd"), Some(None));
+        assert_eq!(daemon_wire_of("lanealignd wire x"), Some(None));
+        for other in [
+            "",
+            "lanealign",
+            "lanealignd-test",
+            "replay",
+            "lanealignd wire",
+        ] {
+            assert_eq!(daemon_wire_of(other), None, "{other}");
+        }
+        let node = |wire| DaemonNode {
+            id: 1,
+            pid: 7,
+            wire,
+        };
+        assert!(node(Some(WIRE_VERSION)).check_wire().is_ok());
+        let older = node(Some(WIRE_VERSION - 1)).check_wire().unwrap_err();
+        assert_eq!(older.to_string(), format!("the daemon of this namespace (pid 7) speaks wire {}, this build wire {WIRE_VERSION}: a client and a daemon of different lanealign versions exchange nothing; upgrade them together (docs/wire.md)", WIRE_VERSION - 1));
+    }
 
     #[test]
     fn a_namespace_removes_its_own_files_and_not_those_of_a_name_it_begins() {
