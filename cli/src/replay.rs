@@ -73,7 +73,7 @@ impl ReplayError {
 }
 
 /// What a lost replay adds when the daemon never opened its session.
-const NOT_OPENED: &str = "; the daemon never opened this session: its log says why (`cannot answer a session`, e.g. no room in /dev/shm, or a daemon of another lanealign version)";
+const NOT_OPENED: &str = "; the daemon never opened this session: its log says why (`cannot answer a session`, e.g. no room in /dev/shm)";
 
 /// The first few of a list of sequence numbers.
 fn summarize(seqs: &[u64]) -> String {
