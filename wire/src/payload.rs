@@ -245,9 +245,16 @@ mod tests {
     use super::*;
     use std::mem::{align_of, offset_of, size_of};
 
-    /// The layout documented in docs/wire.md, which C++ and Python clients rely on.
+    /// The layout documented in docs/wire.md, which C++ and Python clients rely on. A change here
+    /// is a new wire: [`crate::service::WIRE_VERSION`] grows with it, so that clients and daemons
+    /// of different layouts name each other instead of exchanging nothing.
     #[test]
     fn layout_is_the_documented_contract() {
+        assert_eq!(
+            crate::service::WIRE_VERSION,
+            2,
+            "the version of this layout"
+        );
         assert_eq!((size_of::<OdomPose>(), align_of::<OdomPose>()), (136, 8));
         assert_eq!(offset_of!(OdomPose, seq), 8);
         assert_eq!(offset_of!(OdomPose, pose), 32);
