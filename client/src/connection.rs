@@ -350,8 +350,8 @@ impl Connection {
         let node = namespace.node()?;
         // Before the services: a daemon of another version may have made them in its layout.
         let daemon = namespace.daemons()?.first().copied();
-        if let Some(other) = daemon {
-            other.check_wire()?;
+        if let Some(found) = daemon {
+            found.check_wire()?;
         }
         let daemon = daemon.map(|d| d.pid);
         let poses = PoseServices::open(&node, source)?;
@@ -538,8 +538,8 @@ impl Connection {
         self.last_check = Some(Instant::now());
         self.events.liveness_checks += 1;
         let found = self.namespace.daemons()?.first().copied();
-        if let Some(other) = found {
-            other.check_wire()?;
+        if let Some(daemon) = found {
+            daemon.check_wire()?;
         }
         let now = found.map(|d| d.pid);
         if now.is_some() && now != self.daemon {

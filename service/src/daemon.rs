@@ -341,12 +341,13 @@ fn unknown_sources(namespace: &Namespace, known: &[SourceName]) -> BTreeSet<Stri
 fn lock(namespace: &Namespace, state_dir: Option<&Path>) -> Result<Option<File>, DaemonError> {
     let others = namespace.daemons()?;
     if let Some(other) = others.first() {
-        let version = match other.speaks_this_wire() {
-            true => String::new(),
-            false => format!(
+        let version = if other.speaks_this_wire() {
+            String::new()
+        } else {
+            format!(
                 ", {}; this build wire {WIRE_VERSION}",
                 wire_name(other.wire)
-            ),
+            )
         };
         return Err(DaemonError::AlreadyRunning {
             namespace: namespace.to_string(),

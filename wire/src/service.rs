@@ -509,7 +509,7 @@ pub struct DaemonNode {
     /// The daemon's process id: a restarted daemon has a new one.
     pub pid: i32,
     /// The daemon's [`WIRE_VERSION`], as its node's name says; `None` for a daemon from before
-    /// versions were named (one of wire 1 or 2).
+    /// versions were named (one of wire 1 or 2), or one whose name's version cannot be read.
     pub wire: Option<u32>,
 }
 
