@@ -3,12 +3,12 @@
 
 mod commands;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+use lanealign_wire::service::version_line;
 
 #[derive(Parser)]
 #[command(
     name = "lanealign",
-    version,
     about = "Odometry drift correction against OpenStreetMap lanes (docs/algorithm.md)"
 )]
 struct Cli {
@@ -34,7 +34,9 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    let version = version_line(env!("CARGO_PKG_VERSION"));
+    let cli = Cli::from_arg_matches(&Cli::command().version(version).get_matches())
+        .unwrap_or_else(|e| e.exit());
     // The commands that only read files and print end like Unix filters when their reader goes
     // away; the ones that talk to a daemon keep Rust's handling, so that a daemon gone mid-stream
     // is an error they report rather than a signal.

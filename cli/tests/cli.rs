@@ -1,4 +1,4 @@
-//! The `lanealign` command line: evaluation against evo, and bad input.
+//! The `lanealign` command line: evaluation against evo, bad input, and the version lines.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -520,5 +520,25 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
         svg(&dir.path().join("eval.svg")),
     ] {
         assert!(plot.starts_with("<svg") && plot.contains("distance driven (m)"));
+    }
+}
+
+/// `lanealign --version` and `lanealignd --version` say their wire version, so that an operator
+/// can tell whether a client and a daemon can talk (docs/wire.md, "Wire version").
+#[test]
+fn the_version_lines_name_the_wire() {
+    let daemon = lanealign_cli::daemon_process::daemon_binary().expect("lanealignd is built");
+    for program in [Path::new(env!("CARGO_BIN_EXE_lanealign")), daemon.as_path()] {
+        let out = Command::new(program).arg("--version").output().unwrap();
+        let line = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "{program:?}: {line}");
+        assert!(
+            line.trim_end().ends_with(&format!(
+                " {} (wire {})",
+                env!("CARGO_PKG_VERSION"),
+                lanealign_wire::service::WIRE_VERSION
+            )),
+            "{program:?}: {line}"
+        );
     }
 }

@@ -3,15 +3,15 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use lanealign_service::config::LogFormat;
 use lanealign_service::daemon;
+use lanealign_wire::service::version_line;
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
 #[command(
     name = "lanealignd",
-    version,
     about = "Odometry drift correction daemon (iceoryx2 shared memory)"
 )]
 struct Cli {
@@ -35,7 +35,10 @@ enum Command {
 const LOG_LINES_BUFFERED: usize = 4096;
 
 fn main() -> std::process::ExitCode {
-    lanealign_core::report::exit_code(run(Cli::parse()))
+    let version = version_line(env!("CARGO_PKG_VERSION"));
+    let cli = Cli::from_arg_matches(&Cli::command().version(version).get_matches())
+        .unwrap_or_else(|e| e.exit());
+    lanealign_core::report::exit_code(run(cli))
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {

@@ -486,6 +486,13 @@ pub fn daemon_node_name() -> String {
     format!("{DAEMON_NODE}{WIRE_TAG}{WIRE_VERSION}")
 }
 
+/// A program's version line: `package_version`, then this build's [`WIRE_VERSION`] (what
+/// `lanealign --version` and `lanealignd --version` print), so that an operator can tell which
+/// clients and daemons can talk.
+pub fn version_line(package_version: &str) -> String {
+    format!("{package_version} (wire {WIRE_VERSION})")
+}
+
 /// What separates [`DAEMON_NODE`] from the version in a daemon node's name.
 const WIRE_TAG: &str = " wire ";
 
