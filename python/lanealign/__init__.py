@@ -19,6 +19,10 @@ from ._lanealign import Client, CloseError
 #: The status names; ``Corrected.status`` holds indices into this tuple.
 STATUS_NAMES: Tuple[str, ...] = tuple(_lanealign.STATUS_NAMES)
 
+#: The version of the wire this package's ``Client`` speaks; a ``Client`` does not connect to a
+#: daemon of another (``lanealignd --version`` prints the daemon's).
+WIRE_VERSION: int = _lanealign.WIRE_VERSION
+
 
 class Corrected(NamedTuple):
     """The result of :func:`correct`."""
@@ -160,6 +164,7 @@ def synthetic_town(tile: str, *, laps: int = 3, seed: int = 42) -> Tuple[np.ndar
 
 __all__ = [
     "STATUS_NAMES",
+    "WIRE_VERSION",
     "Client",
     "CloseError",
     "Corrected",

@@ -3,6 +3,7 @@ from typing import Dict, List, Mapping, Optional, Sequence, Tuple, Union
 import numpy as np
 
 STATUS_NAMES: List[str]
+WIRE_VERSION: int
 
 def correct(
     poses: np.ndarray,

@@ -23,7 +23,7 @@ use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_wire::payload::{CorrectedPose, StatusCode};
-use lanealign_wire::service::{Namespace, SourceName};
+use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn};
@@ -623,5 +623,6 @@ fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Client>()?;
     m.add("CloseError", m.py().get_type::<CloseError>())?;
     m.add("STATUS_NAMES", STATUS_NAMES.to_vec())?;
+    m.add("WIRE_VERSION", WIRE_VERSION)?;
     Ok(())
 }

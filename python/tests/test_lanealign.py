@@ -40,6 +40,14 @@ def cli(*args):
     return out.stdout
 
 
+def test_the_client_speaks_the_daemons_wire():
+    """The package's wire version is the one ``lanealignd --version`` prints."""
+    out = subprocess.run([str(BIN.with_name("lanealignd")), "--version"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith(f"(wire {lanealign.WIRE_VERSION})"), out.stdout
+    assert isinstance(lanealign.WIRE_VERSION, int) and lanealign.WIRE_VERSION >= 2
+
+
 def write_kitti(path, poses):
     np.savetxt(path, poses.reshape(len(poses), 12), fmt="%.17g")
 
