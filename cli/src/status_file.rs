@@ -109,6 +109,20 @@ pub fn of_run(run: &[CorrectedPose], anchored_from_odom: &Se2) -> String {
     }))
 }
 
+/// The line `correct` and `replay` end with for a source whose session estimates its odometry's
+/// scale: the last finite estimate among `estimates` (`(odometry_scale, odometry_scale_sd)` per
+/// pose, oldest first, as the status CSV's columns), when it is an estimate (its sd above 0);
+/// `None` otherwise.
+pub fn scale_summary(estimates: impl DoubleEndedIterator<Item = (f64, f64)>) -> Option<String> {
+    let (scale, _) = estimates
+        .rev()
+        .find(|(scale, _)| scale.is_finite())
+        .filter(|(_, sd)| *sd > 0.0)?;
+    Some(format!(
+        "odometry scale: steps multiplied by {scale:.4} at the end (estimated from the lanes)"
+    ))
+}
+
 /// Writes a corrected trajectory to `output` and, when asked, its status CSV to `status`: both
 /// appear only when both were written.
 pub fn write_run(

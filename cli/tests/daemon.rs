@@ -6,9 +6,8 @@
 //! `/tmp` nor a private `/tmp` cuts a client off, a stop request survives the SIGCONT after it,
 //! a log nobody reads holds up no answer, one connection serves a publishing thread and a
 //! receiving one, a daemon of another version is named at once. Every test's namespace is as
-//! long as a
-//! namespace may be. On the synthetic town always; on real KITTI data where `../shared/data` is
-//! present.
+//! long as a namespace may be. On the synthetic town always; on real KITTI data where
+//! `../shared/data` is present.
 
 mod common;
 

@@ -27,8 +27,8 @@ fn between(rng: &mut Lcg, lo: f64, hi: f64) -> Duration {
     Duration::from_secs_f64(lo + (hi - lo) * rng.uniform())
 }
 
-/// `lanealign replay` of `input` to `output` as a process.
-/// `lanealign replay` of `input` into `output`, its status CSV beside it ([`status_of`]).
+/// `lanealign replay` of `input` into `output` as a process, its status CSV beside it
+/// ([`status_of`]).
 fn spawn_replay(setup: &Setup, source: &str, input: &Path, output: &Path, rate: &str) -> Child {
     Command::new(env!("CARGO_BIN_EXE_lanealign"))
         .args([

@@ -350,13 +350,9 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         c.accepted,
         c.resets
     );
-    if params.scale_sigma > 0.0 {
-        if let Some(last) = run.last() {
-            eprintln!(
-                "odometry scale: steps multiplied by {:.4} at the end (estimated from the lanes)",
-                last.odometry_scale
-            );
-        }
+    let estimates = run.iter().map(|c| (c.odometry_scale, c.odometry_scale_sd));
+    if let Some(line) = status_file::scale_summary(estimates) {
+        eprintln!("{line}");
     }
     let warnings = [
         plausibility::axis_convention_warning(&input.poses, args.frame),

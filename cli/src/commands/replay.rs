@@ -153,17 +153,10 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         percentile_us(&rt, 1.0)
     );
     // As `correct` says it, for a source whose session estimates the scale.
-    let estimated = result
-        .answers
-        .iter()
-        .rev()
-        .find(|a| a.odometry_scale.is_finite())
-        .filter(|a| a.odometry_scale_sd > 0.0);
-    if let Some(last) = estimated {
-        eprintln!(
-            "odometry scale: steps multiplied by {:.4} at the end (estimated from the lanes)",
-            last.odometry_scale
-        );
+    let answers = result.answers.iter();
+    let estimates = answers.map(|a| (a.odometry_scale, a.odometry_scale_sd));
+    if let Some(line) = status_file::scale_summary(estimates) {
+        eprintln!("{line}");
     }
     Ok(())
 }
