@@ -22,6 +22,7 @@ use lanealign_core::number_text::push_separated;
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::CorrectedPose;
 use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_wire::payload::upper_triangle;
 
 /// The header line of the status CSV.
 pub const HEADER: &str = "index,status,reason,residual_m,match_ratio,window_len,map_from_odom_x,map_from_odom_y,map_from_odom_yaw,applied_directions,cov_xx,cov_xy,cov_xyaw,cov_yy,cov_yyaw,cov_yawyaw,anchor_yaw,odometry_scale,odometry_scale_sd";
@@ -67,14 +68,12 @@ pub fn format<'a>(rows: impl ExactSizeIterator<Item = Row<'a>>) -> String {
 }
 
 fn push_row(out: &mut String, index: usize, row: &Row<'_>) {
-    let c = &row.covariance;
     let _ = write!(out, "{index},{},{},", row.status, row.reason);
     push_separated(out, &[row.residual_m, row.match_ratio], ',');
     let _ = write!(out, ",{},", row.window_len);
     push_separated(out, &row.map_from_odom, ',');
     let _ = write!(out, ",{},", row.applied_directions);
-    let covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
-    push_separated(out, &covariance, ',');
+    push_separated(out, &upper_triangle(&row.covariance), ',');
     out.push(',');
     push_separated(
         out,

@@ -22,7 +22,7 @@ use lanealign_core::trajectory::Trajectory;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
-use lanealign_wire::payload::{CorrectedPose, StatusCode};
+use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
@@ -454,7 +454,6 @@ struct Client {
 /// An answer as a dict: `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom`
 /// (x, y, yaw), `covariance` (3, 3), `odometry_scale` and `odometry_scale_sd` (ratios).
 fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
-    let [xx, xy, xt, yy, yt, tt] = answer.covariance;
     let d = PyDict::new(py);
     d.set_item("seq", answer.seq)?;
     d.set_item("stamp_ns", answer.stamp_ns)?;
@@ -466,7 +465,7 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
         StatusCode::from_code(answer.status).map_or("unknown", StatusCode::name),
     )?;
     d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
-    let covariance = numpy::ndarray::arr2(&[[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]);
+    let covariance = numpy::ndarray::arr2(&from_upper_triangle(&answer.covariance));
     d.set_item("covariance", covariance.into_pyarray(py))?;
     d.set_item("odometry_scale", answer.odometry_scale)?;
     d.set_item("odometry_scale_sd", answer.odometry_scale_sd)?;

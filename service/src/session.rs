@@ -18,7 +18,8 @@ use lanealign_core::params::Params;
 use lanealign_core::pose::Pose3;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
 use lanealign_wire::payload::{
-    CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START, MAX_IN_FLIGHT,
+    upper_triangle, CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_FRESH_START,
+    MAX_IN_FLIGHT,
 };
 
 use crate::grid_loader::{GridLoader, GridView};
@@ -301,8 +302,7 @@ impl Session {
             answer.map_from_odom = [x, y, record.map_from_odom.yaw()];
             answer.anchor_yaw = self.corrector.anchor_yaw();
         }
-        let c = &record.covariance;
-        answer.covariance = [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]];
+        answer.covariance = upper_triangle(&record.covariance);
         answer.odometry_scale = record.odometry_scale;
         answer.odometry_scale_sd = record.odometry_scale_sd;
         answer.pose = record.pose.to_row_major();

@@ -240,6 +240,20 @@ impl CorrectedPose {
     }
 }
 
+/// The upper triangle of a symmetric 3x3 covariance over (x, y, yaw) (metres^2, metre-radians,
+/// radians^2), in the order of [`CorrectedPose::covariance`]: `xx, xy, x_yaw, yy, y_yaw,
+/// yaw_yaw`.
+pub fn upper_triangle(covariance: &[[f64; 3]; 3]) -> [f64; 6] {
+    let c = covariance;
+    [c[0][0], c[0][1], c[0][2], c[1][1], c[1][2], c[2][2]]
+}
+
+/// The symmetric 3x3 covariance over (x, y, yaw) whose [`upper_triangle`] is `upper`.
+pub fn from_upper_triangle(upper: &[f64; 6]) -> [[f64; 3]; 3] {
+    let [xx, xy, xt, yy, yt, tt] = *upper;
+    [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -288,5 +302,14 @@ mod tests {
         assert_eq!(StatusCode::from_code(11), None);
         assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
         assert_eq!(ReasonCode::from_code(3), None);
+    }
+
+    /// The order docs/wire.md documents, and back to the same symmetric matrix.
+    #[test]
+    fn the_covariance_travels_as_its_upper_triangle() {
+        let covariance = [[0.5, 0.1, 1e-3], [0.1, 0.7, -2e-3], [1e-3, -2e-3, 1e-4]];
+        let upper = upper_triangle(&covariance);
+        assert_eq!(upper, [0.5, 0.1, 1e-3, 0.7, -2e-3, 1e-4]);
+        assert_eq!(from_upper_triangle(&upper), covariance);
     }
 }

@@ -11,7 +11,7 @@ use lanealign_client::Connection;
 use lanealign_core::input;
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{self, Format, Trajectory};
-use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode};
+use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName};
 
 use super::percentile_us;
@@ -51,21 +51,18 @@ pub struct ReplayArgs {
 
 /// The status CSV ([`status_file`]) of the daemon's answers.
 fn status_csv(answers: &[CorrectedPose]) -> String {
-    status_file::format(answers.iter().map(|a| {
-        let [xx, xy, xt, yy, yt, tt] = a.covariance;
-        status_file::Row {
-            status: a.status().map_or("unknown", StatusCode::name),
-            reason: ReasonCode::from_code(a.reason).map_or("unknown", ReasonCode::name),
-            residual_m: a.residual_m,
-            match_ratio: a.match_ratio,
-            window_len: a.window_len as usize,
-            map_from_odom: a.map_from_odom,
-            applied_directions: a.applied_directions.min(3) as u8,
-            covariance: [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]],
-            anchor_yaw: a.anchor_yaw,
-            odometry_scale: a.odometry_scale,
-            odometry_scale_sd: a.odometry_scale_sd,
-        }
+    status_file::format(answers.iter().map(|a| status_file::Row {
+        status: a.status().map_or("unknown", StatusCode::name),
+        reason: ReasonCode::from_code(a.reason).map_or("unknown", ReasonCode::name),
+        residual_m: a.residual_m,
+        match_ratio: a.match_ratio,
+        window_len: a.window_len as usize,
+        map_from_odom: a.map_from_odom,
+        applied_directions: a.applied_directions.min(3) as u8,
+        covariance: from_upper_triangle(&a.covariance),
+        anchor_yaw: a.anchor_yaw,
+        odometry_scale: a.odometry_scale,
+        odometry_scale_sd: a.odometry_scale_sd,
     }))
 }
 
