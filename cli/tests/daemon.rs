@@ -269,9 +269,6 @@ fn answers_that_flow_need_no_looking_for_the_daemon() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
-/// Always runs: workers and clients that poll (busy-spin, and spin-then-block with pauses
-/// longer than its budget, so that it blocks too) answer every pose once, equal to offline
-/// correction bit for bit.
 /// Always runs: one connection, made on this thread and shared behind a lock by two others:
 /// one publishes a synthetic-town drive, a pose every 2 ms, the other takes answers under the
 /// lock and waits for them outside it ([`Connection::waiter`]). Every pose is answered once,
@@ -334,6 +331,9 @@ fn one_connection_publishes_on_one_thread_and_receives_on_another() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: workers and clients that poll (busy-spin, and spin-then-block with pauses
+/// longer than its budget, so that it blocks too) answer every pose once, equal to offline
+/// correction bit for bit.
 #[test]
 fn spinning_workers_and_clients_answer_every_pose_as_offline() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
