@@ -342,8 +342,8 @@ fn correct_writes_every_pose_and_a_status_row_each() {
 }
 
 /// `correct --status` publishes a covariance per pose and `eval --status` measures it: on
-/// `stereo_vo` 09 (orb-slam3 preset) 94 % of the true errors lie inside the 95 % ellipses
-/// (docs/method.md, "Confidence").
+/// `stereo_vo` 09 (orb-slam3 preset) 94 % of the true errors lie inside the 95 % ellipses, and
+/// how many independent samples that figure rests on (docs/method.md, "Confidence").
 #[test]
 fn eval_reports_how_well_the_covariance_describes_the_errors() {
     let Some(d) = shared_data() else { return };
@@ -397,6 +397,9 @@ fn eval_reports_how_well_the_covariance_describes_the_errors() {
     let nees = v["nees_mean"].as_f64().unwrap();
     assert!((0.85..=0.99).contains(&coverage), "{v}");
     assert!((1.0..4.0).contains(&nees), "{v}");
+    // The errors persist over about 165 poses: the drive's 1591 are some ten independent ones.
+    let independent = v["independent_samples"].as_f64().unwrap();
+    assert!((5.0..20.0).contains(&independent), "{v}");
     // A status file of another run is refused, not silently paired.
     let short = dir.path().join("short.csv");
     let text = std::fs::read_to_string(&status).unwrap();

@@ -26,7 +26,8 @@ pub struct EvalArgs {
     #[arg(long, default_value = "kitti")]
     format: Format,
     /// The status CSV written with the estimate (`correct --status`, `replay --status`): also
-    /// report how well its covariances describe the errors (`cov95_coverage`, `nees_mean`).
+    /// report how well its covariances describe the errors (`cov95_coverage`, `nees_mean`,
+    /// `independent_samples`).
     #[arg(long)]
     status: Option<PathBuf>,
     /// Print one JSON object instead of a table.
@@ -78,6 +79,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         if let Some(c) = calibration {
             json["cov95_coverage"] = c.cov95_coverage.into();
             json["nees_mean"] = c.nees_mean.into();
+            json["independent_samples"] = c.independent_samples.into();
         }
         println!("{json}");
     } else {
@@ -90,6 +92,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         if let Some(c) = calibration {
             println!("cov95 coverage   {:.6}", c.cov95_coverage);
             println!("NEES mean        {:.6}", c.nees_mean);
+            println!("independent      {:.1} samples", c.independent_samples);
         }
     }
     Ok(())
