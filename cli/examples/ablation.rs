@@ -118,15 +118,14 @@ impl Variant {
     }
 }
 
-/// The built-in ablation: each change of the robust method off in turn.
 /// Issue 14's band for the fraction of poses inside their 95 % ellipse.
 const ISSUE_14_BAND: std::ops::RangeInclusive<f64> = 0.85..=0.99;
 
-/// The chance that a covariance describing the errors exactly still leaves a sequence's coverage
-/// outside [`ISSUE_14_BAND`] is one minus this: over 2000 series (fixed seed) of `poses`
-/// two-dimensional whitened errors, an AR(1) process with as many independent samples as the
-/// sequence's errors (coefficient `(tau - 1) / (tau + 1)` for the integrated time `tau`), the
-/// fraction whose coverage lies in the band.
+/// The chance that a covariance describing a sequence's errors exactly puts its coverage in
+/// [`ISSUE_14_BAND`]: the fraction of 2000 series (fixed seed) of `poses` two-dimensional
+/// whitened errors whose coverage lies in the band. Each series is an AR(1) process with as many
+/// independent samples as the sequence's errors (coefficient `(tau - 1) / (tau + 1)` for the
+/// integrated time `tau`).
 fn band_chance_if_calibrated(poses: usize, independent_samples: f64) -> f64 {
     const TRIALS: usize = 2000;
     let tau = poses as f64 / independent_samples;
@@ -149,6 +148,7 @@ fn band_chance_if_calibrated(poses: usize, independent_samples: f64) -> f64 {
     in_band as f64 / TRIALS as f64
 }
 
+/// The built-in ablation: each change of the robust method off in turn.
 fn ablation() -> anyhow::Result<Vec<Variant>> {
     [
         "paper",
