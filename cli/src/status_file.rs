@@ -142,6 +142,13 @@ pub fn write_run(
     Ok(())
 }
 
+/// The rotation from the map plane into the planar odometry frame of a source anchored with yaw
+/// `anchor_yaw` (radians, the status CSV's `anchor_yaw`): the one covariances are turned by
+/// before they are compared with errors in the odometry frame.
+pub fn odom_from_map(anchor_yaw: f64) -> Se2 {
+    Se2::new(-anchor_yaw, 0.0, 0.0)
+}
+
 /// The position covariances of a status CSV, turned into the source's planar odometry frame
 /// (metres^2), one per row in order.
 pub fn read_position_covariances(path: &Path) -> anyhow::Result<Vec<[[f64; 2]; 2]>> {
@@ -183,8 +190,7 @@ pub fn read_position_covariances(path: &Path) -> anyhow::Result<Vec<[[f64; 2]; 2
         };
         let (xx, xy, yy, yaw) = (value(0)?, value(1)?, value(2)?, value(3)?);
         let covariance = [[xx, xy, 0.0], [xy, yy, 0.0], [0.0, 0.0, 0.0]];
-        let odom_from_map = Se2::new(-yaw, 0.0, 0.0);
-        out.push(position_covariance_in(&odom_from_map, &covariance));
+        out.push(position_covariance_in(&odom_from_map(yaw), &covariance));
     }
     Ok(out)
 }

@@ -412,8 +412,8 @@ fn eval_reports_how_well_the_covariance_describes_the_errors() {
 
 /// `correct --results DIR --gt GT` keeps each run in a folder of its own with `latest` pointing
 /// at the newest: the corrected trajectory and status, every effective parameter (what
-/// `lanealign params` prints for the same flags), the metrics `eval` reports, and the plots;
-/// `eval --plot` draws the error plot too.
+/// `lanealign params` prints for the same flags), the metrics `eval --status` reports (APE-2D and
+/// the covariances' calibration), and the plots; `eval --plot` draws the error plot too.
 #[test]
 fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     let dir = tempfile::tempdir().unwrap();
@@ -492,6 +492,8 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
         s(&gt),
         "--est",
         s(&latest.join("corrected.tum")),
+        "--status",
+        s(&latest.join("status.csv")),
         "--format",
         "tum",
         "--json",
@@ -500,6 +502,10 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     ]);
     let eval: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(metrics["corrected"]["ape2d_mean_m"], eval["ape2d_mean_m"]);
+    for key in ["cov95_coverage", "nees_mean", "independent_samples"] {
+        assert!(eval[key].is_number(), "{eval}");
+        assert_eq!(metrics["calibration"][key], eval[key], "{key}");
+    }
     let raw_mean = metrics["raw"]["ape2d_mean_m"].as_f64().unwrap();
     assert!((raw_mean - 0.8).abs() < 1e-9, "{metrics}");
     assert!(eval["ape2d_mean_m"].as_f64().unwrap() < raw_mean);

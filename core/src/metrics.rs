@@ -105,8 +105,9 @@ pub fn ape_2d(gt: &[Pose3], est: &[Pose3]) -> Result<Ape2d, MetricsError> {
 /// inside the 95 % ellipse of covariance `S` when `e' S^-1 e` is at most this.
 pub const CHI2_2DOF_95: f64 = 5.991_464_547_107_979;
 
-/// How well published covariances describe the true errors of planar positions.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// How well published covariances describe the true errors of planar positions. Serialised with
+/// the keys `lanealign eval --status --json` prints.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Calibration {
     /// Fraction of poses whose position error lies inside the 95 % ellipse of its covariance
     /// (0.95 for a calibrated covariance).

@@ -7,13 +7,14 @@ use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::{evaluation, plots, report, results, status_file};
+use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::grid::{Grid, LoadPolicy};
 use lanealign_core::input;
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::metrics::ape_2d;
+use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Params, Preset};
 use lanealign_core::plausibility;
 use lanealign_core::pose::{AxisConvention, Pose3};
@@ -413,7 +414,22 @@ fn write_comparison(
         ape_2d(&raw_pairs.gt, &raw_pairs.est)?,
         ape_2d(&corrected_pairs.gt, &corrected_pairs.est)?,
     );
-    let metrics = serde_json::json!({ "raw": raw_m, "corrected": corrected_m });
+    // The corrected poses' covariances in the plane of the poses, as `eval --status` reads them.
+    let odom_from_map = status_file::odom_from_map(anchored_from_odom.yaw());
+    let covariances: Vec<[[f64; 2]; 2]> = corrected_pairs
+        .pairs
+        .iter()
+        .map(|p| position_covariance_in(&odom_from_map, &run[p.1].covariance))
+        .collect();
+    let calibration = match calibration(&corrected_pairs.gt, &corrected_pairs.est, &covariances) {
+        Ok(c) => serde_json::to_value(c)?,
+        Err(e) => serde_json::json!({ "error": e.to_string() }),
+    };
+    let metrics = serde_json::json!({
+        "raw": raw_m,
+        "corrected": corrected_m,
+        "calibration": calibration,
+    });
     let path = dir.join("metrics.json");
     std::fs::write(&path, serde_json::to_string_pretty(&metrics)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
