@@ -117,9 +117,9 @@ pub struct Calibration {
     pub nees_mean: f64,
     /// How many independent errors the poses amount to: `poses` over the integrated
     /// autocorrelation time of the whitened errors `S^-1/2 e`
-    /// ([`integrated_autocorrelation_time`]). Errors that persist over hundreds of poses (an
-    /// offset that a stretch of mapped road shares) make a drive of thousands of poses a
-    /// handful of samples, and its coverage as uncertain as a handful's.
+    /// ([`integrated_autocorrelation_time`], about zero). Errors that persist over hundreds of
+    /// poses (an offset that a stretch of mapped road shares) make a drive of thousands of poses
+    /// a handful of samples, and its coverage as uncertain as a handful's.
     pub independent_samples: f64,
     /// Poses compared.
     pub poses: usize,
@@ -182,29 +182,30 @@ pub fn calibration(
     })
 }
 
-/// The integrated autocorrelation time of a series of planar vectors (samples, at least 1 and
-/// at most the series' length): `1 + 2 sum_k rho(k)` of each component, summed over the lags up
-/// to Sokal's window (the first lag at least five times the sum so far), averaged over the two
-/// components. A series of `n` samples carries about as much as `n` over it independent ones.
+/// The integrated autocorrelation time of a series of planar vectors whose mean is zero when
+/// they are what they should be, such as whitened errors (samples, at least 1 and at most the
+/// series' length): `1 + 2 sum_k rho(k)` of each component, summed over the lags up to Sokal's
+/// window (the first lag at least five times the sum so far), averaged over the two components.
+/// `rho` is taken about zero, not about the series' own mean: an offset that the whole series
+/// shares is an error that persists, and makes the series count as one sample. A series of `n`
+/// samples carries about as much as `n` over it independent ones.
 pub fn integrated_autocorrelation_time(series: &[[f64; 2]]) -> f64 {
     let n = series.len();
     let component = |c: usize| {
-        let mean = series.iter().map(|v| v[c]).sum::<f64>() / n as f64;
-        let centred: Vec<f64> = series.iter().map(|v| v[c] - mean).collect();
         let lag_sum = |k: usize| {
-            centred[k..]
+            series[k..]
                 .iter()
-                .zip(&centred)
-                .map(|(a, b)| a * b)
+                .zip(series)
+                .map(|(a, b)| a[c] * b[c])
                 .sum::<f64>()
         };
-        let variance = lag_sum(0);
-        if variance <= 0.0 {
+        let zero_lag = lag_sum(0);
+        if zero_lag <= 0.0 {
             return 1.0;
         }
         let mut tau = 1.0;
         for k in 1..n {
-            tau += 2.0 * lag_sum(k) / variance;
+            tau += 2.0 * lag_sum(k) / zero_lag;
             if k as f64 >= 5.0 * tau {
                 break;
             }
@@ -381,7 +382,10 @@ mod tests {
         assert!((0.9..1.1).contains(&white), "{white}");
         let correlated = integrated_autocorrelation_time(&ar1(0.9, &mut normal));
         assert!((16.0..22.0).contains(&correlated), "{correlated}");
-        assert_eq!(integrated_autocorrelation_time(&[[1.0, 2.0]; 10]), 1.0);
+        // An offset shared by every sample is one error, however many samples carry it.
+        let offset = integrated_autocorrelation_time(&[[0.3, -0.2]; 100]);
+        assert_eq!(offset, 100.0);
+        assert_eq!(integrated_autocorrelation_time(&[[0.0, 0.0]; 10]), 1.0);
     }
 
     #[test]
