@@ -552,18 +552,7 @@ fn band_newton_step(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A small deterministic generator (64-bit LCG) so the test data is fixed.
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
+    use crate::test_rng::Lcg;
 
     #[test]
     fn recovers_a_known_transform_with_ten_percent_outliers() {
@@ -571,13 +560,13 @@ mod tests {
         let truth = Se2::new(0.05, 2.0, -1.5);
         let mut pairs = Vec::new();
         for i in 0..200 {
-            let s = [rng.next() * 100.0, rng.next() * 40.0];
+            let s = [rng.uniform() * 100.0, rng.uniform() * 40.0];
             let mut q = truth.apply(s);
             if i % 10 == 3 {
                 // Gross outliers: 5-20 m off.
                 q = [
-                    q[0] + 5.0 + 15.0 * rng.next(),
-                    q[1] - 5.0 - 15.0 * rng.next(),
+                    q[0] + 5.0 + 15.0 * rng.uniform(),
+                    q[1] - 5.0 - 15.0 * rng.uniform(),
                 ];
             }
             pairs.push(Correspondence {

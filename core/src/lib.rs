@@ -52,6 +52,8 @@ pub mod scale;
 pub mod se2;
 pub mod smoothing;
 pub mod source_corrector;
+#[cfg(test)]
+mod test_rng;
 pub mod tile;
 pub mod trajectory;
 mod window;

@@ -310,6 +310,7 @@ pub fn associate_by_time(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::Lcg;
 
     fn at(x: f64, y: f64, yaw: f64) -> Pose3 {
         Pose3::planar(x, y, yaw, 5.0)
@@ -357,30 +358,20 @@ mod tests {
     /// integrated time `(1 + phi) / (1 - phi)` (19 for 0.9). Fixed seed, 100 000 samples.
     #[test]
     fn correlated_errors_count_as_fewer_samples() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut normal = move || {
-            let mut uniform = || {
-                state = state
-                    .wrapping_mul(6_364_136_223_846_793_005)
-                    .wrapping_add(1_442_695_040_888_963_407);
-                ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-            };
-            let (u, v) = (uniform(), uniform());
-            (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-        };
-        let ar1 = |phi: f64, normal: &mut dyn FnMut() -> f64| {
+        let mut rng = Lcg(0x9e37_79b9_7f4a_7c15);
+        let mut ar1 = |phi: f64| {
             let q = (1.0 - phi * phi).sqrt();
             let mut x = [0.0, 0.0];
             (0..100_000)
                 .map(|_| {
-                    x = [phi * x[0] + q * normal(), phi * x[1] + q * normal()];
+                    x = [phi * x[0] + q * rng.normal(), phi * x[1] + q * rng.normal()];
                     x
                 })
                 .collect::<Vec<_>>()
         };
-        let white = integrated_autocorrelation_time(&ar1(0.0, &mut normal));
+        let white = integrated_autocorrelation_time(&ar1(0.0));
         assert!((0.9..1.1).contains(&white), "{white}");
-        let correlated = integrated_autocorrelation_time(&ar1(0.9, &mut normal));
+        let correlated = integrated_autocorrelation_time(&ar1(0.9));
         assert!((16.0..22.0).contains(&correlated), "{correlated}");
         // An offset shared by every sample is one error, however many samples carry it.
         let offset = integrated_autocorrelation_time(&[[0.3, -0.2]; 100]);
