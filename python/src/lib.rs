@@ -452,7 +452,8 @@ struct Client {
 }
 
 /// An answer as a dict: `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom`
-/// (x, y, yaw), `covariance` (3, 3), `odometry_scale` and `odometry_scale_sd` (ratios).
+/// (x, y, yaw), `covariance` (3, 3, map plane), `anchor_yaw` (radians), `odometry_scale` and
+/// `odometry_scale_sd` (ratios).
 fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("seq", answer.seq)?;
@@ -467,6 +468,7 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
     d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
     let covariance = numpy::ndarray::arr2(&from_upper_triangle(&answer.covariance));
     d.set_item("covariance", covariance.into_pyarray(py))?;
+    d.set_item("anchor_yaw", answer.anchor_yaw)?;
     d.set_item("odometry_scale", answer.odometry_scale)?;
     d.set_item("odometry_scale_sd", answer.odometry_scale_sd)?;
     Ok(d)
@@ -524,9 +526,11 @@ impl Client {
     }
 
     /// The next answer of this session, waiting up to `timeout_s` seconds: `None`, or a dict
-    /// with `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom` (x, y, yaw)
-    /// and `covariance` (3, 3). While it waits, other Python threads run, and a signal
-    /// (Ctrl-C) is acted on within 0.1 s.
+    /// with `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom` (x, y, yaw),
+    /// `covariance` (3, 3, in the map plane), `anchor_yaw` (radians: the rotation of the
+    /// odometry frame into the map plane, which turns the covariance into the odometry frame),
+    /// `odometry_scale` and `odometry_scale_sd`. While it waits, other Python threads run, and a
+    /// signal (Ctrl-C) is acted on within 0.1 s.
     fn recv<'py>(&self, py: Python<'py>, timeout_s: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
         let deadline = Instant::now() + seconds("timeout_s", timeout_s)?;
         loop {

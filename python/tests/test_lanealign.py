@@ -6,6 +6,7 @@ Needs the `lanealign` binary (LANEALIGN_BIN, else the workspace's target/release
 
 import contextlib
 import json
+import math
 import os
 import re
 import resource
@@ -415,6 +416,9 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     assert np.array_equal(np.stack([a["pose"] for a in answers]), offline.poses)
     assert [a["status"] for a in answers] == [lanealign.STATUS_NAMES[c] for c in offline.status]
     assert answers[-1]["covariance"].shape == (3, 3)
+    # The tile's origin is the anchor's, so the map plane is the anchor's East-North plane.
+    yaw = math.radians(ANCHOR_00[2])
+    assert all(math.isclose(a["anchor_yaw"], yaw, rel_tol=0, abs_tol=1e-12) for a in answers)
     assert [a["odometry_scale"] for a in answers] == list(offline.odometry_scale)
     assert all(a["odometry_scale_sd"] == 0.0 for a in answers), "kiss-icp does not estimate it"
 
