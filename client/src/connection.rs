@@ -27,8 +27,8 @@ use lanealign_wire::payload::{
     CorrectedPose, OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START, MAX_IN_FLIGHT,
 };
 use lanealign_wire::service::{
-    NameError, Namespace, NodeCreateError, NodeListError, OtherWireError, PortCreateError,
-    PoseServices, ServiceOpenError, SessionServices, SourceName, ThreadSafeIpc,
+    DaemonNode, NameError, Namespace, NodeCreateError, NodeListError, OtherWireError,
+    PortCreateError, PoseServices, ServiceOpenError, SessionServices, SourceName, ThreadSafeIpc,
 };
 use lanealign_wire::shm::{self, ShmError};
 use lanealign_wire::wait::WaitStrategy;
@@ -349,11 +349,11 @@ impl Connection {
         shm::check_room("a session", shm::SESSION_BYTES)?;
         let node = namespace.node()?;
         // Before the services: a daemon of another version may have made them in its layout.
-        let daemon = namespace.daemons()?.first().copied();
-        if let Some(found) = daemon {
-            found.check_wire()?;
-        }
-        let daemon = daemon.map(|d| d.pid);
+        let daemon = namespace
+            .daemons()?
+            .first()
+            .map(DaemonNode::checked_pid)
+            .transpose()?;
         let poses = PoseServices::open(&node, source)?;
         let session = session.max(1);
         let answers = SessionServices::open(&node, source, session)?;
@@ -537,11 +537,12 @@ impl Connection {
     fn look_for_daemon(&mut self) -> Result<(), ReceiveError> {
         self.last_check = Some(Instant::now());
         self.events.liveness_checks += 1;
-        let found = self.namespace.daemons()?.first().copied();
-        if let Some(daemon) = found {
-            daemon.check_wire()?;
-        }
-        let now = found.map(|d| d.pid);
+        let now = self
+            .namespace
+            .daemons()?
+            .first()
+            .map(DaemonNode::checked_pid)
+            .transpose()?;
         if now.is_some() && now != self.daemon {
             if self.last_daemon.is_some() && now != self.last_daemon {
                 self.events.daemon_restarts += 1;

@@ -161,13 +161,15 @@ pub fn calibration(
         if !(det > 0.0 && s[0][0] > 0.0 && det.is_finite()) {
             return Err(MetricsError::NotPositiveDefinite { index });
         }
-        let nees = (s[1][1] * dx * dx - (s[0][1] + s[1][0]) * dx * dy + s[0][0] * dy * dy) / det;
-        // S = L L' with L lower triangular; L^-1 e has NEES as its squared length.
+        // The whitened error L^-1 e, for S = L L' with L lower triangular: its squared length is
+        // the NEES.
         let l00 = s[0][0].sqrt();
         let l10 = 0.5 * (s[0][1] + s[1][0]) / l00;
         let l11 = det.sqrt() / l00;
         let w0 = dx / l00;
-        whitened.push([w0, (dy - l10 * w0) / l11]);
+        let w1 = (dy - l10 * w0) / l11;
+        whitened.push([w0, w1]);
+        let nees = w0 * w0 + w1 * w1;
         nees_sum += nees;
         if nees <= CHI2_2DOF_95 {
             inside += 1;

@@ -526,10 +526,10 @@ impl DaemonNode {
         self.wire == Some(WIRE_VERSION)
     }
 
-    /// An error unless this daemon speaks this build's wire.
-    pub fn check_wire(&self) -> Result<(), OtherWireError> {
+    /// The daemon's process id, or an error unless it speaks this build's wire.
+    pub fn checked_pid(&self) -> Result<i32, OtherWireError> {
         if self.speaks_this_wire() {
-            return Ok(());
+            return Ok(self.pid);
         }
         Err(OtherWireError {
             pid: self.pid,
@@ -848,8 +848,8 @@ mod tests {
             pid: 7,
             wire,
         };
-        assert!(node(Some(WIRE_VERSION)).check_wire().is_ok());
-        let older = node(Some(WIRE_VERSION - 1)).check_wire().unwrap_err();
+        assert!(node(Some(WIRE_VERSION)).checked_pid().is_ok());
+        let older = node(Some(WIRE_VERSION - 1)).checked_pid().unwrap_err();
         assert_eq!(older.to_string(), format!("the daemon of this namespace (pid 7) speaks wire {}, this build wire {WIRE_VERSION}: a client and a daemon of different lanealign versions exchange nothing; upgrade them together (docs/wire.md)", WIRE_VERSION - 1));
     }
 
