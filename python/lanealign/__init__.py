@@ -1,9 +1,10 @@
 """lanealign for Python: correct and evaluate trajectories, numpy arrays in and out.
 
 ``correct`` runs exactly what ``lanealign correct`` runs (same defaults, bit-identical
-results); ``eval`` reports what ``lanealign eval --json`` reports; ``compile_map`` writes the
-tile ``lanealign-map compile`` writes; ``Client`` publishes poses to a running ``lanealignd``
-and receives the corrected ones over shared memory. Errors are ``ValueError``
+results); ``eval`` reports what ``lanealign eval --json`` reports (given the covariances, what
+it reports with ``--status``); ``compile_map`` writes the tile ``lanealign-map compile`` writes;
+``Client`` publishes poses to a running ``lanealignd`` and receives the corrected ones over
+shared memory. Errors are ``ValueError``
 with the command line's messages; a ``Client.close`` that fails raises ``CloseError`` (a
 ``ValueError``) holding the answers that arrived and the poses that got none.
 """
@@ -39,6 +40,11 @@ class Corrected(NamedTuple):
     odometry_scale: np.ndarray
     #: (N) the standard deviation of ``odometry_scale`` (0 where it is not estimated).
     odometry_scale_sd: np.ndarray
+    #: The map plane's rotation from the odometry frame (radians): ``covariance`` turned by
+    #: ``-anchor_yaw`` is in the odometry frame. The anchor's yaw, plus the meridian convergence
+    #: for a tile whose origin is not the anchor's; 0 for ``lanes``. ``eval`` takes it beside
+    #: ``covariance``.
+    anchor_yaw: float
 
 
 def correct(
@@ -83,7 +89,7 @@ def correct(
     orb-slam3 preset does so by default; ``odometry_scale`` says what came of it.
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
-    out, status, covariance, odometry_scale, odometry_scale_sd = _lanealign.correct(
+    return Corrected(*_lanealign.correct(
         array,
         preset=preset,
         osm=osm,
@@ -97,21 +103,34 @@ def correct(
         smooth=smooth,
         overrides=overrides,
         stamps=None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64),
-    )
-    return Corrected(out, status, covariance, odometry_scale, odometry_scale_sd)
+    ))
 
 
-def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = "flu") -> dict:  # noqa: A001
+def eval(  # noqa: A001
+    gt: np.ndarray,
+    est: np.ndarray,
+    *,
+    frame: str = "flu",
+    covariance: Optional[np.ndarray] = None,
+    anchor_yaw: Optional[float] = None,
+) -> dict:
     """APE-2D of ``est`` against ``gt`` (paired by index, no alignment), as ``lanealign eval``.
     Each is (N, 3, 4), (N, 4, 4), (N, 12) or planar (N, 3), as ``correct`` takes them.
 
     Returns ``ape2d_mean_m``, ``rmse_m``, ``lateral_rmse_m``, ``heading_mean_deg``, ``max_m``
-    and ``poses``.
+    and ``poses``. With ``covariance`` (N, 3, 3) and ``anchor_yaw`` (``Corrected.covariance``
+    and ``Corrected.anchor_yaw``; a ``Client``'s answers carry both) also how well the
+    covariances describe the errors, as ``lanealign eval --status``: ``cov95_coverage`` (the
+    fraction of poses whose error lies inside the 95 % ellipse), ``nees_mean`` and
+    ``independent_samples``. A covariance that is not positive definite (a pose with status
+    ``invalid_input``) is a ``ValueError``.
     """
     return _lanealign.eval(
         np.ascontiguousarray(gt, dtype=np.float64),
         np.ascontiguousarray(est, dtype=np.float64),
         frame=frame,
+        covariance=None if covariance is None else np.ascontiguousarray(covariance, dtype=np.float64),
+        anchor_yaw=anchor_yaw,
     )
 
 

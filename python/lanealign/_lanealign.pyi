@@ -20,8 +20,15 @@ def correct(
     smooth: bool = ...,
     overrides: Optional[Mapping[str, Union[int, float, bool]]] = ...,
     stamps: Optional[np.ndarray] = ...,
-) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]: ...
-def eval(gt: np.ndarray, est: np.ndarray, *, frame: str = ...) -> Dict[str, Union[float, int]]: ...
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]: ...
+def eval(
+    gt: np.ndarray,
+    est: np.ndarray,
+    *,
+    frame: str = ...,
+    covariance: Optional[np.ndarray] = ...,
+    anchor_yaw: Optional[float] = ...,
+) -> Dict[str, Union[float, int]]: ...
 def compile_map(
     inputs: List[str],
     output: str,

@@ -5,15 +5,16 @@ use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
-use lanealign_cli::evaluation;
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::synthetic;
+use lanealign_cli::{evaluation, status_file};
 use lanealign_client::connection::new_session_id;
 use lanealign_client::{Closed, Connection};
+use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
-use lanealign_core::metrics::ape_2d;
+use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset, UNMARKED_OFFSET_SCALE};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::Placement;
@@ -138,6 +139,7 @@ type Corrected<'py> = (
     Bound<'py, PyArray3<f64>>,
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray1<f64>>,
+    f64,
 );
 
 /// Parameter overrides from a dict of names to numbers and bools, read as the command line's
@@ -145,9 +147,9 @@ type Corrected<'py> = (
 fn overrides_from(dict: &Bound<'_, PyDict>) -> PyResult<Overrides> {
     let mut pairs = Vec::with_capacity(dict.len());
     for (key, value) in dict.iter() {
-        let key: String = key
-            .extract()
-            .map_err(|_| PyValueError::new_err(format!("overrides: {key}: not a parameter name")))?;
+        let key: String = key.extract().map_err(|_| {
+            PyValueError::new_err(format!("overrides: {key}: not a parameter name"))
+        })?;
         let text = if value.is_instance_of::<PyBool>() {
             value.extract::<bool>()?.to_string()
         } else if let Ok(i) = value.extract::<i64>() {
@@ -259,7 +261,7 @@ fn correct<'py>(
             ))
         }
     };
-    let run = py
+    let (run, anchor_yaw) = py
         .detach(|| -> anyhow::Result<_> {
             let loaded = source.load_for(&config)?;
             let placement = Placement {
@@ -267,7 +269,7 @@ fn correct<'py>(
                 anchored_from_odom: loaded.anchored_from_odom,
                 smoothing: config.smoothing(),
             };
-            Ok(loaded
+            let run = loaded
                 .correct(
                     params,
                     config.match_mode,
@@ -275,7 +277,8 @@ fn correct<'py>(
                     &input,
                     stamps.as_deref(),
                 )?
-                .0)
+                .0;
+            Ok((run, loaded.anchored_from_odom.yaw()))
         })
         .map_err(error)?;
     let corrected: Vec<Pose3> = run.iter().map(|c| c.pose).collect();
@@ -304,17 +307,22 @@ fn correct<'py>(
         covariance.into_pyarray(py),
         odometry_scale.into_pyarray(py),
         odometry_scale_sd.into_pyarray(py),
+        anchor_yaw,
     ))
 }
 
-/// APE-2D of `est` against `gt` (paired by index), as `lanealign eval --json` reports it.
+/// APE-2D of `est` against `gt` (paired by index), as `lanealign eval --json` reports it; with
+/// `covariance` ((N, 3, 3), the map plane's, as `correct` returns it) and `anchor_yaw` (radians,
+/// the map plane's rotation from the odometry frame) also its calibration, as `eval --status`.
 #[pyfunction]
-#[pyo3(signature = (gt, est, *, frame="flu"))]
+#[pyo3(signature = (gt, est, *, frame="flu", covariance=None, anchor_yaw=None))]
 fn eval<'py>(
     py: Python<'py>,
     gt: PyReadonlyArrayDyn<'py, f64>,
     est: PyReadonlyArrayDyn<'py, f64>,
     frame: &str,
+    covariance: Option<PyReadonlyArrayDyn<'py, f64>>,
+    anchor_yaw: Option<f64>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let frame: AxisConvention = parsed("frame", frame)?;
     let trajectory = |a: &PyReadonlyArrayDyn<'py, f64>| -> PyResult<Trajectory> {
@@ -332,7 +340,54 @@ fn eval<'py>(
     d.set_item("heading_mean_deg", m.heading_mean_deg)?;
     d.set_item("max_m", m.max_m)?;
     d.set_item("poses", m.poses)?;
+    let covariance = match (covariance, anchor_yaw) {
+        (None, None) => return Ok(d),
+        (Some(c), Some(yaw)) => position_covariances(&c.as_array(), paired.est.len(), yaw)?,
+        _ => {
+            return Err(PyValueError::new_err(
+                "covariance= and anchor_yaw= go together (Corrected.covariance and \
+                 Corrected.anchor_yaw)",
+            ))
+        }
+    };
+    let c = calibration(&paired.gt, &paired.est, &covariance).map_err(error)?;
+    d.set_item("cov95_coverage", c.cov95_coverage)?;
+    d.set_item("nees_mean", c.nees_mean)?;
+    d.set_item("independent_samples", c.independent_samples)?;
     Ok(d)
+}
+
+/// The position covariances of an (N, 3, 3) array of map-plane covariances, turned into the
+/// planar odometry frame of a source anchored with yaw `anchor_yaw` (radians), as `eval
+/// --status` turns a status CSV's.
+fn position_covariances(
+    array: &numpy::ndarray::ArrayViewD<'_, f64>,
+    poses: usize,
+    anchor_yaw: f64,
+) -> PyResult<Vec<[[f64; 2]; 2]>> {
+    if array.shape() != [poses, 3, 3] {
+        return Err(PyValueError::new_err(format!(
+            "covariance: shape {:?}, expected ({poses}, 3, 3), one per pose",
+            array.shape()
+        )));
+    }
+    if !anchor_yaw.is_finite() {
+        return Err(PyValueError::new_err(format!(
+            "anchor_yaw: {anchor_yaw} is not a finite angle"
+        )));
+    }
+    let odom_from_map = status_file::odom_from_map(anchor_yaw);
+    Ok((0..poses)
+        .map(|i| {
+            let c = |r: usize, k: usize| array[[i, r, k]];
+            let covariance = [
+                [c(0, 0), c(0, 1), c(0, 2)],
+                [c(1, 0), c(1, 1), c(1, 2)],
+                [c(2, 0), c(2, 1), c(2, 2)],
+            ];
+            position_covariance_in(&odom_from_map, &covariance)
+        })
+        .collect())
 }
 
 /// Compiles road data into a lane tile (or with `grid` a grid folder; PBF inputs stream), as

@@ -290,6 +290,7 @@ def test_a_grid_corrects_as_its_tile(tmp_path):
 
 
 def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
+    """Correction, APE and the covariances' calibration are the command line's."""
     needs_data()
     anchor = anchor_of("07")
     odometry = DATA / "odometry" / "lidar" / "07.txt"
@@ -298,7 +299,8 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
     anchor_flag = ",".join(repr(v) for v in anchor)
     start = time.perf_counter()
     cli("correct", "--osm", osm, "--anchor", anchor_flag, "--projection", "kitti",
-        "--preset", "kiss-icp", "--frame", "kitti-camera", odometry, "-o", tmp_path / "out.txt")
+        "--preset", "kiss-icp", "--frame", "kitti-camera", odometry, "-o", tmp_path / "out.txt",
+        "--status", tmp_path / "status.csv")
     cli_s = time.perf_counter() - start
     poses = np.loadtxt(odometry).reshape(-1, 3, 4)
     start = time.perf_counter()
@@ -310,6 +312,26 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
     expected = json.loads(cli("eval", "--gt", gt_path, "--est", tmp_path / "out.txt",
                               "--frame", "kitti-camera", "--json"))
     assert figures == expected
+    # With the covariances, what `eval --status` reports: the map plane's covariances turned into
+    # the odometry frame by the anchor's yaw (the map plane's origin is the anchor: 07's -32.0
+    # degrees).
+    assert math.isclose(got.anchor_yaw, math.radians(anchor[2]), rel_tol=0, abs_tol=1e-12)
+    calibrated = lanealign.eval(np.loadtxt(gt_path).reshape(-1, 3, 4), got.poses,
+                                frame="kitti-camera", covariance=got.covariance,
+                                anchor_yaw=got.anchor_yaw)
+    expected = json.loads(cli("eval", "--gt", gt_path, "--est", tmp_path / "out.txt",
+                              "--status", tmp_path / "status.csv", "--frame", "kitti-camera",
+                              "--json"))
+    assert calibrated == expected
+    assert {"cov95_coverage", "nees_mean", "independent_samples"} <= set(calibrated)
+    # Turned by another yaw, the same covariances describe the errors differently.
+    turned = lanealign.eval(np.loadtxt(gt_path).reshape(-1, 3, 4), got.poses, frame="kitti-camera",
+                            covariance=got.covariance, anchor_yaw=got.anchor_yaw + math.pi / 2)
+    assert turned["nees_mean"] != calibrated["nees_mean"]
+    with pytest.raises(ValueError, match="go together"):
+        lanealign.eval(got.poses, got.poses, covariance=got.covariance)
+    with pytest.raises(ValueError, match=r"expected \(\d+, 3, 3\)"):
+        lanealign.eval(got.poses, got.poses, covariance=got.covariance[1:], anchor_yaw=0.0)
     print(f"KITTI 07: lanealign correct {cli_s * 1e3:.1f} ms (whole process), "
           f"lanealign.correct {py_s * 1e3:.1f} ms (call, file read by numpy not included)")
 
