@@ -1,4 +1,5 @@
-"""Corrects every KITTI drive of ../shared/data and compiles every sequence's map, as Dask tasks.
+"""Corrects and evaluates every KITTI drive of ../shared/data and compiles every sequence's map,
+as Dask tasks.
 
     python3 python/examples/fleet_kitti.py [SCHEDULER_ADDRESS] [--out DIR]
 
@@ -37,7 +38,8 @@ def main():
         fleet.Drive(poses=str(DATA / "odometry" / odometry / f"{seq}.txt"),
                     output=str(out / f"{odometry}_{seq}.txt"), preset=preset,
                     osm=str(DATA / "osm" / f"kitti_{seq}.osm"), anchor=anchor_of(seq),
-                    projection="kitti", frame="kitti-camera")
+                    projection="kitti", frame="kitti-camera",
+                    gt=str(DATA / "kitti" / "poses" / f"{seq}.txt"))
         for odometry, preset in PRESETS.items() for seq in SEQUENCES
     ]
     regions = [fleet.Region(inputs=[str(DATA / "osm" / f"kitti_{seq}.osm")],
@@ -48,7 +50,10 @@ def main():
         n_workers=2, threads_per_worker=1, dashboard_address=None)
     with distributed.Client(args.scheduler or cluster) as client:
         for summary in fleet.correct_drives(client, drives):
-            print(f"{summary['output']}: {summary['poses']} poses, {summary['accepted']} accepted")
+            raw, corrected = summary["raw"], summary["corrected"]
+            print(f"{summary['output']}: {summary['poses']} poses, {summary['accepted']} accepted, "
+                  f"APE-2D {raw['ape2d_mean_m']:.3f} -> {corrected['ape2d_mean_m']:.3f} m, "
+                  f"cov95 coverage {corrected['cov95_coverage']:.3f}")
         for summary in fleet.compile_regions(client, regions):
             print(f"{summary['output']}: {summary['lanes']} lanes, {summary['lane_km']:.1f} lane-km")
     if cluster is not None:

@@ -17,6 +17,7 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 
 from . import STATUS_NAMES, compile_map, correct
+from . import eval as evaluate
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,10 @@ class Drive:
     projection: Optional[str] = None
     method: str = "robust"
     frame: str = "flu"
+    #: Ground truth of the drive (KITTI format, paired by index): the summary then holds ``raw``
+    #: and ``corrected``, what :func:`lanealign.eval` reports for each (for ``corrected`` with the
+    #: covariances' calibration), or ``{"error": message}`` where that cannot be computed.
+    gt: Optional[str] = None
 
 
 @dataclass(frozen=True)
@@ -70,11 +75,27 @@ def correct_drive(drive: Drive) -> dict:
     )
     np.savetxt(drive.output, result.poses.reshape(len(poses), 12), fmt="%.17g")
     counts = np.bincount(result.status, minlength=len(STATUS_NAMES))
-    return {
+    summary = {
         "output": drive.output,
         "poses": len(poses),
         **{name: int(n) for name, n in zip(STATUS_NAMES, counts)},
     }
+    if drive.gt is not None:
+        gt = np.loadtxt(drive.gt, ndmin=2).reshape(-1, 3, 4)
+        summary["raw"] = _evaluated(gt, poses, frame=drive.frame)
+        summary["corrected"] = _evaluated(gt, result.poses, frame=drive.frame,
+                                          covariance=result.covariance,
+                                          anchor_yaw=result.anchor_yaw)
+    return summary
+
+
+def _evaluated(gt: np.ndarray, est: np.ndarray, **options) -> dict:
+    """:func:`lanealign.eval`'s figures, or ``{"error": message}``: a drive whose figures cannot
+    be computed (a pose that is no pose, a ground truth of another length) is still corrected."""
+    try:
+        return evaluate(gt, est, **options)
+    except ValueError as e:
+        return {"error": str(e)}
 
 
 def compile_region(region: Region) -> dict:
