@@ -4,9 +4,9 @@
 results); ``eval`` reports what ``lanealign eval --json`` reports (given the covariances, what
 it reports with ``--status``); ``compile_map`` writes the tile ``lanealign-map compile`` writes;
 ``Client`` publishes poses to a running ``lanealignd`` and receives the corrected ones over
-shared memory. Errors are ``ValueError``
-with the command line's messages; a ``Client.close`` that fails raises ``CloseError`` (a
-``ValueError``) holding the answers that arrived and the poses that got none.
+shared memory. Errors are ``ValueError`` with the command line's messages; a ``Client.close``
+that fails raises ``CloseError`` (a ``ValueError``) holding the answers that arrived and the
+poses that got none.
 """
 
 import os
@@ -125,11 +125,13 @@ def eval(  # noqa: A001
     ``independent_samples``. A covariance that is not positive definite (a pose with status
     ``invalid_input``) is a ``ValueError``.
     """
+    if covariance is not None:
+        covariance = np.ascontiguousarray(covariance, dtype=np.float64)
     return _lanealign.eval(
         np.ascontiguousarray(gt, dtype=np.float64),
         np.ascontiguousarray(est, dtype=np.float64),
         frame=frame,
-        covariance=None if covariance is None else np.ascontiguousarray(covariance, dtype=np.float64),
+        covariance=covariance,
         anchor_yaw=anchor_yaw,
     )
 

@@ -41,7 +41,9 @@ class Drive:
     frame: str = "flu"
     #: Ground truth of the drive (KITTI format, paired by index): the summary then holds ``raw``
     #: and ``corrected``, what :func:`lanealign.eval` reports for each (for ``corrected`` with the
-    #: covariances' calibration), or ``{"error": message}`` where that cannot be computed.
+    #: covariances' calibration), or ``{"error": message}`` where that cannot be computed (a
+    #: ground truth of another length, a pose that is no pose). A file that cannot be read fails
+    #: the task, after the corrected poses are written.
     gt: Optional[str] = None
 
 
