@@ -181,6 +181,14 @@ fn the_demo_runs_without_data() {
         stdout.contains("identical to offline `lanealign correct`: yes"),
         "{stdout}"
     );
+    // It says how well the answers' covariances describe their errors.
+    let coverage: f64 = stdout
+        .split("confidence: ")
+        .nth(1)
+        .and_then(|rest| rest.split(" % of the corrected poses").next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no confidence line: {stdout}"));
+    assert!((0.0..=100.0).contains(&coverage), "{stdout}");
     // Latency is measured without queueing, throughput separately, and both runs agree.
     assert!(stdout.contains("latency, one pose in flight"), "{stdout}");
     assert!(

@@ -11,19 +11,20 @@ use lanealign_cli::daemon_config;
 use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::kitti::{anchors, default_data_dir};
 use lanealign_cli::replay::{replay, Rate, Replay};
-use lanealign_cli::synthetic;
+use lanealign_cli::{status_file, synthetic};
 use lanealign_client::Connection;
+use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::metrics::ape_2d;
+use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
-use lanealign_wire::payload::StatusCode;
+use lanealign_wire::payload::{from_upper_triangle, StatusCode};
 use lanealign_wire::wait::WaitStrategy;
 
 use super::percentile_us;
@@ -161,6 +162,17 @@ pub fn run() -> anyhow::Result<()> {
     let truth = planar(&s.truth);
     let raw = ape_2d(&truth, &planar(&s.odometry))?;
     let fixed = ape_2d(&truth, &planar(&corrected))?;
+    // How sure the corrections said they were: each answer's covariance, turned from the map
+    // plane into the odometry frame, against the true error.
+    let covariances: Vec<[[f64; 2]; 2]> = result
+        .answers
+        .iter()
+        .map(|a| {
+            let odom_from_map = status_file::odom_from_map(a.anchor_yaw);
+            position_covariance_in(&odom_from_map, &from_upper_triangle(&a.covariance))
+        })
+        .collect();
+    let confidence = calibration(&truth, &planar(&corrected), &covariances)?;
     let accepted = result
         .answers
         .iter()
@@ -187,6 +199,11 @@ pub fn run() -> anyhow::Result<()> {
     let mut rt = result.round_trip_ns.clone();
     rt.sort_unstable();
     println!("  APE-2D mean: raw {:.3} m -> corrected {:.3} m (max {:.2} -> {:.2} m); {accepted} corrections accepted", raw.mean_m, fixed.mean_m, raw.max_m, fixed.max_m);
+    println!(
+        "  confidence: {:.1} % of the corrected poses lie within the 95 % ellipse of their covariance (95 % when calibrated; {:.0} independent errors)",
+        100.0 * confidence.cov95_coverage,
+        confidence.independent_samples
+    );
     println!(
         "  every pose came back: {} of {}; identical to offline `lanealign correct`: {}",
         result.answers.len(),
