@@ -31,8 +31,7 @@ use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::report::{self, Table};
 use lanealign_cli::synthetic::Lcg;
-use lanealign_cli::{plots, results};
-use lanealign_core::confidence::position_covariance_in;
+use lanealign_cli::{plots, results, status_file};
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
 use lanealign_core::lane_map::LaneMap;
@@ -305,10 +304,10 @@ fn run(
     // Beyond the odometry as the corrector scaled it (the orb-slam3 preset estimates the scale).
     let scale_after: Vec<f64> = out.iter().map(|c| c.odometry_scale).collect();
     let jumps = output_jumps(&scaled_steps(&raw, &scale_after), &est)?;
-    let odom_from_map = map.anchored_from_odom.inverse();
+    let anchor_yaw = map.anchored_from_odom.yaw();
     let cov: Vec<[[f64; 2]; 2]> = out
         .iter()
-        .map(|c| position_covariance_in(&odom_from_map, &c.covariance))
+        .map(|c| status_file::position_covariance_in_odom(anchor_yaw, &c.covariance))
         .collect();
     Ok(Outcome {
         calibration: calibration(&gt, &est, &cov)?,

@@ -142,11 +142,11 @@ pub fn write_run(
     Ok(())
 }
 
-/// The rotation from the map plane into the planar odometry frame of a source anchored with yaw
-/// `anchor_yaw` (radians, the status CSV's `anchor_yaw`): the one covariances are turned by
-/// before they are compared with errors in the odometry frame.
-pub fn odom_from_map(anchor_yaw: f64) -> Se2 {
-    Se2::new(-anchor_yaw, 0.0, 0.0)
+/// The position block of a map-plane `covariance` (metres^2), turned into the planar odometry
+/// frame of a source anchored with yaw `anchor_yaw` (radians, the status CSV's and the wire's
+/// `anchor_yaw`): what errors in the odometry frame are compared with.
+pub fn position_covariance_in_odom(anchor_yaw: f64, covariance: &Covariance) -> [[f64; 2]; 2] {
+    position_covariance_in(&Se2::new(-anchor_yaw, 0.0, 0.0), covariance)
 }
 
 /// The position covariances of a status CSV, turned into the source's planar odometry frame
@@ -190,7 +190,7 @@ pub fn read_position_covariances(path: &Path) -> anyhow::Result<Vec<[[f64; 2]; 2
         };
         let (xx, xy, yy, yaw) = (value(0)?, value(1)?, value(2)?, value(3)?);
         let covariance = [[xx, xy, 0.0], [xy, yy, 0.0], [0.0, 0.0, 0.0]];
-        out.push(position_covariance_in(&odom_from_map(yaw), &covariance));
+        out.push(position_covariance_in_odom(yaw, &covariance));
     }
     Ok(out)
 }

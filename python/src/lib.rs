@@ -10,7 +10,6 @@ use lanealign_cli::synthetic;
 use lanealign_cli::{evaluation, status_file};
 use lanealign_client::connection::new_session_id;
 use lanealign_client::{Closed, Connection};
-use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
@@ -376,7 +375,6 @@ fn position_covariances(
             "anchor_yaw: {anchor_yaw} is not a finite angle"
         )));
     }
-    let odom_from_map = status_file::odom_from_map(anchor_yaw);
     Ok((0..poses)
         .map(|i| {
             let c = |r: usize, k: usize| array[[i, r, k]];
@@ -385,7 +383,7 @@ fn position_covariances(
                 [c(1, 0), c(1, 1), c(1, 2)],
                 [c(2, 0), c(2, 1), c(2, 2)],
             ];
-            position_covariance_in(&odom_from_map, &covariance)
+            status_file::position_covariance_in_odom(anchor_yaw, &covariance)
         })
         .collect())
 }

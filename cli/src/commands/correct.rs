@@ -7,7 +7,6 @@ use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::{evaluation, plots, report, results, status_file};
-use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::grid::{Grid, LoadPolicy};
@@ -415,11 +414,11 @@ fn write_comparison(
         ape_2d(&corrected_pairs.gt, &corrected_pairs.est)?,
     );
     // The corrected poses' covariances in the plane of the poses, as `eval --status` reads them.
-    let odom_from_map = status_file::odom_from_map(anchored_from_odom.yaw());
+    let anchor_yaw = anchored_from_odom.yaw();
     let covariances: Vec<[[f64; 2]; 2]> = corrected_pairs
         .pairs
         .iter()
-        .map(|p| position_covariance_in(&odom_from_map, &run[p.1].covariance))
+        .map(|p| status_file::position_covariance_in_odom(anchor_yaw, &run[p.1].covariance))
         .collect();
     let calibration = match calibration(&corrected_pairs.gt, &corrected_pairs.est, &covariances) {
         Ok(c) => serde_json::to_value(c)?,

@@ -13,7 +13,6 @@ use lanealign_cli::kitti::{anchors, default_data_dir};
 use lanealign_cli::replay::{replay, Rate, Replay};
 use lanealign_cli::{status_file, synthetic};
 use lanealign_client::Connection;
-use lanealign_core::confidence::position_covariance_in;
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
@@ -168,8 +167,10 @@ pub fn run() -> anyhow::Result<()> {
         .answers
         .iter()
         .map(|a| {
-            let odom_from_map = status_file::odom_from_map(a.anchor_yaw);
-            position_covariance_in(&odom_from_map, &from_upper_triangle(&a.covariance))
+            status_file::position_covariance_in_odom(
+                a.anchor_yaw,
+                &from_upper_triangle(&a.covariance),
+            )
         })
         .collect();
     let confidence = calibration(&truth, &planar(&corrected), &covariances)?;
