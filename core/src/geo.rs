@@ -154,7 +154,7 @@ pub enum GeoError {
     #[error("yaw {0} is not a finite number of degrees")]
     Yaw(f64),
     /// An offset that is not finite or beyond [`MAX_OFFSET_M`].
-    #[error("offset {0} m is not finite or beyond 1e7 m")]
+    #[error("offset {0:.3e} m is not finite or beyond 1e7 m")]
     Offset(f64),
     /// An anchor string that does not have three or five numbers.
     #[error("anchor '{0}': expected LAT,LON,YAW_DEG or LAT,LON,YAW_DEG,EAST_M,NORTH_M")]

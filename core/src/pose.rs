@@ -99,7 +99,7 @@ impl Pose3 {
             return Some("a number is not finite".into());
         }
         if let Some(v) = self.translation.iter().find(|v| v.abs() > MAX_COORDINATE_M) {
-            return Some(format!("coordinate {v} m is beyond 1e7 m"));
+            return Some(format!("coordinate {v:.3e} m is beyond 1e7 m"));
         }
         let error = self.rotation_error();
         if error > MAX_ROTATION_ERROR {

@@ -302,7 +302,11 @@ mod tests {
                 "not finite",
             ),
             ("1 0 0 inf 0 1 0 0 0 0 1 0\n", 1, "not finite"),
-            ("1 0 0 1e308 0 1 0 0 0 0 1 0\n", 1, "beyond 1e7 m"),
+            (
+                "1 0 0 1e308 0 1 0 0 0 0 1 0\n",
+                1,
+                "coordinate 1.000e308 m is beyond 1e7 m",
+            ),
             ("0 0 0 0 0 0 0 0 0 0 0 0\n", 1, "degenerate"),
             ("1.01 0 0 0 0 1.01 0 0 0 0 1.01 0\n", 1, "not orthonormal"),
             ("1 0 0 0 0 1 0 0 0 0 -1 0\n", 1, "reflection"),
