@@ -18,26 +18,9 @@ const LANE_OFFSET_M: f64 = 1.75;
 /// Lane point spacing (metres).
 const SPACING_M: f64 = 3.0;
 
-/// A small deterministic generator (64-bit LCG): the same run on every machine. The tests use it
-/// too (kill moments), so that the project has one generator for synthetic data.
-pub struct Lcg(pub u64);
-
-impl Lcg {
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Standard normal (Box-Muller).
-    pub fn normal(&mut self) -> f64 {
-        let (u, v) = (self.uniform().max(1e-12), self.uniform());
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
-    }
-}
+/// The generator the synthetic data is made with. The tests use it too (kill moments), so that
+/// the project has one generator for data made from a seed.
+pub use lanealign_core::rng::Lcg;
 
 fn line(from: [f64; 2], to: [f64; 2]) -> Vec<[f64; 2]> {
     let len = (to[0] - from[0]).hypot(to[1] - from[1]);

@@ -552,7 +552,7 @@ fn band_newton_step(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_rng::Lcg;
+    use crate::rng::Lcg;
 
     #[test]
     fn recovers_a_known_transform_with_ten_percent_outliers() {

@@ -8,7 +8,7 @@
 //! its placement ([`source_corrector`]), accuracy metrics ([`metrics`]) and the file formats
 //! every tool shares: lane tiles ([`tile`]) and grids of them ([`grid`]), trajectories ([`trajectory`]) and lane CSV
 //! ([`lane_csv`]), with bounded readers and atomic outputs ([`input`]) and numbers as they are written ([`number_text`]); [`plausibility`] warns
-//! about runs that are probably set up wrongly. The algorithm as implemented is described in `docs/algorithm.md`.
+//! about runs that are probably set up wrongly; [`rng`] makes data from a fixed seed. The algorithm as implemented is described in `docs/algorithm.md`.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -48,12 +48,11 @@ pub mod params;
 pub mod plausibility;
 pub mod pose;
 pub mod report;
+pub mod rng;
 pub mod scale;
 pub mod se2;
 pub mod smoothing;
 pub mod source_corrector;
-#[cfg(test)]
-mod test_rng;
 pub mod tile;
 pub mod trajectory;
 mod window;

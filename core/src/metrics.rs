@@ -312,7 +312,7 @@ pub fn associate_by_time(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_rng::Lcg;
+    use crate::rng::Lcg;
 
     fn at(x: f64, y: f64, yaw: f64) -> Pose3 {
         Pose3::planar(x, y, yaw, 5.0)
