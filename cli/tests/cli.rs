@@ -343,7 +343,8 @@ fn correct_writes_every_pose_and_a_status_row_each() {
 
 /// `correct --status` publishes a covariance per pose and `eval --status` measures it: on
 /// `stereo_vo` 09 (orb-slam3 preset) 94 % of the true errors lie inside the 95 % ellipses, and
-/// how many independent samples that figure rests on (docs/method.md, "Confidence").
+/// how many independent samples that figure rests on, what an exact covariance would show over
+/// as many and the verdict (docs/method.md, "Confidence").
 #[test]
 fn eval_reports_how_well_the_covariance_describes_the_errors() {
     let Some(d) = shared_data() else { return };
@@ -400,6 +401,18 @@ fn eval_reports_how_well_the_covariance_describes_the_errors() {
     // The errors persist over about 450 poses: the drive's 1591 are some four independent ones.
     let independent = v["independent_samples"].as_f64().unwrap();
     assert!((2.0..8.0).contains(&independent), "{v}");
+    // Over so few, an exact covariance would show a wide range, and this one lies inside it.
+    let range = |key: &str| -> Vec<f64> {
+        let r = v[key].as_array().unwrap_or_else(|| panic!("{key}: {v}"));
+        r.iter().map(|x| x.as_f64().unwrap()).collect()
+    };
+    let (coverage_range, nees_range) = (
+        range("cov95_coverage_if_exact"),
+        range("nees_mean_if_exact"),
+    );
+    assert!(coverage_range[0] < 0.9 && coverage_range[1] > 0.99, "{v}");
+    assert!(nees_range[0] < nees && nees < nees_range[1], "{v}");
+    assert_eq!(v["calibration_verdict"], "consistent", "{v}");
     // A status file of another run is refused, not silently paired.
     let short = dir.path().join("short.csv");
     let text = std::fs::read_to_string(&status).unwrap();
@@ -502,8 +515,15 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     ]);
     let eval: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(metrics["corrected"]["ape2d_mean_m"], eval["ape2d_mean_m"]);
-    for key in ["cov95_coverage", "nees_mean", "independent_samples"] {
-        assert!(eval[key].is_number(), "{eval}");
+    for key in [
+        "cov95_coverage",
+        "nees_mean",
+        "independent_samples",
+        "cov95_coverage_if_exact",
+        "nees_mean_if_exact",
+        "calibration_verdict",
+    ] {
+        assert!(!eval[key].is_null(), "{key}: {eval}");
         assert_eq!(metrics["calibration"][key], eval[key], "{key}");
     }
     let raw_mean = metrics["raw"]["ape2d_mean_m"].as_f64().unwrap();

@@ -121,8 +121,11 @@ def eval(  # noqa: A001
     and ``poses``. With ``covariance`` (N, 3, 3) and ``anchor_yaw`` (``Corrected.covariance``
     and ``Corrected.anchor_yaw``; a ``Client``'s answers carry both) also how well the
     covariances describe the errors, as ``lanealign eval --status``: ``cov95_coverage`` (the
-    fraction of poses whose error lies inside the 95 % ellipse), ``nees_mean`` and
-    ``independent_samples``. A covariance that is not positive definite (a pose with status
+    fraction of poses whose error lies inside the 95 % ellipse), ``nees_mean``,
+    ``independent_samples``, what a covariance describing the errors exactly would show over as
+    many independent errors (``cov95_coverage_if_exact`` and ``nees_mean_if_exact``: 5th and
+    95th percentiles) and ``calibration_verdict`` ("consistent", "too confident" or "too
+    cautious"). A covariance that is not positive definite (a pose with status
     ``invalid_input``) is a ``ValueError``.
     """
     if covariance is not None:

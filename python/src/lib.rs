@@ -349,10 +349,16 @@ fn eval<'py>(
             ))
         }
     };
-    let c = calibration(&paired.gt, &paired.est, &covariance).map_err(error)?;
+    let check = calibration(&paired.gt, &paired.est, &covariance)
+        .map_err(error)?
+        .check();
+    let (c, exact) = (check.calibration, check.if_exact);
     d.set_item("cov95_coverage", c.cov95_coverage)?;
     d.set_item("nees_mean", c.nees_mean)?;
     d.set_item("independent_samples", c.independent_samples)?;
+    d.set_item("cov95_coverage_if_exact", exact.cov95_coverage.to_vec())?;
+    d.set_item("nees_mean_if_exact", exact.nees_mean.to_vec())?;
+    d.set_item("calibration_verdict", check.verdict.to_string())?;
     Ok(d)
 }
 

@@ -323,7 +323,8 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
                               "--status", tmp_path / "status.csv", "--frame", "kitti-camera",
                               "--json"))
     assert calibrated == expected
-    assert {"cov95_coverage", "nees_mean", "independent_samples"} <= set(calibrated)
+    assert {"cov95_coverage", "nees_mean", "independent_samples", "cov95_coverage_if_exact",
+            "nees_mean_if_exact", "calibration_verdict"} <= set(calibrated)
     # Turned by another yaw, the same covariances describe the errors differently.
     turned = lanealign.eval(np.loadtxt(gt_path).reshape(-1, 3, 4), got.poses, frame="kitti-camera",
                             covariance=got.covariance, anchor_yaw=got.anchor_yaw + math.pi / 2)

@@ -421,7 +421,7 @@ fn write_comparison(
         .map(|p| status_file::position_covariance_in_odom(anchor_yaw, &run[p.1].covariance))
         .collect();
     let calibration = match calibration(&corrected_pairs.gt, &corrected_pairs.est, &covariances) {
-        Ok(c) => serde_json::to_value(c)?,
+        Ok(c) => serde_json::to_value(c.check())?,
         Err(e) => serde_json::json!({ "error": e.to_string() }),
     };
     let metrics = serde_json::json!({

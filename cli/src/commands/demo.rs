@@ -173,7 +173,7 @@ pub fn run() -> anyhow::Result<()> {
             )
         })
         .collect();
-    let confidence = calibration(&truth, &planar(&corrected), &covariances)?;
+    let confidence = calibration(&truth, &planar(&corrected), &covariances)?.check();
     let accepted = result
         .answers
         .iter()
@@ -200,10 +200,14 @@ pub fn run() -> anyhow::Result<()> {
     let mut rt = result.round_trip_ns.clone();
     rt.sort_unstable();
     println!("  APE-2D mean: raw {:.3} m -> corrected {:.3} m (max {:.2} -> {:.2} m); {accepted} corrections accepted", raw.mean_m, fixed.mean_m, raw.max_m, fixed.max_m);
+    let exact = confidence.if_exact.cov95_coverage;
     println!(
-        "  confidence: {:.1} % of the corrected poses lie within the 95 % ellipse of their covariance (95 % when calibrated; {:.0} independent errors)",
-        100.0 * confidence.cov95_coverage,
-        confidence.independent_samples
+        "  confidence: {:.1} % of the corrected poses lie within the 95 % ellipse of their covariance (an exact covariance gives {:.0}-{:.0} % over these {:.0} independent errors): {}",
+        100.0 * confidence.calibration.cov95_coverage,
+        100.0 * exact[0],
+        100.0 * exact[1],
+        confidence.calibration.independent_samples,
+        confidence.verdict
     );
     println!(
         "  every pose came back: {} of {}; identical to offline `lanealign correct`: {}",

@@ -27,7 +27,10 @@ pub struct EvalArgs {
     format: Format,
     /// The status CSV written with the estimate (`correct --status`, `replay --status`): also
     /// report how well its covariances describe the errors (`cov95_coverage`, `nees_mean`,
-    /// `independent_samples`).
+    /// `independent_samples`), what a covariance describing them exactly would show over as
+    /// many independent errors (`cov95_coverage_if_exact`, `nees_mean_if_exact`: 5th and
+    /// 95th percentiles) and the verdict (`calibration_verdict`: consistent, too confident or
+    /// too cautious).
     #[arg(long)]
     status: Option<PathBuf>,
     /// Print one JSON object instead of a table.
@@ -63,7 +66,11 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
                 );
             }
             let cov: Vec<[[f64; 2]; 2]> = pairs.iter().map(|p| all[p.1]).collect();
-            Some(calibration(g, e, &cov).with_context(|| path.display().to_string())?)
+            Some(
+                calibration(g, e, &cov)
+                    .with_context(|| path.display().to_string())?
+                    .check(),
+            )
         }
     };
     if let Some(path) = &args.plot {
@@ -76,10 +83,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     }
     if args.json {
         let mut json = serde_json::to_value(m)?;
-        if let Some(c) = calibration {
-            json["cov95_coverage"] = c.cov95_coverage.into();
-            json["nees_mean"] = c.nees_mean.into();
-            json["independent_samples"] = c.independent_samples.into();
+        if let (Some(object), Some(serde_json::Value::Object(check))) = (
+            json.as_object_mut(),
+            calibration.map(serde_json::to_value).transpose()?,
+        ) {
+            // `poses` is in both, with the same count.
+            object.extend(check);
         }
         println!("{json}");
     } else {
@@ -89,10 +98,18 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         println!("heading mean     {:.6} deg", m.heading_mean_deg);
         println!("max              {:.6} m", m.max_m);
         println!("poses            {}", m.poses);
-        if let Some(c) = calibration {
-            println!("cov95 coverage   {:.6}", c.cov95_coverage);
-            println!("NEES mean        {:.6}", c.nees_mean);
+        if let Some(check) = calibration {
+            let (c, exact) = (check.calibration, check.if_exact);
+            println!(
+                "cov95 coverage   {:.6}  (an exact covariance: {:.3}-{:.3})",
+                c.cov95_coverage, exact.cov95_coverage[0], exact.cov95_coverage[1]
+            );
+            println!(
+                "NEES mean        {:.6}  (an exact covariance: {:.2}-{:.2})",
+                c.nees_mean, exact.nees_mean[0], exact.nees_mean[1]
+            );
             println!("independent      {:.1} samples", c.independent_samples);
+            println!("calibration      {}", check.verdict);
         }
     }
     Ok(())
