@@ -223,44 +223,53 @@ pub fn integrated_autocorrelation_time(series: &[[f64; 2]]) -> f64 {
 
 /// Drives simulated for [`Calibration::if_exact`].
 const EXACT_TRIALS: usize = 10_000;
+/// Up to this many independent errors the range is simulated; beyond, the coverage and the mean
+/// NEES are normal to three digits (binomial and chi-square of thousands of degrees of freedom)
+/// and the range is computed, so that a long drive of white errors costs no billions of draws.
+const SIMULATED_UP_TO: f64 = 500.0;
+/// The standard normal's 97.5th percentile.
+const Z_975: f64 = 1.959_963_984_540_054;
 /// The seed of every simulation of exact errors: the same ranges on every run and machine.
 const EXACT_SEED: u64 = 14;
 
 /// The coverage and mean NEES (`[coverage, nees_mean]`) of `trials` simulated drives whose
 /// errors a covariance describes exactly and that amount to `independent_samples` independent
-/// errors: each drive is that many whitened errors `S^-1/2 e` (two-dimensional, standard
-/// normal), each persisting over an equal share of the poses (the last over the fraction left),
-/// as a stretch of mapped road's offset persists. Of the shapes a correlation could have, errors
-/// that persist whole and then change at once spread the figures the most (an AR(1) process of
-/// the same integrated time decorrelates its NEES in about half the time, and would show a
-/// range some 30 % narrower): a range that errs wide, so that a verdict outside it is not the
-/// shape's doing. Fixed seed: the same drives on every call.
-pub fn simulate_exact(independent_samples: f64, trials: usize) -> Vec<[f64; 2]> {
+/// errors: each drive is that many errors, each persisting over an equal share of the poses (the
+/// last over the fraction left), as a stretch of mapped road's offset persists. The NEES of an
+/// exact planar error is chi-square of two degrees of freedom, an exponential of mean 2, drawn
+/// as `-2 ln U`. Of the shapes a correlation could have, errors that persist whole and then
+/// change at once spread the figures the most (an AR(1) process of the same integrated time
+/// decorrelates its NEES in about half the time, and would show a range some 30 % narrower): a
+/// range that errs wide, so that a verdict outside it is not the shape's doing. Fixed seed: the
+/// same drives on every call. Counts are summed whole and divided once, so that a drive with
+/// every error inside has a coverage of exactly 1.
+fn simulate_exact(independent_samples: f64, trials: usize) -> Vec<[f64; 2]> {
     let n = independent_samples.max(1.0);
     let whole = n.floor();
-    let weights: Vec<f64> = std::iter::repeat_n(1.0 / n, whole as usize)
-        .chain((n > whole).then_some((n - whole) / n))
-        .collect();
+    let part = n - whole;
     let mut rng = Lcg(EXACT_SEED);
+    let mut nees = || -2.0 * (1.0 - rng.uniform()).ln();
     (0..trials)
         .map(|_| {
-            let (mut coverage, mut nees_mean) = (0.0, 0.0);
-            for w in &weights {
-                let (x, y) = (rng.normal(), rng.normal());
-                let nees = x * x + y * y;
-                nees_mean += w * nees;
-                if nees <= CHI2_2DOF_95 {
-                    coverage += w;
-                }
+            let (mut inside, mut nees_sum) = (0.0, 0.0);
+            for _ in 0..whole as usize {
+                let e = nees();
+                nees_sum += e;
+                inside += f64::from(u8::from(e <= CHI2_2DOF_95));
             }
-            [coverage, nees_mean]
+            if part > 0.0 {
+                let e = nees();
+                nees_sum += part * e;
+                inside += part * f64::from(u8::from(e <= CHI2_2DOF_95));
+            }
+            [inside / n, nees_sum / n]
         })
         .collect()
 }
 
-/// What a covariance that describes the errors exactly would show over a drive: the middle 90 %
-/// (5th to 95th percentile) of the coverage and of the mean NEES over simulated drives of as
-/// many independent errors ([`simulate_exact`]). A drive whose errors amount to a few
+/// What a covariance that describes the errors exactly would show over a drive: the middle 95 %
+/// (2.5th to 97.5th percentile) of the coverage and of the mean NEES over simulated drives of as
+/// many independent errors ([`Calibration::if_exact`]). A drive whose errors amount to a few
 /// independent ones has a wide range: a coverage of 1.000 over two independent errors says
 /// little, a mean NEES of 0.3 over ten says the covariance is too cautious.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -316,15 +325,26 @@ pub struct CalibrationCheck {
 
 impl Calibration {
     /// What a covariance that describes these errors exactly would show over as many
-    /// independent errors ([`ExactRange`]; 10 000 simulated drives, about a millisecond for 20
-    /// independent errors).
+    /// independent errors ([`ExactRange`]; 10 000 simulated drives, a few milliseconds for 20
+    /// independent errors and some 50 ms for 500; beyond 500 computed from the normal
+    /// approximation).
     pub fn if_exact(&self) -> ExactRange {
-        let mut outcomes = simulate_exact(self.independent_samples, EXACT_TRIALS);
+        let n = self.independent_samples;
+        if n > SIMULATED_UP_TO {
+            let coverage_sd = (0.95 * 0.05 / n).sqrt();
+            let nees_sd = 2.0 / n.sqrt();
+            return ExactRange {
+                cov95_coverage: [0.95 - Z_975 * coverage_sd, 0.95 + Z_975 * coverage_sd],
+                nees_mean: [2.0 - Z_975 * nees_sd, 2.0 + Z_975 * nees_sd],
+            };
+        }
+        let mut outcomes = simulate_exact(n, EXACT_TRIALS);
         let range = |outcomes: &mut Vec<[f64; 2]>, k: usize| {
             outcomes.sort_by(|a, b| a[k].total_cmp(&b[k]));
-            // Nearest rank: the 500th and the 9500th of 10 000.
+            // Nearest rank, the 250th and the 9750th of 10 000: at most 2.5 % of the drives lie
+            // below the first, and at most 2.5 % above the second.
             let at = |p: f64| outcomes[((p * outcomes.len() as f64).ceil() as usize).max(1) - 1][k];
-            [at(0.05), at(0.95)]
+            [at(0.025), at(0.975)]
         };
         ExactRange {
             cov95_coverage: range(&mut outcomes, 0),
@@ -544,8 +564,8 @@ mod tests {
     }
 
     /// The range an exact covariance shows is about 0.95 and 2 and narrows with more
-    /// independent errors: over 2000 of them the coverage's binomial spread (90 %: +-0.008)
-    /// and the mean NEES's (+-0.074), over three most of the unit interval's top.
+    /// independent errors: over 500 of them the coverage's binomial spread (95 %: +-0.019)
+    /// and the mean NEES's (+-0.18), over three most of the unit interval's top.
     #[test]
     fn the_exact_range_narrows_with_independent_errors() {
         let of = |independent_samples: f64| {
@@ -557,16 +577,34 @@ mod tests {
             }
             .if_exact()
         };
-        let many = of(2000.0);
+        let many = of(500.0);
         let [lo, hi] = many.cov95_coverage;
         assert!(
-            (0.938..0.946).contains(&lo) && (0.954..0.962).contains(&hi),
+            (0.927..0.935).contains(&lo) && (0.965..0.973).contains(&hi),
             "{many:?}"
         );
         let [lo, hi] = many.nees_mean;
         assert!(
-            (1.9..1.95).contains(&lo) && (2.05..2.1).contains(&hi),
+            (1.80..1.85).contains(&lo) && (2.16..2.20).contains(&hi),
             "{many:?}"
+        );
+        // Beyond the simulated, the normal approximation, which meets the simulation there.
+        let beyond = of(500.5);
+        for k in 0..2 {
+            let ([a, b], [c, d]) = if k == 0 {
+                (many.cov95_coverage, beyond.cov95_coverage)
+            } else {
+                (many.nees_mean, beyond.nees_mean)
+            };
+            assert!(
+                (a - c).abs() < 0.004 && (b - d).abs() < 0.01,
+                "{many:?} {beyond:?}"
+            );
+        }
+        let white_million = of(1e6);
+        assert!(
+            (white_million.nees_mean[1] - 2.0039).abs() < 1e-4,
+            "{white_million:?}"
         );
         let few = of(3.0);
         assert!(

@@ -1,6 +1,6 @@
 //! A small deterministic generator (64-bit LCG): the same numbers on every machine and in every
 //! version, for data made from a fixed seed: the unit tests' data, the synthetic town's odometry
-//! and the simulated drives of [`crate::metrics::simulate_exact`]. Written here because a
+//! and the simulated drives of [`crate::metrics::Calibration::if_exact`]. Written here because a
 //! generator crate promises neither (`rand`'s `StdRng` may change between versions) and these
 //! dozen lines are all that is needed; not for cryptography.
 

@@ -123,8 +123,8 @@ def eval(  # noqa: A001
     covariances describe the errors, as ``lanealign eval --status``: ``cov95_coverage`` (the
     fraction of poses whose error lies inside the 95 % ellipse), ``nees_mean``,
     ``independent_samples``, what a covariance describing the errors exactly would show over as
-    many independent errors (``cov95_coverage_if_exact`` and ``nees_mean_if_exact``: 5th and
-    95th percentiles) and ``calibration_verdict`` ("consistent", "too confident" or "too
+    many independent errors (``cov95_coverage_if_exact`` and ``nees_mean_if_exact``: 2.5th and
+    97.5th percentiles) and ``calibration_verdict`` ("consistent", "too confident" or "too
     cautious"). A covariance that is not positive definite (a pose with status
     ``invalid_input``) is a ``ValueError``.
     """

@@ -28,8 +28,8 @@ pub struct EvalArgs {
     /// The status CSV written with the estimate (`correct --status`, `replay --status`): also
     /// report how well its covariances describe the errors (`cov95_coverage`, `nees_mean`,
     /// `independent_samples`), what a covariance describing them exactly would show over as
-    /// many independent errors (`cov95_coverage_if_exact`, `nees_mean_if_exact`: 5th and
-    /// 95th percentiles) and the verdict (`calibration_verdict`: consistent, too confident or
+    /// many independent errors (`cov95_coverage_if_exact`, `nees_mean_if_exact`: 2.5th and
+    /// 97.5th percentiles) and the verdict (`calibration_verdict`: consistent, too confident or
     /// too cautious).
     #[arg(long)]
     status: Option<PathBuf>,
