@@ -8,7 +8,7 @@ use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, MapPlane, Projection};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::{
-    ape_2d, calibration, output_jumps, scaled_steps, Ape2d, Calibration, OutputJumps,
+    ape_2d, calibration, output_jumps, scaled_steps, Ape2d, Calibration, OutputJumps, Verdict,
 };
 use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
@@ -218,6 +218,18 @@ fn robust_beats_the_paper_and_smooth_output_glides() {
                 s.name,
                 r.calibration
             );
+            // Where it misses, it errs on the safe side: no sequence's errors are beyond what an
+            // exact covariance shows over as many independent errors, but on `stereo_vo` 01, the
+            // highway's scale drift (docs/method.md, "The verdict").
+            let check = r.calibration.check();
+            if (odometry, s.name) != ("stereo_vo", "01") {
+                assert_ne!(
+                    check.verdict,
+                    Verdict::TooConfident,
+                    "{odometry} {}: {check:?}",
+                    s.name
+                );
+            }
         }
     }
 }
