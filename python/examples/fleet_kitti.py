@@ -53,7 +53,8 @@ def main():
             raw, corrected = summary["raw"], summary["corrected"]
             print(f"{summary['output']}: {summary['poses']} poses, {summary['accepted']} accepted, "
                   f"APE-2D {raw['ape2d_mean_m']:.3f} -> {corrected['ape2d_mean_m']:.3f} m, "
-                  f"cov95 coverage {corrected['cov95_coverage']:.3f}")
+                  f"cov95 coverage {corrected['cov95_coverage']:.3f} "
+                  f"({corrected['calibration_verdict']})")
         for summary in fleet.compile_regions(client, regions):
             print(f"{summary['output']}: {summary['lanes']} lanes, {summary['lane_km']:.1f} lane-km")
     if cluster is not None:
