@@ -2,9 +2,26 @@
 //! KITTI files) and rotated into the planar frame, as `lanealign eval` and `correct --gt` compare
 //! them.
 
-use lanealign_core::metrics::{associate_by_time, MetricsError};
+use lanealign_core::metrics::{associate_by_time, Ape2d, CalibrationCheck, MetricsError};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::Trajectory;
+
+/// The figures `lanealign eval --json` prints and Python's `lanealign.eval` returns, as one flat
+/// object: the keys of [`Ape2d`], and with published covariances those of [`CalibrationCheck`]
+/// (`poses` is in both, with the same count).
+pub fn figures_json(
+    ape: &Ape2d,
+    calibration: Option<&CalibrationCheck>,
+) -> serde_json::Result<serde_json::Value> {
+    let mut json = serde_json::to_value(ape)?;
+    if let (Some(object), Some(serde_json::Value::Object(check))) = (
+        json.as_object_mut(),
+        calibration.map(serde_json::to_value).transpose()?,
+    ) {
+        object.extend(check);
+    }
+    Ok(json)
+}
 
 /// Paired planar poses: `gt[k]` and `est[k]` are the `k`-th pair.
 pub struct Paired {

@@ -82,15 +82,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         )?;
     }
     if args.json {
-        let mut json = serde_json::to_value(m)?;
-        if let (Some(object), Some(serde_json::Value::Object(check))) = (
-            json.as_object_mut(),
-            calibration.map(serde_json::to_value).transpose()?,
-        ) {
-            // `poses` is in both, with the same count.
-            object.extend(check);
-        }
-        println!("{json}");
+        println!("{}", evaluation::figures_json(&m, calibration.as_ref())?);
     } else {
         println!("APE-2D mean      {:.6} m", m.mean_m);
         println!("RMSE             {:.6} m", m.rmse_m);
