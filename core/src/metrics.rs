@@ -289,16 +289,16 @@ fn simulate_exact(independent_samples: f64, trials: usize) -> Vec<[f64; 2]> {
     let mut nees = || -2.0 * (1.0 - rng.uniform()).ln();
     (0..trials)
         .map(|_| {
+            // Each error's share in whole errors: 1, and the fraction left for the last.
+            let shares =
+                std::iter::repeat_n(1.0, whole as usize).chain((part > 0.0).then_some(part));
             let (mut inside, mut nees_sum) = (0.0, 0.0);
-            for _ in 0..whole as usize {
+            for share in shares {
                 let e = nees();
-                nees_sum += e;
-                inside += f64::from(u8::from(e <= CHI2_2DOF_95));
-            }
-            if part > 0.0 {
-                let e = nees();
-                nees_sum += part * e;
-                inside += part * f64::from(u8::from(e <= CHI2_2DOF_95));
+                nees_sum += share * e;
+                if e <= CHI2_2DOF_95 {
+                    inside += share;
+                }
             }
             [inside / n, nees_sum / n]
         })
@@ -321,28 +321,39 @@ pub struct ExactRange {
 }
 
 /// Whether published covariances describe the errors, judged against [`ExactRange`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+/// Serialised as its [`Verdict::name`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Verdict {
     /// Coverage and mean NEES within what an exact covariance shows.
-    #[serde(rename = "consistent")]
     Consistent,
     /// The errors are larger than the covariance says: the mean NEES above its range or the
     /// coverage below its range. The direction a fusion filter must not be given.
-    #[serde(rename = "too confident")]
     TooConfident,
     /// The errors are smaller than the covariance says: the mean NEES below its range or the
     /// coverage above it, and neither says too confident.
-    #[serde(rename = "too cautious")]
     TooCautious,
+}
+
+impl Verdict {
+    /// The verdict as `eval` prints it and its JSON holds it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Verdict::Consistent => "consistent",
+            Verdict::TooConfident => "too confident",
+            Verdict::TooCautious => "too cautious",
+        }
+    }
 }
 
 impl std::fmt::Display for Verdict {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Verdict::Consistent => "consistent",
-            Verdict::TooConfident => "too confident",
-            Verdict::TooCautious => "too cautious",
-        })
+        f.write_str(self.name())
+    }
+}
+
+impl serde::Serialize for Verdict {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
     }
 }
 
