@@ -238,6 +238,55 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: an odometry that loses track at speed (the town's drive at 10 m/s, then the
+/// same poses each given ten times: a standstill no car reaches in a step) is answered as offline,
+/// and the daemon's log says once where its speed changed faster than a car's can. The drive
+/// without the stall says nothing of it.
+#[test]
+fn an_odometry_that_stalls_is_told_in_the_log() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("stall");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let stalled: Vec<Pose3> = odometry[..300]
+        .iter()
+        .chain((0..200).map(|i| &odometry[300 + i / 10]))
+        .copied()
+        .collect();
+    for (poses, told) in [(&odometry[..500], 0), (&stalled[..], 1)] {
+        let mut conn = connect(&setup, &name);
+        let r = replay(
+            &mut conn,
+            &name,
+            poses,
+            &[],
+            Rate::Max(16),
+            Duration::from_secs(10),
+            Duration::from_secs(10),
+        )
+        .unwrap();
+        assert!(poses_of(&r.answers) == offline(&setup, &name, poses));
+        let log = daemon.log();
+        let lines: Vec<&str> = log
+            .lines()
+            .filter(|l| l.contains("speed changed faster than a car's can"))
+            .collect();
+        assert_eq!(lines.len(), told, "{log}");
+    }
+    // Pose 300 goes out as sequence number 301.
+    let log = daemon.log();
+    let seq: u64 = log
+        .lines()
+        .find(|l| l.contains("speed changed faster than a car's can"))
+        .and_then(|l| l.split("seq=").nth(1))
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|digits| digits.parse().ok())
+        .unwrap_or_else(|| panic!("{log}"));
+    assert!((298..=304).contains(&seq), "{seq}: {log}");
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 /// Always runs: while answers flow, a client does not look for its daemon (listing the
 /// namespace's nodes is file-system work that held up the answers arriving meanwhile: the
 /// round trip's p99 at 8 sources x 1000 Hz was 1.9-2.1 ms with a look every 100 ms, 1.1-1.2 ms

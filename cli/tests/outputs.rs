@@ -180,6 +180,50 @@ fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
     assert!(!err.contains("jumped"), "{err}");
 }
 
+/// Along a lane at 20 m/s (10 Hz), the odometry falls to 1 m/s within a step at pose 200, as a
+/// visual odometry that loses track does: `correct` says where, and that no car slows so fast.
+/// The same drive braking at 8 m/s^2, as a car can, is not told.
+#[test]
+fn an_odometry_that_stalls_is_told_where() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path(), 400);
+    let run = |name: &str, speed: &dyn Fn(usize) -> f64| {
+        let poses = dir.path().join(name);
+        let mut x = 0.0;
+        let lines: String = (0..400)
+            .map(|i| {
+                let line = format!("1 0 0 {x} 0 1 0 0.5 0 0 1 0\n");
+                x += speed(i) / 10.0;
+                line
+            })
+            .collect();
+        std::fs::write(&poses, lines).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args(["correct", "--preset", "kiss-icp", "--lanes"])
+            .arg(&lanes)
+            .arg(&poses)
+            .arg("-o")
+            .arg(dir.path().join("out.txt"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err
+    };
+    let err = run("stalled.txt", &|i| if i < 200 { 20.0 } else { 1.0 });
+    assert!(
+        err.contains(
+            "WARN the odometry's speed changes faster than a car's can (more than 10 m/s^2 over \
+             0.5 s) at 1 place: pose 200 (20.0 -> 1.0 m/s)"
+        ),
+        "{err}"
+    );
+    let err = run("braking.txt", &|i| {
+        (20.0 - 0.8 * i.saturating_sub(200) as f64).max(0.0)
+    });
+    assert!(!err.contains("faster than a car"), "{err}");
+}
+
 /// A TUM source at 2 Hz is told to set its rate; set, it is corrected without the warning, and
 /// its first alignment comes after a fifth of the presets' 150 poses.
 #[test]

@@ -14,7 +14,10 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::plausibility::{rate_warning, RateProbe};
+use lanealign_core::plausibility::{
+    rate_warning, RateProbe, SpeedWatch, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
+};
+use lanealign_core::pose::Pose3;
 use lanealign_core::report::error_line;
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{
@@ -171,6 +174,9 @@ struct Live {
     /// The session's first stamps, to warn once when the source is faster than its corrector
     /// is set for.
     rate_probe: RateProbe,
+    /// The session's speed, to warn when it changes faster than a car's can (an odometry that
+    /// lost track).
+    speed_watch: SpeedWatch,
 }
 
 struct Worker {
@@ -199,6 +205,7 @@ impl Worker {
             _services: services,
             last_active: Instant::now(),
             rate_probe: RateProbe::default(),
+            speed_watch: SpeedWatch::new(self.setup.sessions.params.odometry_rate_hz),
         })
     }
 
@@ -379,6 +386,20 @@ impl Worker {
                 false
             }
         };
+        if matches!(outcome, Outcome::Corrected(_)) {
+            let pose = Pose3::from_row_major(&input.pose);
+            let position = setup
+                .placement
+                .convention
+                .to_planar(&pose)
+                .planar_position();
+            if let Some(change) = live.speed_watch.observe(position) {
+                let seq = input
+                    .seq
+                    .saturating_sub(live.speed_watch.poses_since(&change) as u64);
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq, from_mps = change.from_mps, to_mps = change.to_mps, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
+            }
+        }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
             tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump)");
         }

@@ -11,6 +11,7 @@ use lanealign_core::metrics::{
     ape_2d, calibration, output_jumps, scaled_steps, Ape2d, Calibration, OutputJumps, Verdict,
 };
 use lanealign_core::params::{Method, Params, Preset};
+use lanealign_core::plausibility;
 use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::smoothing::Smoothing;
@@ -723,4 +724,60 @@ fn poses_missing_from_a_file_without_stamps_are_motion() {
          {missing:.3} m ({none:.3} m with every pose)"
     );
     assert!((missing - none).abs() < 0.1, "{missing} m against {none} m");
+}
+
+/// The visual odometry of sequence 01 loses track on the highway: its speed falls from 20 to
+/// about 1 m/s in under a second near pose 806 while the car drives on at 22 m/s, and it misses
+/// some 80 m of road, which the straight highway's lanes cannot show. `correct` warns of it
+/// ([`plausibility::speed_change_warning`]); no other shared run (ground truth, LiDAR or visual
+/// odometry) changes speed faster than a car can, nor LiDAR 00 with poses missing from the file
+/// or resampled to 100 Hz.
+#[test]
+fn a_visual_odometry_that_stalls_is_noticed_and_no_other_run_is() {
+    let Some(data) = shared_data() else { return };
+    let cam = AxisConvention::KittiCamera;
+    let positions = |poses: &[Pose3]| -> Vec<[f64; 2]> {
+        poses
+            .iter()
+            .map(|p| cam.to_planar(p).planar_position())
+            .collect()
+    };
+    for run in ["kitti/poses", "odometry/lidar", "odometry/stereo_vo"] {
+        for seq in SEQUENCES {
+            let poses = read(&data.join(format!("{run}/{seq}.txt")), Format::Kitti)
+                .unwrap()
+                .poses;
+            let changes = plausibility::speed_changes(&positions(&poses), 10.0);
+            if (run, seq) != ("odometry/stereo_vo", "01") {
+                assert!(changes.is_empty(), "{run} {seq}: {changes:?}");
+                assert!(plausibility::speed_change_warning(&poses, cam, 10.0).is_none());
+                continue;
+            }
+            let stall = changes
+                .iter()
+                .find(|c| (800..815).contains(&c.pose))
+                .unwrap_or_else(|| panic!("{changes:?}"));
+            assert!(stall.from_mps > 15.0 && stall.to_mps < 5.0, "{stall:?}");
+            // Where it recovers, it speeds up faster than a car can, too.
+            assert!(
+                changes.iter().any(|c| c.acceleration_mps2() > 10.0),
+                "{changes:?}"
+            );
+            let warning = plausibility::speed_change_warning(&poses, cam, 10.0).unwrap();
+            assert!(
+                warning.contains(&format!("pose {}", stall.pose)),
+                "{warning}"
+            );
+        }
+    }
+    let lidar = read(&data.join("odometry/lidar/00.txt"), Format::Kitti)
+        .unwrap()
+        .poses;
+    let gappy: Vec<Pose3> = (0..lidar.len())
+        .filter(|&i| i == 0 || i % 500 >= 10)
+        .map(|i| lidar[i])
+        .collect();
+    assert_eq!(plausibility::speed_changes(&positions(&gappy), 10.0), []);
+    let fast = positions(&ten_times_the_rate(&lidar));
+    assert_eq!(plausibility::speed_changes(&fast, 100.0), []);
 }

@@ -354,6 +354,11 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     if let Some(line) = status_file::scale_summary(estimates) {
         eprintln!("{line}");
     }
+    // The rate the stamps say the poses come at, where they say one.
+    let stamped_rate = input
+        .stamps
+        .as_deref()
+        .and_then(plausibility::rate_from_stamps);
     let warnings = [
         plausibility::axis_convention_warning(&input.poses, args.frame),
         plausibility::anchor_warning(
@@ -363,11 +368,12 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         ),
         plausibility::no_correction_warning(run.len(), c.accepted),
         plausibility::odometry_jump_warning(&run, &params),
-        input
-            .stamps
-            .as_deref()
-            .and_then(plausibility::rate_from_stamps)
-            .and_then(|rate| plausibility::rate_warning(rate, &params)),
+        stamped_rate.and_then(|rate| plausibility::rate_warning(rate, &params)),
+        plausibility::speed_change_warning(
+            &input.poses,
+            args.frame,
+            stamped_rate.unwrap_or(params.odometry_rate_hz),
+        ),
     ];
     for warning in warnings.into_iter().flatten() {
         eprintln!("WARN {warning}");
