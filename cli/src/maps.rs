@@ -11,9 +11,12 @@ use lanealign_core::lane_csv;
 use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Params};
-use lanealign_core::pose::Pose3;
+use lanealign_core::plausibility;
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
-use lanealign_core::source_corrector::{correct_stamped_trajectory, CorrectedPose, Placement};
+use lanealign_core::source_corrector::{
+    correct_stamped_trajectory, counts, CorrectedPose, Placement,
+};
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -72,6 +75,45 @@ impl LoadedMap {
                 None,
             ),
         })
+    }
+}
+
+impl LoadedMap {
+    /// What a corrected run says of a setup gone wrong or an odometry that failed
+    /// ([`plausibility`]), each a line that says what to try: `poses` (in `convention`, stamped
+    /// `stamps_s` in seconds when the format has stamps) and `run`, their corrections under
+    /// `params`. `lanealign correct` prints them, Python's `correct` warns them.
+    pub fn warnings(
+        &self,
+        poses: &[Pose3],
+        stamps_s: Option<&[f64]>,
+        convention: AxisConvention,
+        run: &[CorrectedPose],
+        params: &Params,
+    ) -> Vec<String> {
+        // The rate the stamps say the poses come at, where they say one.
+        let stamped_rate = stamps_s.and_then(plausibility::rate_from_stamps);
+        [
+            plausibility::axis_convention_warning(poses, convention),
+            poses.first().and_then(|first| {
+                plausibility::anchor_warning(
+                    &self.map,
+                    &self.anchored_from_odom,
+                    &convention.to_planar(first),
+                )
+            }),
+            plausibility::no_correction_warning(run.len(), counts(run).accepted),
+            plausibility::odometry_jump_warning(run, params),
+            stamped_rate.and_then(|rate| plausibility::rate_warning(rate, params)),
+            plausibility::speed_change_warning(
+                poses,
+                convention,
+                stamped_rate.unwrap_or(params.odometry_rate_hz),
+            ),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
     }
 }
 

@@ -87,6 +87,9 @@ def correct(
     as the step before did (poses missing). An odometry whose scale may be off by more than
     about 1 % (wheel odometry) has it estimated with ``overrides={"scale_sigma": 0.05}``; the
     orb-slam3 preset does so by default; ``odometry_scale`` says what came of it.
+
+    What ``lanealign correct`` prints as ``WARN`` lines (a run set up wrongly, an odometry that
+    jumped or lost track) comes as a ``UserWarning`` each, with the same text.
     """
     array = np.ascontiguousarray(poses, dtype=np.float64)
     return Corrected(*_lanealign.correct(

@@ -1,6 +1,7 @@
 //! The `lanealign._lanealign` extension: `correct` and `eval` on numpy arrays, the same code and
 //! defaults as `lanealign correct` and `lanealign eval`, so that results are equal bit for bit.
 
+use std::ffi::CString;
 use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -28,7 +29,7 @@ use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
 use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn};
 use pyo3::create_exception;
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyRuntimeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyString};
 
@@ -260,7 +261,7 @@ fn correct<'py>(
             ))
         }
     };
-    let (run, anchor_yaw) = py
+    let (run, anchor_yaw, warnings) = py
         .detach(|| -> anyhow::Result<_> {
             let loaded = source.load_for(&config)?;
             let placement = Placement {
@@ -277,9 +278,16 @@ fn correct<'py>(
                     stamps.as_deref(),
                 )?
                 .0;
-            Ok((run, loaded.anchored_from_odom.yaw()))
+            let warnings = loaded.warnings(&input, stamps.as_deref(), frame, &run, &params);
+            Ok((run, loaded.anchored_from_odom.yaw(), warnings))
         })
         .map_err(error)?;
+    // What `lanealign correct` prints as WARN lines, as Python warnings, at the line that
+    // called `lanealign.correct` (level 1 is the package's wrapper around this function).
+    for warning in warnings {
+        let message = CString::new(warning).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        PyErr::warn(py, &py.get_type::<PyUserWarning>(), &message, 2)?;
+    }
     let corrected: Vec<Pose3> = run.iter().map(|c| c.pose).collect();
     let codes: Array1<u8> = run
         .iter()

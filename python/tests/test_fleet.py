@@ -82,8 +82,8 @@ def test_the_fleet_example_runs(tmp_path):
     # Every drive is evaluated against its ground truth: 00's LiDAR run 4.009 -> 1.026 m.
     assert len(re.findall(r"APE-2D [\d.]+ -> [\d.]+ m, cov95 coverage [\d.]+ \((consistent|too "
                           r"cautious|too confident)\)", out.stdout)) == 20, out.stdout
-    # With a verdict against an exact covariance: stereo_vo 01's is too confident (the highway's
-    # scale drift, docs/method.md, "The verdict").
+    # With a verdict against an exact covariance: stereo_vo 01's is too confident (its visual
+    # odometry loses track on the highway, docs/method.md, "The verdict").
     assert re.search(r"stereo_vo_01\.txt: .*\(too confident\)", out.stdout), out.stdout
     assert re.search(r"lidar_00\.txt: 4541 poses, \d+ accepted, APE-2D 4\.009 -> 1\.026 m",
                      out.stdout), out.stdout

@@ -15,7 +15,6 @@ use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Params, Preset};
-use lanealign_core::plausibility;
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{counts, CorrectedPose, Placement};
@@ -354,28 +353,14 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     if let Some(line) = status_file::scale_summary(estimates) {
         eprintln!("{line}");
     }
-    // The rate the stamps say the poses come at, where they say one.
-    let stamped_rate = input
-        .stamps
-        .as_deref()
-        .and_then(plausibility::rate_from_stamps);
-    let warnings = [
-        plausibility::axis_convention_warning(&input.poses, args.frame),
-        plausibility::anchor_warning(
-            &loaded_map,
-            &anchored_from_odom,
-            &args.frame.to_planar(&input.poses[0]),
-        ),
-        plausibility::no_correction_warning(run.len(), c.accepted),
-        plausibility::odometry_jump_warning(&run, &params),
-        stamped_rate.and_then(|rate| plausibility::rate_warning(rate, &params)),
-        plausibility::speed_change_warning(
-            &input.poses,
-            args.frame,
-            stamped_rate.unwrap_or(params.odometry_rate_hz),
-        ),
-    ];
-    for warning in warnings.into_iter().flatten() {
+    let warnings = loaded.warnings(
+        &input.poses,
+        input.stamps.as_deref(),
+        args.frame,
+        &run,
+        &params,
+    );
+    for warning in warnings {
         eprintln!("WARN {warning}");
     }
     Ok(())
