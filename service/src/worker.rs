@@ -397,7 +397,7 @@ impl Worker {
                 let seq = input
                     .seq
                     .saturating_sub(live.speed_watch.poses_since(&change) as u64);
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq, from_mps = change.from_mps, to_mps = change.to_mps, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq, from_mps = change.from_mps, to_mps = change.to_mps, odometry_rate_hz = setup.params.odometry_rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at odometry_rate_hz): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
