@@ -207,7 +207,8 @@ impl SpeedWatch {
         let steps = SPEED_SPAN_S * rate_hz;
         let every = ((steps / MAX_SPAN_STEPS as f64).ceil() as usize).max(1);
         let rate_hz = rate_hz / every as f64;
-        let span = ((SPEED_SPAN_S * rate_hz).round() as usize).max(1);
+        // At most MAX_SPAN_STEPS already, but for rates beyond what `every` can count.
+        let span = ((SPEED_SPAN_S * rate_hz).round() as usize).clamp(1, MAX_SPAN_STEPS);
         SpeedWatch {
             rate_hz,
             every,
@@ -238,7 +239,7 @@ impl SpeedWatch {
             return None;
         }
         let change = SpeedChange {
-            pose: index - self.span * self.every,
+            pose: index.saturating_sub(self.span.saturating_mul(self.every)),
             from_mps: self.median(0),
             to_mps: self.median(self.span),
             over_s: self.span as f64 / self.rate_hz,
@@ -532,6 +533,27 @@ mod tests {
             let cut = watch.finish().unwrap();
             assert_eq!((cut.from_mps, cut.to_mps), (full.from_mps, full.to_mps));
             assert!((cut.pose as f64 - full.pose as f64).abs() <= full.over_s * rate_hz);
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 256, rng_seed: proptest::test_runner::RngSeed::Fixed(31), ..Default::default() })]
+
+        /// Any positions (NaN, infinite, 1e308 m) at any rate: changes name poses of the input,
+        /// with speeds that are numbers, one at most for every two spans.
+        #[test]
+        fn any_positions_give_changes_within_the_input(
+            positions in proptest::collection::vec(
+                (proptest::num::f64::ANY, proptest::num::f64::ANY), 0..300),
+            rate_hz in proptest::prop_oneof![0.1f64..2000.0, proptest::num::f64::ANY],
+        ) {
+            let positions: Vec<[f64; 2]> = positions.into_iter().map(|(x, y)| [x, y]).collect();
+            let changes = speed_changes(&positions, rate_hz);
+            for c in &changes {
+                proptest::prop_assert!(c.pose < positions.len(), "{c:?}");
+                proptest::prop_assert!(!c.from_mps.is_nan() && !c.to_mps.is_nan(), "{c:?}");
+            }
+            proptest::prop_assert!(changes.len() <= positions.len() / 2 + 1);
         }
     }
 

@@ -407,6 +407,9 @@ fn placement() -> Placement {
 /// Corrects poses that passed a reader's checks: every output must be finite.
 fn correct(poses: &[lanealign_core::pose::Pose3]) {
     let _ = plausibility::axis_convention_warning(poses, AxisConvention::Flu);
+    for rate_hz in [2.0, 10.0, 100.0] {
+        let _ = plausibility::speed_change_warning(poses, AxisConvention::Flu, rate_hz);
+    }
     let run = correct_trajectory(
         seed_map(),
         Preset::KissIcp.params(),
