@@ -204,10 +204,19 @@ fn an_odometry_that_stalls_is_told_where() {
             .arg(&poses)
             .arg("-o")
             .arg(dir.path().join("out.txt"))
+            .arg("--results")
+            .arg(dir.path().join("results"))
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&out.stderr).to_string();
         assert!(out.status.success(), "{err}");
+        // The results folder keeps the WARN lines, one a line.
+        let kept = std::fs::read_to_string(dir.path().join("results/latest/warnings.txt")).unwrap();
+        let told: Vec<&str> = err
+            .lines()
+            .filter_map(|l| l.strip_prefix("WARN "))
+            .collect();
+        assert_eq!(kept.lines().collect::<Vec<_>>(), told);
         err
     };
     let err = run("stalled.txt", &|i| if i < 200 { 20.0 } else { 1.0 });
@@ -222,6 +231,8 @@ fn an_odometry_that_stalls_is_told_where() {
         (20.0 - 0.8 * i.saturating_sub(200) as f64).max(0.0)
     });
     assert!(!err.contains("faster than a car"), "{err}");
+    let kept = std::fs::read_to_string(dir.path().join("results/latest/warnings.txt")).unwrap();
+    assert_eq!(kept, "", "no warning, an empty file");
 }
 
 /// A TUM source at 2 Hz is told to set its rate; set, it is corrected without the warning, and

@@ -296,8 +296,20 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         let status = args.status.as_deref().zip(status.as_deref());
         status_file::write_run(path, &output, args.format, status)?;
     }
+    let warnings = loaded.warnings(
+        &input.poses,
+        input.stamps.as_deref(),
+        args.frame,
+        &run,
+        &params,
+    );
     if let Some(parent) = &args.results {
         let dir = results::create(parent)?;
+        // The run's record keeps what its standard error says of it: one line each, none when
+        // the file is empty.
+        let path = dir.join("warnings.txt");
+        let text: String = warnings.iter().map(|w| format!("{w}\n")).collect();
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
         let extension = match args.format {
             Format::Kitti => "txt",
             Format::Tum => "tum",
@@ -353,13 +365,6 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     if let Some(line) = status_file::scale_summary(estimates) {
         eprintln!("{line}");
     }
-    let warnings = loaded.warnings(
-        &input.poses,
-        input.stamps.as_deref(),
-        args.frame,
-        &run,
-        &params,
-    );
     for warning in warnings {
         eprintln!("WARN {warning}");
     }
