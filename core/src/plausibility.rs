@@ -114,20 +114,14 @@ pub fn odometry_jump_warning(run: &[CorrectedPose], params: &Params) -> Option<S
     if jumps.is_empty() {
         return None;
     }
-    let shown: Vec<String> = jumps.iter().take(5).map(usize::to_string).collect();
     Some(format!(
-        "the odometry jumped at {} pose{} ({}{}): farther than max_speed_mps ({} m/s) from the \
+        "the odometry jumped at {} pose{} ({}): farther than max_speed_mps ({} m/s) from the \
          pose before, so each was continued from where the vehicle was (status odometry_jump); \
          if the poses only paused or come slower than odometry_rate_hz ({} Hz), give their \
          stamps (TUM) or the rate",
         jumps.len(),
-        if jumps.len() == 1 { "" } else { "s" },
-        shown.join(", "),
-        if jumps.len() > shown.len() {
-            ", ..."
-        } else {
-            ""
-        },
+        plural(jumps.len()),
+        first_few(jumps.iter().map(usize::to_string), jumps.len()),
         params.max_speed_mps,
         params.odometry_rate_hz,
     ))
@@ -317,27 +311,36 @@ pub fn speed_change_warning(
     if changes.is_empty() {
         return None;
     }
-    let shown: Vec<String> = changes
+    let shown = changes
         .iter()
-        .take(5)
-        .map(|c| format!("pose {} ({:.1} -> {:.1} m/s)", c.pose, c.from_mps, c.to_mps))
-        .collect();
+        .map(|c| format!("pose {} ({:.1} -> {:.1} m/s)", c.pose, c.from_mps, c.to_mps));
     Some(format!(
         "the odometry's speed changes faster than a car's can (more than {MAX_ACCELERATION_MPS2} \
-         m/s^2 over {SPEED_SPAN_S} s) at {} place{}: {}{}; it probably lost track there (a \
+         m/s^2 over {SPEED_SPAN_S} s) at {} place{}: {}; it probably lost track there (a \
          visual odometry stalls where it sees too little), and where the lanes run straight the \
          corrector cannot tell how far the vehicle went meanwhile, so the corrected poses after \
          it may be off along the road by more than their covariance says (this takes the poses \
          to come at {rate_hz} Hz: where they do not, give their stamps or odometry_rate_hz)",
         changes.len(),
-        if changes.len() == 1 { "" } else { "s" },
-        shown.join(", "),
-        if changes.len() > shown.len() {
-            ", ..."
-        } else {
-            ""
-        },
+        plural(changes.len()),
+        first_few(shown, changes.len()),
     ))
+}
+
+/// `"s"` unless `count` is one.
+fn plural(count: usize) -> &'static str {
+    if count == 1 {
+        ""
+    } else {
+        "s"
+    }
+}
+
+/// The first five of `count` items, comma-separated, with `, ...` when there are more.
+fn first_few(items: impl Iterator<Item = String>, count: usize) -> String {
+    let shown: Vec<String> = items.take(5).collect();
+    let more = if count > shown.len() { ", ..." } else { "" };
+    format!("{}{more}", shown.join(", "))
 }
 
 /// How much faster (or slower) than the corrector's [`Params::odometry_rate_hz`] a source's
