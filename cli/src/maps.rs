@@ -76,9 +76,7 @@ impl LoadedMap {
             ),
         })
     }
-}
 
-impl LoadedMap {
     /// What a corrected run says of a setup gone wrong or an odometry that failed
     /// ([`plausibility`]), each a line that says what to try: `poses` (in `convention`, stamped
     /// `stamps_s` in seconds when the format has stamps) and `run`, their corrections under
