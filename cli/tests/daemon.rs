@@ -169,7 +169,7 @@ fn a_source_faster_than_its_corrector_is_set_for_is_told_in_the_log() {
         poses_of(&r.answers) == offline(&setup, &name, poses),
         "bit for bit"
     );
-    // The warning is written before the 64th answer is sent.
+    // The warning is written after the 64th answer is sent, before the 65th pose is taken.
     let log = daemon.log();
     let told = log.matches("the poses come at about 100 Hz").count();
     assert_eq!(told, 1, "{log}");
@@ -285,6 +285,99 @@ fn an_odometry_that_stalls_is_told_in_the_log() {
         .unwrap_or_else(|| panic!("{log}"));
     assert!((298..=304).contains(&seq), "{seq}: {log}");
     assert!(daemon.stop().unwrap(), "clean exit");
+}
+
+/// Always runs: a source at 2 Hz whose corrector is set for the town's 10 Hz has its speed
+/// judged at the rate its stamps say, as `correct` judges a file. Its braking and speeding up at
+/// 4 m/s^2 (read at 10 Hz, 25 times steeper) tells nothing; the same drive stalling at 12 m/s
+/// at pose 3, before the stamps have told the rate (it stands for 3 s, then goes on at 4 m/s),
+/// is told there once. The answers are offline's with the stamps, and the rate warning is logged
+/// for both drives.
+#[test]
+fn a_slower_source_is_judged_at_the_rate_of_its_stamps() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("slower");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    // The town's poses lie 1 m apart, its first corner 480 m into the drive: a stride of 6 poses
+    // every 0.5 s is 12 m/s, one less each step brakes at 2 m/s per step (4 m/s^2), down to
+    // 4 m/s and back, every 15 s (once before the stamps have told the rate, twice after).
+    let strides: Vec<usize> = (0..100usize)
+        .map(|k| match k % 30 {
+            k @ 5..9 => 6 - (k - 4),
+            9..15 => 2,
+            k @ 15..19 => 2 + (k - 14),
+            _ => 6,
+        })
+        .collect();
+    let at = |strides: &[usize]| -> Vec<Pose3> {
+        strides
+            .iter()
+            .scan(0, |index, &stride| {
+                *index += stride;
+                Some(odometry[*index])
+            })
+            .collect()
+    };
+    let braking = at(&strides);
+    let mut stalling = strides.clone();
+    stalling[3..9].fill(0);
+    let stalled = at(&stalling);
+    assert!(
+        !lanealign_core::plausibility::speed_changes(&planar(&setup, &braking), 10.0).is_empty(),
+        "read at 10 Hz, the braking would be told"
+    );
+    let stamps_s: Vec<f64> = (0..100).map(|i| 1000.0 + 0.5 * i as f64).collect();
+    let stamps: Vec<i64> = stamps_s.iter().map(|t| (t * 1e9).round() as i64).collect();
+    for (poses, told) in [(&braking, 0), (&stalled, 1)] {
+        let mut conn = connect(&setup, &name);
+        let r = replay(
+            &mut conn,
+            &name,
+            poses,
+            &stamps,
+            Rate::Max(16),
+            Duration::from_secs(10),
+            Duration::from_secs(10),
+        )
+        .unwrap();
+        assert!(poses_of(&r.answers) == offline_stamped(&setup, &name, poses, Some(&stamps_s)));
+        let log = daemon.log();
+        let lines = log
+            .lines()
+            .filter(|l| l.contains("speed changed faster than a car's can"))
+            .count();
+        assert_eq!(lines, told, "{log}");
+    }
+    let log = daemon.log();
+    assert_eq!(
+        log.matches("the poses come at about 2.0 Hz").count(),
+        2,
+        "{log}"
+    );
+    let line = log
+        .lines()
+        .find(|l| l.contains("speed changed faster than a car's can"))
+        .unwrap_or_else(|| panic!("{log}"));
+    assert!(line.contains("rate_hz=2"), "{line}");
+    // Pose 3 goes out as sequence number 4.
+    let seq: u64 = line
+        .split("seq=")
+        .nth(1)
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|digits| digits.parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    assert!((2..=6).contains(&seq), "{seq}: {line}");
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
+/// The planar positions (metres) of `poses`, given in `setup`'s axis convention.
+fn planar(setup: &Setup, poses: &[Pose3]) -> Vec<[f64; 2]> {
+    poses
+        .iter()
+        .map(|p| setup.convention.to_planar(p).planar_position())
+        .collect()
 }
 
 /// Always runs: while answers flow, a client does not look for its daemon (listing the

@@ -393,36 +393,84 @@ pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
     ))
 }
 
-/// Gathers a session's first stamps to tell its rate once (see [`rate_from_stamps`]).
+/// What a stream of stamped poses (a daemon session's) says of its source as the poses come: the
+/// rate its first [`SourceWatch::STAMPS`] stamps say ([`rate_from_stamps`]), told once, and the
+/// changes of speed no car makes ([`SpeedWatch`]) judged at that rate, or at the rate the
+/// corrector is set for where the stamps say none, as `correct` judges a file. Until the stamps
+/// tell the rate, it holds the positions, and then judges them at it.
 #[derive(Clone, Debug)]
-pub struct RateProbe {
-    stamps_s: [f64; RateProbe::STAMPS],
-    seen: usize,
+pub struct SourceWatch {
+    /// The rate (Hz) the corrector is set for: the speed's when the stamps tell no rate.
+    set_rate_hz: f64,
+    /// The first stamps (seconds), until they tell the rate.
+    stamps_s: Vec<f64>,
+    /// The positions (planar, metres) that came with them.
+    held: Vec<[f64; 2]>,
+    /// The watch and the rate (Hz) it judges at, once that is known.
+    speed: Option<(SpeedWatch, f64)>,
 }
 
-impl Default for RateProbe {
-    fn default() -> Self {
-        RateProbe {
-            stamps_s: [0.0; RateProbe::STAMPS],
-            seen: 0,
-        }
-    }
+/// What one pose told a [`SourceWatch`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SourceNews {
+    /// The rate (Hz) the stamps say, with the pose that completed the first
+    /// [`SourceWatch::STAMPS`] of them (never again, nor when they say none).
+    pub rate_hz: Option<f64>,
+    /// The changes of speed no car makes that ended with this pose (or, with the pose that
+    /// told the rate, among the poses held until then), oldest first.
+    pub speed_changes: Vec<SpeedChange>,
 }
 
-impl RateProbe {
+impl SourceWatch {
     /// Stamps gathered before the rate is told.
     pub const STAMPS: usize = 64;
 
-    /// Takes the next stamp (seconds); returns the rate once, when enough stamps are in (and
-    /// `None` for good after, or when the stamps tell no rate).
-    pub fn observe(&mut self, stamp_s: f64) -> Option<f64> {
-        let slot = self.stamps_s.get_mut(self.seen)?;
-        *slot = stamp_s;
-        self.seen += 1;
-        if self.seen < Self::STAMPS {
-            return None;
+    /// A watch for a source the corrector is set for at `set_rate_hz`.
+    pub fn new(set_rate_hz: f64) -> Self {
+        SourceWatch {
+            set_rate_hz,
+            stamps_s: Vec::with_capacity(Self::STAMPS),
+            held: Vec::with_capacity(Self::STAMPS),
+            speed: None,
         }
-        rate_from_stamps(&self.stamps_s)
+    }
+
+    /// Takes the next pose's stamp (seconds) and position (planar, metres, any fixed frame).
+    pub fn observe(&mut self, stamp_s: f64, position: [f64; 2]) -> SourceNews {
+        if let Some((speed, _)) = &mut self.speed {
+            return SourceNews {
+                rate_hz: None,
+                speed_changes: speed.observe(position).into_iter().collect(),
+            };
+        }
+        self.stamps_s.push(stamp_s);
+        self.held.push(position);
+        if self.stamps_s.len() < Self::STAMPS {
+            return SourceNews::default();
+        }
+        let rate_hz = rate_from_stamps(&self.stamps_s);
+        let judged_hz = rate_hz.unwrap_or(self.set_rate_hz);
+        let mut speed = SpeedWatch::new(judged_hz);
+        let speed_changes = self.held.iter().filter_map(|&p| speed.observe(p)).collect();
+        self.speed = Some((speed, judged_hz));
+        (self.stamps_s, self.held) = (Vec::new(), Vec::new());
+        SourceNews {
+            rate_hz,
+            speed_changes,
+        }
+    }
+
+    /// How many poses `change` (told by this watch) lies before the last pose observed.
+    pub fn poses_since(&self, change: &SpeedChange) -> usize {
+        self.speed
+            .as_ref()
+            .map_or(0, |(s, _)| s.poses_since(change))
+    }
+
+    /// The rate (Hz) the speed is judged at: the stamps', or the set rate where they tell none;
+    /// `None` while the stamps are still gathered.
+    pub fn speed_rate_hz(&self) -> Option<f64> {
+        self.speed.as_ref().map(|&(_, rate_hz)| rate_hz)
     }
 }
 
@@ -507,6 +555,66 @@ mod tests {
             "{w}"
         );
         assert!(speed_change_warning(&poses[..100], AxisConvention::Flu, 10.0).is_none());
+    }
+
+    /// A source at 2 Hz set for 10 Hz: its speed is judged at the rate its stamps say, the
+    /// positions held until they say it included, so that braking is not read as five times
+    /// faster and five times steeper. A stall is told at that rate, where it lies, before and
+    /// after the stamps have told.
+    #[test]
+    fn a_session_is_judged_at_the_rate_of_its_stamps() {
+        let at_2_hz = |steps: usize, speed: &dyn Fn(usize) -> f64| -> Vec<[f64; 2]> {
+            let mut x = 0.0;
+            let mut out = vec![[x, 0.0]];
+            for k in 0..steps {
+                x += speed(k) / 2.0;
+                out.push([x, 0.0]);
+            }
+            out
+        };
+        let stamps: Vec<f64> = (0..200).map(|i| 100.0 + 0.5 * i as f64).collect();
+        // Braking at 4 m/s^2 from 20 m/s to 4 m/s and speeding up as hard again, from pose 20
+        // (held) and from pose 120.
+        let braking = at_2_hz(199, &|k| match k % 100 {
+            k @ 0..50 => (20.0 - 2.0 * k.saturating_sub(20) as f64).max(4.0),
+            k => (4.0 + 2.0 * (k - 50) as f64).min(20.0),
+        });
+        assert!(
+            !speed_changes(&braking, 10.0).is_empty(),
+            "read at the set 10 Hz, the braking is 25 times steeper"
+        );
+        let mut watch = SourceWatch::new(10.0);
+        let news: Vec<SourceNews> = stamps
+            .iter()
+            .zip(&braking)
+            .map(|(&s, &p)| watch.observe(s, p))
+            .collect();
+        let rates: Vec<f64> = news.iter().filter_map(|n| n.rate_hz).collect();
+        assert_eq!(rates.len(), 1);
+        assert!((rates[0] - 2.0).abs() < 1e-9, "{rates:?}");
+        assert!(news[SourceWatch::STAMPS - 1].rate_hz.is_some());
+        assert_eq!(watch.speed_rate_hz(), Some(2.0));
+        let told: Vec<&SpeedChange> = news.iter().flat_map(|n| &n.speed_changes).collect();
+        assert!(told.is_empty(), "{told:?}");
+        // A stall from 20 to 0.5 m/s in one step at pose 30 (held), its recovery at 100 and the
+        // same stall at 130.
+        let stalled = at_2_hz(199, &|k| if k % 100 < 30 { 20.0 } else { 0.5 });
+        let mut watch = SourceWatch::new(10.0);
+        let mut told = Vec::new();
+        for (i, (&s, &p)) in stamps.iter().zip(&stalled).enumerate() {
+            for change in watch.observe(s, p).speed_changes {
+                told.push(i - watch.poses_since(&change));
+            }
+        }
+        assert_eq!(told.len(), 3, "{told:?}");
+        for (at, pose) in [30, 100, 130].into_iter().zip(told) {
+            assert!((at - 1..=at + 2).contains(&pose), "{pose} for {at}");
+        }
+        // Stamps that tell no rate leave it at the set rate.
+        let mut watch = SourceWatch::new(10.0);
+        let news: Vec<SourceNews> = stalled.iter().map(|&p| watch.observe(0.0, p)).collect();
+        assert!(news.iter().all(|n| n.rate_hz.is_none()));
+        assert_eq!(watch.speed_rate_hz(), Some(10.0));
     }
 
     #[test]
@@ -615,13 +723,5 @@ mod tests {
         assert_eq!(rate_from_stamps(&counters), None);
         assert_eq!(rate_from_stamps(&[0.0; 100]), None);
         assert_eq!(rate_from_stamps(&[3.0, 2.0, 1.0, 0.0]), None);
-        // The probe tells it once, after its stamps are in.
-        let mut probe = RateProbe::default();
-        let told: Vec<Option<f64>> = stamps(100.0)
-            .into_iter()
-            .map(|s| probe.observe(s))
-            .collect();
-        assert_eq!(told.iter().flatten().count(), 1);
-        assert!(told[RateProbe::STAMPS - 1].is_some());
     }
 }

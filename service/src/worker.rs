@@ -15,7 +15,7 @@ use iceoryx2::port::publisher::Publisher;
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::plausibility::{
-    rate_warning, RateProbe, SpeedWatch, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
+    rate_warning, SourceWatch, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
 };
 use lanealign_core::pose::Pose3;
 use lanealign_core::report::error_line;
@@ -171,12 +171,10 @@ struct Live {
     notifier: Notifier<Ipc>,
     _services: SessionServices<Ipc>,
     last_active: Instant,
-    /// The session's first stamps, to warn once when the source is faster than its corrector
-    /// is set for.
-    rate_probe: RateProbe,
-    /// The session's speed, to warn when it changes faster than a car's can (an odometry that
-    /// lost track).
-    speed_watch: SpeedWatch,
+    /// The session's stamps and positions, to warn once when the source is faster or slower
+    /// than its corrector is set for, and when its speed changes faster than a car's can (an
+    /// odometry that lost track).
+    watch: SourceWatch,
 }
 
 struct Worker {
@@ -204,8 +202,7 @@ impl Worker {
             notifier,
             _services: services,
             last_active: Instant::now(),
-            rate_probe: RateProbe::default(),
-            speed_watch: SpeedWatch::new(self.setup.sessions.params.odometry_rate_hz),
+            watch: SourceWatch::new(self.setup.sessions.params.odometry_rate_hz),
         })
     }
 
@@ -365,12 +362,6 @@ impl Worker {
             }
         };
         answer.published_mono_ns = monotonic_ns();
-        if matches!(outcome, Outcome::Corrected(_)) {
-            let rate = live.rate_probe.observe(input.stamp_s());
-            if let Some(warning) = rate.and_then(|r| rate_warning(r, &setup.params)) {
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), "{warning}");
-            }
-        }
         let in_daemon_ns = answer.published_mono_ns.saturating_sub(received);
         tracing::debug!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, status = StatusCode::from_code(answer.status).map_or("", StatusCode::name), in_daemon_us = in_daemon_ns as f64 / 1e3, "pose");
         let delivered = match live.publisher.send_copy(answer) {
@@ -393,11 +384,19 @@ impl Worker {
                 .convention
                 .to_planar(&pose)
                 .planar_position();
-            if let Some(change) = live.speed_watch.observe(position) {
+            let news = live.watch.observe(input.stamp_s(), position);
+            if let Some(warning) = news.rate_hz.and_then(|r| rate_warning(r, &setup.params)) {
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), "{warning}");
+            }
+            let rate_hz = live
+                .watch
+                .speed_rate_hz()
+                .unwrap_or(setup.params.odometry_rate_hz);
+            for change in news.speed_changes {
                 let seq = input
                     .seq
-                    .saturating_sub(live.speed_watch.poses_since(&change) as u64);
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq, from_mps = change.from_mps, to_mps = change.to_mps, odometry_rate_hz = setup.params.odometry_rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at odometry_rate_hz): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
+                    .saturating_sub(live.watch.poses_since(&change) as u64);
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
