@@ -287,6 +287,58 @@ fn an_odometry_that_stalls_is_told_in_the_log() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: a session that ends in a stall (the town's drive at 10 m/s, then its last pose
+/// five times more) is told of it when its client closes it: after 300 poses, and after 45,
+/// before its stamps could tell the rate. While it ran, nothing was told.
+#[test]
+fn a_stall_where_the_session_ends_is_told_when_it_ends() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("endstall");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let told = |log: &str| -> Vec<u64> {
+        log.lines()
+            .filter(|l| l.contains("speed changed faster than a car's can"))
+            .filter_map(|l| l.split("seq=").nth(1))
+            .filter_map(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+            .filter_map(|digits| digits.parse().ok())
+            .collect()
+    };
+    for (i, moving) in [300, 45].into_iter().enumerate() {
+        let poses: Vec<Pose3> = odometry[..moving]
+            .iter()
+            .chain([&odometry[moving - 1]; 5])
+            .copied()
+            .collect();
+        let mut conn = connect(&setup, &name);
+        let r = replay(
+            &mut conn,
+            &name,
+            &poses,
+            &[],
+            Rate::Max(16),
+            Duration::from_secs(10),
+            Duration::from_secs(10),
+        )
+        .unwrap();
+        assert!(poses_of(&r.answers) == offline(&setup, &name, &poses));
+        assert_eq!(told(&daemon.log()).len(), i, "{}", daemon.log());
+        assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while !daemon.log().contains("closed by its client") || told(&daemon.log()).len() == i {
+            assert!(Instant::now() < deadline, "{}", daemon.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        // Pose `moving` goes out as sequence number `moving + 1`; the change lies between the
+        // half second before it and the one after.
+        let seq = told(&daemon.log())[i];
+        let at = moving as u64 + 1;
+        assert!((at - 6..=at + 1).contains(&seq), "{seq} for {at}");
+    }
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 /// Always runs: a source at 2 Hz whose corrector is set for the town's 10 Hz has its speed
 /// judged at the rate its stamps say, as `correct` judges a file. Its braking and speeding up at
 /// 4 m/s^2 (read at 10 Hz, 25 times steeper) tells nothing; the same drive stalling at 12 m/s

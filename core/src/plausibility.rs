@@ -448,6 +448,24 @@ impl SourceWatch {
         if self.stamps_s.len() < Self::STAMPS {
             return SourceNews::default();
         }
+        self.judge_held()
+    }
+
+    /// Where the stream ends: a change of speed still under way, and for a stream shorter than
+    /// [`SourceWatch::STAMPS`] poses what its stamps and positions say at all.
+    pub fn finish(&mut self) -> SourceNews {
+        let mut news = match self.speed {
+            Some(_) => SourceNews::default(),
+            None => self.judge_held(),
+        };
+        news.speed_changes
+            .extend(self.speed.as_mut().and_then(|(s, _)| s.finish()));
+        news
+    }
+
+    /// Judges the held positions at the rate their stamps say (or the set rate) and watches on
+    /// at it.
+    fn judge_held(&mut self) -> SourceNews {
         let rate_hz = rate_from_stamps(&self.stamps_s);
         let judged_hz = rate_hz.unwrap_or(self.set_rate_hz);
         let mut speed = SpeedWatch::new(judged_hz);
@@ -609,6 +627,22 @@ mod tests {
         assert_eq!(told.len(), 3, "{told:?}");
         for (at, pose) in [30, 100, 130].into_iter().zip(told) {
             assert!((at - 1..=at + 2).contains(&pose), "{pose} for {at}");
+        }
+        // A stream that ends in a stall, or before its stamps have told the rate, is told when
+        // it ends.
+        for poses in [32, 132] {
+            let mut watch = SourceWatch::new(10.0);
+            let during: usize = stamps
+                .iter()
+                .zip(&stalled[..poses])
+                .map(|(&s, &p)| watch.observe(s, p).speed_changes.len())
+                .sum();
+            assert_eq!(during, if poses < 100 { 0 } else { 2 });
+            let end = watch.finish();
+            assert_eq!(end.speed_changes.len(), 1, "{poses}: {end:?}");
+            let pose = poses - 1 - watch.poses_since(&end.speed_changes[0]);
+            assert!((poses - 11..poses).contains(&pose), "{pose} of {poses}");
+            assert_eq!(end.rate_hz.is_some(), poses < SourceWatch::STAMPS);
         }
         // Stamps that tell no rate leave it at the set rate.
         let mut watch = SourceWatch::new(10.0);

@@ -14,8 +14,9 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
+use lanealign_core::params::Params;
 use lanealign_core::plausibility::{
-    rate_warning, SourceWatch, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
+    rate_warning, SourceNews, SourceWatch, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
 };
 use lanealign_core::pose::Pose3;
 use lanealign_core::report::error_line;
@@ -175,6 +176,8 @@ struct Live {
     /// than its corrector is set for, and when its speed changes faster than a car's can (an
     /// odometry that lost track).
     watch: SourceWatch,
+    /// The sequence number of the last pose `watch` took.
+    watched_seq: u64,
 }
 
 struct Worker {
@@ -203,6 +206,7 @@ impl Worker {
             _services: services,
             last_active: Instant::now(),
             watch: SourceWatch::new(self.setup.sessions.params.odometry_rate_hz),
+            watched_seq: 0,
         })
     }
 
@@ -217,7 +221,9 @@ impl Worker {
     }
 
     fn end_session(&mut self, id: u64, why: &str) {
-        if let Some(live) = self.sessions.remove(&id) {
+        if let Some(mut live) = self.sessions.remove(&id) {
+            let news = live.watch.finish();
+            tell(&self.name, id, &live, news, &self.setup.sessions.params);
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
             if let (Some(dir), Some(p)) = (dir, &self.setup.sessions.persistence) {
@@ -385,19 +391,8 @@ impl Worker {
                 .to_planar(&pose)
                 .planar_position();
             let news = live.watch.observe(input.stamp_s(), position);
-            if let Some(warning) = news.rate_hz.and_then(|r| rate_warning(r, &setup.params)) {
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), "{warning}");
-            }
-            let rate_hz = live
-                .watch
-                .speed_rate_hz()
-                .unwrap_or(setup.params.odometry_rate_hz);
-            for change in news.speed_changes {
-                let seq = input
-                    .seq
-                    .saturating_sub(live.watch.poses_since(&change) as u64);
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
-            }
+            live.watched_seq = input.seq;
+            tell(&self.name, input.session, live, news, &setup.params);
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
             tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump)");
@@ -438,6 +433,25 @@ impl Worker {
         for id in idle {
             self.end_session(id, "idle");
         }
+    }
+}
+
+/// Logs what `live`'s watch told of session `session` of source `source` (`news`): the rate its
+/// stamps say when `params` are set for another, and each change of speed no car makes, with
+/// its sequence number.
+fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Params) {
+    if let Some(warning) = news.rate_hz.and_then(|r| rate_warning(r, params)) {
+        tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
+    }
+    let rate_hz = live
+        .watch
+        .speed_rate_hz()
+        .unwrap_or(params.odometry_rate_hz);
+    for change in news.speed_changes {
+        let seq = live
+            .watched_seq
+            .saturating_sub(live.watch.poses_since(&change) as u64);
+        tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
     }
 }
 
