@@ -531,10 +531,15 @@ mod tests {
 
     /// A drive along x at 10 Hz whose speed (m/s) at each step `speed(step)` gives.
     fn drive(steps: usize, speed: impl Fn(usize) -> f64) -> Vec<[f64; 2]> {
+        drive_at(10.0, steps, speed)
+    }
+
+    /// A drive along x at `rate_hz` whose speed (m/s) at each step `speed(step)` gives.
+    fn drive_at(rate_hz: f64, steps: usize, speed: impl Fn(usize) -> f64) -> Vec<[f64; 2]> {
         let mut x = 0.0;
         let mut out = vec![[x, 0.0]];
         for k in 0..steps {
-            x += speed(k) / 10.0;
+            x += speed(k) / rate_hz;
             out.push([x, 0.0]);
         }
         out
@@ -581,19 +586,10 @@ mod tests {
     /// after the stamps have told.
     #[test]
     fn a_session_is_judged_at_the_rate_of_its_stamps() {
-        let at_2_hz = |steps: usize, speed: &dyn Fn(usize) -> f64| -> Vec<[f64; 2]> {
-            let mut x = 0.0;
-            let mut out = vec![[x, 0.0]];
-            for k in 0..steps {
-                x += speed(k) / 2.0;
-                out.push([x, 0.0]);
-            }
-            out
-        };
         let stamps: Vec<f64> = (0..200).map(|i| 100.0 + 0.5 * i as f64).collect();
         // Braking at 4 m/s^2 from 20 m/s to 4 m/s and speeding up as hard again, from pose 20
         // (held) and from pose 120.
-        let braking = at_2_hz(199, &|k| match k % 100 {
+        let braking = drive_at(2.0, 199, |k| match k % 100 {
             k @ 0..50 => (20.0 - 2.0 * k.saturating_sub(20) as f64).max(4.0),
             k => (4.0 + 2.0 * (k - 50) as f64).min(20.0),
         });
@@ -616,7 +612,7 @@ mod tests {
         assert!(told.is_empty(), "{told:?}");
         // A stall from 20 to 0.5 m/s in one step at pose 30 (held), its recovery at 100 and the
         // same stall at 130.
-        let stalled = at_2_hz(199, &|k| if k % 100 < 30 { 20.0 } else { 0.5 });
+        let stalled = drive_at(2.0, 199, |k| if k % 100 < 30 { 20.0 } else { 0.5 });
         let mut watch = SourceWatch::new(10.0);
         let mut told = Vec::new();
         for (i, (&s, &p)) in stamps.iter().zip(&stalled).enumerate() {
