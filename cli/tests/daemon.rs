@@ -339,6 +339,71 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: `lanealign replay` warns of what `lanealign correct` would, from the daemon's
+/// answers: a drive 5 km beside the town's map (no correction accepted: a wrong anchor or
+/// frame) and a drive whose odometry jumps 300 m at pose 200 (told with its sequence number,
+/// 201). The town's drive as it is warns of neither.
+#[test]
+fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("replaywarn");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let drive = &odometry[..400];
+    // Moved in the plane by `by_m` (x, y in metres).
+    let moved = |poses: &[Pose3], by_m: [f64; 2]| -> Vec<Pose3> {
+        poses
+            .iter()
+            .map(|p| {
+                let mut planar = setup.convention.to_planar(p);
+                planar.translation[0] += by_m[0];
+                planar.translation[1] += by_m[1];
+                setup.convention.from_planar(&planar)
+            })
+            .collect()
+    };
+    let far = moved(drive, [5000.0, 5000.0]);
+    // Sideways: a step ahead along the drive would be poses missing from the file.
+    let jumped: Vec<Pose3> = drive[..200]
+        .iter()
+        .copied()
+        .chain(moved(&drive[200..], [0.0, 300.0]))
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output) = (dir.path().join("in.txt"), dir.path().join("out.txt"));
+    let warned = |poses: &[Pose3]| -> Vec<String> {
+        write_kitti(&input, poses);
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args(["replay", "--source", &name, "--namespace", &setup.namespace])
+            .arg(&input)
+            .arg("-o")
+            .arg(&output)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{stderr}");
+        let lines = stderr.lines().filter(|l| l.starts_with("WARN "));
+        lines.map(str::to_string).collect()
+    };
+    assert_eq!(warned(drive), Vec::<String>::new());
+    let far = warned(&far);
+    assert_eq!(far.len(), 1, "{far:?}");
+    assert!(
+        far[0].contains("no correction was accepted in")
+            && far[0].contains("attempts over 400 poses")
+            && far[0].contains("anchor and frame in lanealignd's configuration"),
+        "{far:?}"
+    );
+    let jumped = warned(&jumped);
+    assert_eq!(jumped.len(), 1, "{jumped:?}");
+    assert!(
+        jumped[0].contains("the odometry jumped at 1 pose (sequence number 201)"),
+        "{jumped:?}"
+    );
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 /// Always runs: a source at 2 Hz whose corrector is set for the town's 10 Hz has its speed
 /// judged at the rate its stamps say, as `correct` judges a file. Its braking and speeding up at
 /// 4 m/s^2 (read at 10 Hz, 25 times steeper) tells nothing; the same drive stalling at 12 m/s

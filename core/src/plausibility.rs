@@ -328,7 +328,7 @@ pub fn speed_change_warning(
 }
 
 /// `"s"` unless `count` is one.
-fn plural(count: usize) -> &'static str {
+pub fn plural(count: usize) -> &'static str {
     if count == 1 {
         ""
     } else {
@@ -337,7 +337,7 @@ fn plural(count: usize) -> &'static str {
 }
 
 /// The first five of `count` items, comma-separated, with `, ...` when there are more.
-fn first_few(items: impl Iterator<Item = String>, count: usize) -> String {
+pub fn first_few(items: impl Iterator<Item = String>, count: usize) -> String {
     let shown: Vec<String> = items.take(5).collect();
     let more = if count > shown.len() { ", ..." } else { "" };
     format!("{}{more}", shown.join(", "))

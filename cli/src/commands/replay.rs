@@ -9,6 +9,7 @@ use lanealign_cli::replay::{replay, Rate};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::input;
+use lanealign_core::plausibility::{first_few, plural};
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
@@ -64,6 +65,38 @@ fn status_csv(answers: &[CorrectedPose]) -> String {
         odometry_scale: a.odometry_scale,
         odometry_scale_sd: a.odometry_scale_sd,
     }))
+}
+
+/// What the daemon's `answers` say of a setup gone wrong or an odometry that jumped, as
+/// `lanealign correct` warns of them for a file (the daemon's log says it too, but the person
+/// replaying may not read it).
+fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
+    let with = |code: StatusCode| answers.iter().filter(move |a| a.status() == Some(code));
+    let accepted = with(StatusCode::Accepted).count();
+    let attempts = accepted + with(StatusCode::Rejected).count() + with(StatusCode::Reset).count();
+    let jumps: Vec<u64> = with(StatusCode::OdometryJump).map(|a| a.seq).collect();
+    let no_correction = (attempts > 0 && accepted == 0).then(|| {
+        format!(
+            "no correction was accepted in {attempts} attempts over {} poses, so the output is \
+             the raw odometry: check the source's anchor and frame in lanealignd's configuration and \
+             that its tile covers the drive; --status writes why each attempt was refused (its \
+             reason column)",
+            answers.len()
+        )
+    });
+    let jumped = (!jumps.is_empty()).then(|| {
+        format!(
+            "the odometry jumped at {} pose{} (sequence number{} {}): farther from the pose \
+             before than the source's max_speed_mps allows, so the daemon continued each from \
+             where the vehicle was (status odometry_jump); if the poses only paused or come \
+             slower than its odometry_rate_hz, give their stamps (--format tum)",
+            jumps.len(),
+            plural(jumps.len()),
+            plural(jumps.len()),
+            first_few(jumps.iter().map(u64::to_string), jumps.len()),
+        )
+    });
+    no_correction.into_iter().chain(jumped).collect()
 }
 
 /// Runs `lanealign replay`.
@@ -149,6 +182,9 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
         percentile_us(&rt, 0.99),
         percentile_us(&rt, 1.0)
     );
+    for warning in warnings(&result.answers) {
+        eprintln!("WARN {warning}");
+    }
     // As `correct` says it, for a source whose session estimates the scale.
     let answers = result.answers.iter();
     let estimates = answers.map(|a| (a.odometry_scale, a.odometry_scale_sd));
