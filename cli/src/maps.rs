@@ -91,6 +91,7 @@ impl LoadedMap {
     ) -> Vec<String> {
         // The rate the stamps say the poses come at, where they say one.
         let stamped_rate = stamps_s.and_then(plausibility::rate_from_stamps);
+        let counts = counts(run);
         [
             plausibility::axis_convention_warning(poses, convention),
             poses.first().and_then(|first| {
@@ -100,7 +101,12 @@ impl LoadedMap {
                     &convention.to_planar(first),
                 )
             }),
-            plausibility::no_correction_warning(run.len(), counts(run).accepted),
+            plausibility::no_correction_warning(
+                run.len(),
+                counts.attempts,
+                counts.accepted,
+                plausibility::CHECK_CORRECT_SETUP,
+            ),
             plausibility::odometry_jump_warning(run, params),
             stamped_rate.and_then(|rate| plausibility::rate_warning(rate, params)),
             plausibility::speed_change_warning(

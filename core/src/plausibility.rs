@@ -91,13 +91,34 @@ pub fn anchor_warning(map: &LaneMap, anchored_from_odom: &Se2, first: &Pose3) ->
     })
 }
 
-/// A warning when no correction was accepted over a whole run of `poses` poses.
-pub fn no_correction_warning(poses: usize, accepted: usize) -> Option<String> {
-    (poses > 0 && accepted == 0).then(|| {
+/// What `lanealign correct` asks to check when no correction was accepted.
+pub const CHECK_CORRECT_SETUP: &str = "the anchor, --frame and that the map covers the drive";
+
+/// A warning when no correction was accepted over a whole run of `poses` poses, in which
+/// `attempts` alignments were tried: that `what_to_check` is the likely cause when they were
+/// refused, and that the run never filled the corrector's window when none was tried.
+pub fn no_correction_warning(
+    poses: usize,
+    attempts: usize,
+    accepted: usize,
+    what_to_check: &str,
+) -> Option<String> {
+    if poses == 0 || accepted > 0 {
+        return None;
+    }
+    Some(if attempts == 0 {
         format!(
-            "no correction was accepted in {poses} poses, so the output is the raw odometry: \
-             check the anchor, --frame and that the map covers the drive; the status file's \
-             reason column says why each attempt was refused"
+            "no alignment was tried in {poses} poses, so the output is the raw odometry: the \
+             run ends before the corrector's window fills (or the vehicle stands still \
+             throughout); a source faster than odometry_rate_hz fills it in as many times more \
+             poses; the status file says each pose's status"
+        )
+    } else {
+        format!(
+            "no correction was accepted in {attempts} attempt{} over {poses} poses, so the output \
+             is the raw odometry: check {what_to_check}; the status file's reason column says \
+             why each attempt was refused",
+            plural(attempts)
         )
     })
 }
@@ -525,8 +546,17 @@ mod tests {
         assert!(anchor_warning(&map, &Se2::new(0.0, 999.0, 0.0), &first).is_none());
         let w = anchor_warning(&map, &Se2::new(0.0, 2500.0, 0.0), &first).unwrap();
         assert!(w.contains("2.5 km"), "{w}");
-        assert!(no_correction_warning(10, 0).is_some());
-        assert!(no_correction_warning(10, 1).is_none());
+        let check = CHECK_CORRECT_SETUP;
+        let refused = no_correction_warning(10, 4, 0, check).unwrap();
+        assert!(refused.contains("4 attempts over 10 poses") && refused.contains("--frame"));
+        let untried = no_correction_warning(10, 0, 0, check).unwrap();
+        assert!(
+            untried.contains("no alignment was tried in 10 poses"),
+            "{untried}"
+        );
+        assert!(!untried.contains("--frame"), "{untried}");
+        assert!(no_correction_warning(10, 4, 1, check).is_none());
+        assert!(no_correction_warning(0, 0, 0, check).is_none());
     }
 
     /// A drive along x at 10 Hz whose speed (m/s) at each step `speed(step)` gives.

@@ -9,7 +9,7 @@ use lanealign_cli::replay::{replay, Rate};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::input;
-use lanealign_core::plausibility::{first_few, plural};
+use lanealign_core::plausibility::{first_few, no_correction_warning, plural};
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
@@ -75,15 +75,13 @@ fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
     let accepted = with(StatusCode::Accepted).count();
     let attempts = accepted + with(StatusCode::Rejected).count() + with(StatusCode::Reset).count();
     let jumps: Vec<u64> = with(StatusCode::OdometryJump).map(|a| a.seq).collect();
-    let no_correction = (attempts > 0 && accepted == 0).then(|| {
-        format!(
-            "no correction was accepted in {attempts} attempts over {} poses, so the output is \
-             the raw odometry: check the source's anchor and frame in lanealignd's configuration and \
-             that its tile covers the drive; --status writes why each attempt was refused (its \
-             reason column)",
-            answers.len()
-        )
-    });
+    let no_correction = no_correction_warning(
+        answers.len() - with(StatusCode::PassThrough).count(),
+        attempts,
+        accepted,
+        "the source's anchor and frame in lanealignd's configuration and that its tile covers \
+         the drive",
+    );
     let jumped = (!jumps.is_empty()).then(|| {
         format!(
             "the odometry jumped at {} pose{} (sequence number{} {}): farther from the pose \
