@@ -21,7 +21,7 @@ use lanealign_cli::replay::{replay, Rate};
 use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
-use lanealign_core::pose::Pose3;
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_tests::shared_data;
 use lanealign_wire::payload::{CorrectedPose, StatusCode};
@@ -336,6 +336,74 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
         let at = moving as u64 + 1;
         assert!((at - 6..=at + 1).contains(&seq), "{seq} for {at}");
     }
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
+/// Always runs: a session set up wrongly is told in the daemon's log, as `correct` tells a file:
+/// the town's drive in a camera's axes sent to a source set for `flu` (its first 64 poses move
+/// vertically: the frame that fits is named; in the plane it stands still, so no alignment is
+/// tried), and the drive 5 km beside the map (no correction accepted in the first 100 attempts,
+/// told once, while it runs; a session that ends before 100 attempts is told when it ends). The
+/// drive as it is tells neither. The answers are offline's throughout.
+#[test]
+fn a_session_set_up_wrongly_is_told_in_the_log() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("setup");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let drive = &odometry[..400];
+    let camera: Vec<Pose3> = drive
+        .iter()
+        .map(|p| AxisConvention::KittiCamera.from_planar(&setup.convention.to_planar(p)))
+        .collect();
+    let far: Vec<Pose3> = drive
+        .iter()
+        .map(|p| {
+            let mut planar = setup.convention.to_planar(p);
+            planar.translation[0] += 5000.0;
+            planar.translation[1] += 5000.0;
+            setup.convention.from_planar(&planar)
+        })
+        .collect();
+    let count = |what: &str| daemon.log().matches(what).count();
+    let axes = "the poses probably use another axis convention; try --frame kitti-camera";
+    let refused = "no correction was accepted in";
+    let runs = [
+        (drive, 0, 0),
+        (&camera[..], 1, 0),
+        (&far[..], 1, 1),
+        (&far[..150], 1, 2),
+    ];
+    for (i, (poses, told_axes, told_refused)) in runs.into_iter().enumerate() {
+        let mut conn = connect(&setup, &name);
+        let r = replay(
+            &mut conn,
+            &name,
+            poses,
+            &[],
+            Rate::Max(16),
+            Duration::from_secs(10),
+            Duration::from_secs(10),
+        )
+        .unwrap();
+        assert!(poses_of(&r.answers) == offline(&setup, &name, poses));
+        assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        // What a session's end tells is logged before it is said to have ended.
+        while count("closed by its client") <= i {
+            assert!(Instant::now() < deadline, "{}", daemon.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(count(axes), told_axes, "{}", daemon.log());
+        assert_eq!(count(refused), told_refused, "{}", daemon.log());
+    }
+    assert_eq!(
+        count("no correction was accepted in 100 attempts over "),
+        1,
+        "{}",
+        daemon.log()
+    );
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 

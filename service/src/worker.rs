@@ -16,7 +16,8 @@ use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
 use lanealign_core::plausibility::{
-    rate_warning, SourceNews, SourceWatch, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
+    no_correction_warning, rate_warning, SourceNews, SourceWatch, MAX_ACCELERATION_MPS2,
+    SPEED_SPAN_S,
 };
 use lanealign_core::pose::Pose3;
 use lanealign_core::report::error_line;
@@ -178,6 +179,32 @@ struct Live {
     watch: SourceWatch,
     /// The sequence number of the last pose `watch` took.
     watched_seq: u64,
+    /// The session's alignments so far, to warn when none is accepted.
+    alignments: Alignments,
+}
+
+/// How many alignments a session tries, all refused, before the daemon warns that none was
+/// accepted (the robust presets try one per metre of road: 100 m of driving; a session that
+/// ends sooner is told when it ends).
+const REFUSALS_TOLD: usize = 100;
+
+/// A session's alignments so far.
+#[derive(Default)]
+struct Alignments {
+    /// Poses the corrector answered.
+    poses: usize,
+    /// Alignments tried.
+    attempts: usize,
+    /// Alignments accepted.
+    accepted: usize,
+}
+
+impl Alignments {
+    fn count(&mut self, status: &Status) {
+        self.poses += 1;
+        self.attempts += usize::from(status.attempted());
+        self.accepted += usize::from(matches!(status, Status::Accepted { .. }));
+    }
 }
 
 struct Worker {
@@ -205,8 +232,12 @@ impl Worker {
             notifier,
             _services: services,
             last_active: Instant::now(),
-            watch: SourceWatch::new(self.setup.sessions.params.odometry_rate_hz),
+            watch: SourceWatch::new(
+                self.setup.sessions.params.odometry_rate_hz,
+                self.setup.sessions.placement.convention,
+            ),
             watched_seq: 0,
+            alignments: Alignments::default(),
         })
     }
 
@@ -224,6 +255,9 @@ impl Worker {
         if let Some(mut live) = self.sessions.remove(&id) {
             let news = live.watch.finish();
             tell(&self.name, id, &live, news, &self.setup.sessions.params);
+            if live.alignments.attempts < REFUSALS_TOLD {
+                tell_refusals(&self.name, id, &live.alignments);
+            }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
             if let (Some(dir), Some(p)) = (dir, &self.setup.sessions.persistence) {
@@ -383,16 +417,16 @@ impl Worker {
                 false
             }
         };
-        if matches!(outcome, Outcome::Corrected(_)) {
-            let pose = Pose3::from_row_major(&input.pose);
-            let position = setup
-                .placement
-                .convention
-                .to_planar(&pose)
-                .planar_position();
-            let news = live.watch.observe(input.stamp_s(), position);
+        if let Outcome::Corrected(status) = outcome {
+            let news = live
+                .watch
+                .observe(input.stamp_s(), &Pose3::from_row_major(&input.pose));
             live.watched_seq = input.seq;
             tell(&self.name, input.session, live, news, &setup.params);
+            live.alignments.count(&status);
+            if live.alignments.attempts == REFUSALS_TOLD {
+                tell_refusals(&self.name, input.session, &live.alignments);
+            }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
             tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump)");
@@ -440,7 +474,8 @@ impl Worker {
 /// stamps say when `params` are set for another, and each change of speed no car makes, with
 /// its sequence number.
 fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Params) {
-    if let Some(warning) = news.rate_hz.and_then(|r| rate_warning(r, params)) {
+    let rate = news.rate_hz.and_then(|r| rate_warning(r, params));
+    for warning in rate.into_iter().chain(news.axis_warning) {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
     let rate_hz = live
@@ -452,6 +487,20 @@ fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Para
             .watched_seq
             .saturating_sub(live.watch.poses_since(&change) as u64);
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road by more than their covariance says");
+    }
+}
+
+/// Logs that session `session` of source `source` had none of its `alignments` accepted, if it
+/// tried any.
+fn tell_refusals(source: &str, session: u64, alignments: &Alignments) {
+    let warning = no_correction_warning(
+        alignments.poses,
+        alignments.attempts,
+        alignments.accepted,
+        "the source's anchor and frame in this configuration and that the tile covers the drive",
+    );
+    if let Some(warning) = warning.filter(|_| alignments.attempts > 0) {
+        tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
 }
 

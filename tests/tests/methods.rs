@@ -726,6 +726,48 @@ fn poses_missing_from_a_file_without_stamps_are_motion() {
     assert!((missing - none).abs() < 0.1, "{missing} m against {none} m");
 }
 
+/// A daemon session's poses are checked for their axes as they come
+/// ([`plausibility::SourceWatch`], from 60 m of path on): on every shared run (ground truth,
+/// LiDAR and visual odometry) they move as a vehicle does in the KITTI camera's axes; read as
+/// `flu` they are told, naming the camera's frame, within 100 m, on all but the ground truth of
+/// 08, which rises as the car sets off and then turns away from its start's forward axis.
+#[test]
+fn a_sessions_poses_tell_its_axes_on_every_shared_run() {
+    let Some(data) = shared_data() else { return };
+    for run in ["kitti/poses", "odometry/lidar", "odometry/stereo_vo"] {
+        for seq in SEQUENCES {
+            let poses = read(&data.join(format!("{run}/{seq}.txt")), Format::Kitti)
+                .unwrap()
+                .poses;
+            let wrong_but_not_told = (run, seq) == ("kitti/poses", "08");
+            for (convention, told) in [
+                (AxisConvention::KittiCamera, false),
+                (AxisConvention::Flu, !wrong_but_not_told),
+            ] {
+                let mut watch = plausibility::SourceWatch::new(10.0, convention);
+                let warnings: Vec<(usize, String)> = poses
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, p)| Some((i, watch.observe(0.1 * i as f64, p).axis_warning?)))
+                    .collect();
+                assert_eq!(
+                    warnings.len(),
+                    usize::from(told),
+                    "{run} {seq} {convention:?}: {warnings:?}"
+                );
+                if let Some((i, w)) = warnings.first() {
+                    assert!(w.contains("--frame kitti-camera"), "{run} {seq}: {w}");
+                    let driven_m: f64 = poses[..=*i]
+                        .windows(2)
+                        .map(|p| (p[1].translation - p[0].translation).norm())
+                        .sum();
+                    assert!(driven_m <= 100.0, "{run} {seq}: told after {driven_m} m");
+                }
+            }
+        }
+    }
+}
+
 /// The visual odometry of sequence 01 loses track on the highway: its speed falls from 20 to
 /// about 1 m/s in under a second near pose 806 while the car drives on at 22 m/s, and it misses
 /// some 80 m of road, which the straight highway's lanes cannot show. `correct` warns of it
