@@ -173,9 +173,9 @@ struct Live {
     notifier: Notifier<Ipc>,
     _services: SessionServices<Ipc>,
     last_active: Instant,
-    /// The session's stamps and positions, to warn once when the source is faster or slower
-    /// than its corrector is set for, and when its speed changes faster than a car's can (an
-    /// odometry that lost track).
+    /// The session's stamps and poses, to warn once when the source is faster or slower than
+    /// its corrector is set for or its poses move as no vehicle does in the source's frame, and
+    /// when its speed changes faster than a car's can (an odometry that lost track).
     watch: SourceWatch,
     /// The sequence number of the last pose `watch` took.
     watched_seq: u64,
@@ -471,8 +471,8 @@ impl Worker {
 }
 
 /// Logs what `live`'s watch told of session `session` of source `source` (`news`): the rate its
-/// stamps say when `params` are set for another, and each change of speed no car makes, with
-/// its sequence number.
+/// stamps say when `params` are set for another, that its poses move as no vehicle does in the
+/// source's frame, and each change of speed no car makes, with its sequence number.
 fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Params) {
     let rate = news.rate_hz.and_then(|r| rate_warning(r, params));
     for warning in rate.into_iter().chain(news.axis_warning) {
