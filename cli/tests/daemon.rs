@@ -287,6 +287,48 @@ fn an_odometry_that_stalls_is_told_in_the_log() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// A session of `source` that has replayed `poses` (unstamped, 16 in flight), their answers
+/// checked equal to offline correction's.
+fn replayed_as_offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Connection {
+    let mut conn = connect(setup, source);
+    let r = replay(
+        &mut conn,
+        source,
+        poses,
+        &[],
+        Rate::Max(16),
+        Duration::from_secs(10),
+        Duration::from_secs(10),
+    )
+    .unwrap();
+    assert!(poses_of(&r.answers) == offline(setup, source, poses));
+    conn
+}
+
+/// Closes `conn` and waits until `daemon` has ended the session, the `before`-th its clients
+/// closed (0-based): what a session's end tells is logged before it is said to have ended.
+fn closed(conn: Connection, daemon: &DaemonProcess, before: usize) {
+    assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while daemon.log().matches("closed by its client").count() <= before {
+        assert!(Instant::now() < deadline, "{}", daemon.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `poses` (in `setup`'s axis convention) moved in the plane by `by_m` (x, y in metres).
+fn moved(setup: &Setup, poses: &[Pose3], by_m: [f64; 2]) -> Vec<Pose3> {
+    poses
+        .iter()
+        .map(|p| {
+            let mut planar = setup.convention.to_planar(p);
+            planar.translation[0] += by_m[0];
+            planar.translation[1] += by_m[1];
+            setup.convention.from_planar(&planar)
+        })
+        .collect()
+}
+
 /// Always runs: a session that ends in a stall (the town's drive at 10 m/s, then its last pose
 /// five times more) is told of it when its client closes it: after 300 poses, and after 45,
 /// before its stamps could tell the rate. While it ran, nothing was told.
@@ -311,25 +353,9 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
             .chain([&odometry[moving - 1]; 5])
             .copied()
             .collect();
-        let mut conn = connect(&setup, &name);
-        let r = replay(
-            &mut conn,
-            &name,
-            &poses,
-            &[],
-            Rate::Max(16),
-            Duration::from_secs(10),
-            Duration::from_secs(10),
-        )
-        .unwrap();
-        assert!(poses_of(&r.answers) == offline(&setup, &name, &poses));
+        let conn = replayed_as_offline(&setup, &name, &poses);
         assert_eq!(told(&daemon.log()).len(), i, "{}", daemon.log());
-        assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
-        let deadline = Instant::now() + Duration::from_secs(5);
-        while !daemon.log().contains("closed by its client") || told(&daemon.log()).len() == i {
-            assert!(Instant::now() < deadline, "{}", daemon.log());
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        closed(conn, &daemon, i);
         // Pose `moving` goes out as sequence number `moving + 1`; the change lies between the
         // half second before it and the one after.
         let seq = told(&daemon.log())[i];
@@ -340,11 +366,11 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
 }
 
 /// Always runs: a session set up wrongly is told in the daemon's log, as `correct` tells a file:
-/// the town's drive in a camera's axes sent to a source set for `flu` (its first 64 poses move
-/// vertically: the frame that fits is named; in the plane it stands still, so no alignment is
-/// tried), and the drive 5 km beside the map (no correction accepted in the first 100 attempts,
-/// told once, while it runs; a session that ends before 100 attempts is told when it ends). The
-/// drive as it is tells neither. The answers are offline's throughout.
+/// the town's drive in a camera's axes sent to a source set for `flu` (it moves vertically: told
+/// once it has gone 60 m, naming the frame that fits; in the plane it stands still, so no
+/// alignment is tried), and the drive 5 km beside the map (no correction accepted in the first
+/// 100 attempts, told once, while it runs; a session that ends before 100 attempts is told when
+/// it ends). The drive as it is tells neither. The answers are offline's throughout.
 #[test]
 fn a_session_set_up_wrongly_is_told_in_the_log() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -357,15 +383,7 @@ fn a_session_set_up_wrongly_is_told_in_the_log() {
         .iter()
         .map(|p| AxisConvention::KittiCamera.from_planar(&setup.convention.to_planar(p)))
         .collect();
-    let far: Vec<Pose3> = drive
-        .iter()
-        .map(|p| {
-            let mut planar = setup.convention.to_planar(p);
-            planar.translation[0] += 5000.0;
-            planar.translation[1] += 5000.0;
-            setup.convention.from_planar(&planar)
-        })
-        .collect();
+    let far = moved(&setup, drive, [5000.0, 5000.0]);
     let count = |what: &str| daemon.log().matches(what).count();
     let axes = "the poses probably use another axis convention; try --frame kitti-camera";
     let refused = "no correction was accepted in";
@@ -376,25 +394,7 @@ fn a_session_set_up_wrongly_is_told_in_the_log() {
         (&far[..150], 1, 2),
     ];
     for (i, (poses, told_axes, told_refused)) in runs.into_iter().enumerate() {
-        let mut conn = connect(&setup, &name);
-        let r = replay(
-            &mut conn,
-            &name,
-            poses,
-            &[],
-            Rate::Max(16),
-            Duration::from_secs(10),
-            Duration::from_secs(10),
-        )
-        .unwrap();
-        assert!(poses_of(&r.answers) == offline(&setup, &name, poses));
-        assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
-        let deadline = Instant::now() + Duration::from_secs(5);
-        // What a session's end tells is logged before it is said to have ended.
-        while count("closed by its client") <= i {
-            assert!(Instant::now() < deadline, "{}", daemon.log());
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        closed(replayed_as_offline(&setup, &name, poses), &daemon, i);
         assert_eq!(count(axes), told_axes, "{}", daemon.log());
         assert_eq!(count(refused), told_refused, "{}", daemon.log());
     }
@@ -419,24 +419,12 @@ fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
     let drive = &odometry[..400];
-    // Moved in the plane by `by_m` (x, y in metres).
-    let moved = |poses: &[Pose3], by_m: [f64; 2]| -> Vec<Pose3> {
-        poses
-            .iter()
-            .map(|p| {
-                let mut planar = setup.convention.to_planar(p);
-                planar.translation[0] += by_m[0];
-                planar.translation[1] += by_m[1];
-                setup.convention.from_planar(&planar)
-            })
-            .collect()
-    };
-    let far = moved(drive, [5000.0, 5000.0]);
+    let far = moved(&setup, drive, [5000.0, 5000.0]);
     // Sideways: a step ahead along the drive would be poses missing from the file.
     let jumped: Vec<Pose3> = drive[..200]
         .iter()
         .copied()
-        .chain(moved(&drive[200..], [0.0, 300.0]))
+        .chain(moved(&setup, &drive[200..], [0.0, 300.0]))
         .collect();
     let dir = tempfile::tempdir().unwrap();
     let (input, output) = (dir.path().join("in.txt"), dir.path().join("out.txt"));
