@@ -75,25 +75,38 @@ fn write_kitti(path: &std::path::Path, poses: &[Pose3]) {
     lanealign_core::trajectory::write(path, &trajectory, Format::Kitti).unwrap();
 }
 
-fn run_replay(setup: &Setup, source: &str, poses: &[Pose3], rate: Rate) -> Vec<Pose3> {
+/// A session of `source` that replayed `poses` (stamped `stamps` in nanoseconds, none when
+/// empty) at `rate`: the answers, and the connection, still open.
+fn replay_session(
+    setup: &Setup,
+    source: &str,
+    poses: &[Pose3],
+    stamps: &[i64],
+    rate: Rate,
+) -> (Vec<CorrectedPose>, Connection) {
     let mut conn = connect(setup, source);
     let r = replay(
         &mut conn,
         source,
         poses,
-        &[],
+        stamps,
         rate,
         Duration::from_secs(10),
         Duration::from_secs(10),
     )
     .unwrap();
-    let seqs: Vec<u64> = r.answers.iter().map(|x| x.seq).collect();
+    (r.answers, conn)
+}
+
+fn run_replay(setup: &Setup, source: &str, poses: &[Pose3], rate: Rate) -> Vec<Pose3> {
+    let (answers, _) = replay_session(setup, source, poses, &[], rate);
+    let seqs: Vec<u64> = answers.iter().map(|x| x.seq).collect();
     assert_eq!(
         seqs,
         (1..=poses.len() as u64).collect::<Vec<_>>(),
         "every pose once, in order"
     );
-    poses_of(&r.answers)
+    poses_of(&answers)
 }
 
 /// The shared LiDAR odometry run of sequence `seq`.
@@ -255,53 +268,41 @@ fn an_odometry_that_stalls_is_told_in_the_log() {
         .copied()
         .collect();
     for (poses, told) in [(&odometry[..500], 0), (&stalled[..], 1)] {
-        let mut conn = connect(&setup, &name);
-        let r = replay(
-            &mut conn,
-            &name,
-            poses,
-            &[],
-            Rate::Max(16),
-            Duration::from_secs(10),
-            Duration::from_secs(10),
-        )
-        .unwrap();
-        assert!(poses_of(&r.answers) == offline(&setup, &name, poses));
+        let _session = replayed_as_offline(&setup, &name, poses);
         let log = daemon.log();
-        let lines: Vec<&str> = log
-            .lines()
-            .filter(|l| l.contains("speed changed faster than a car's can"))
-            .collect();
-        assert_eq!(lines.len(), told, "{log}");
+        assert_eq!(speed_change_lines(&log).len(), told, "{log}");
     }
     // Pose 300 goes out as sequence number 301.
     let log = daemon.log();
-    let seq: u64 = log
-        .lines()
-        .find(|l| l.contains("speed changed faster than a car's can"))
-        .and_then(|l| l.split("seq=").nth(1))
-        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
-        .and_then(|digits| digits.parse().ok())
+    let seq: u64 = speed_change_lines(&log)
+        .first()
+        .and_then(|l| seq_of(l))
         .unwrap_or_else(|| panic!("{log}"));
     assert!((298..=304).contains(&seq), "{seq}: {log}");
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// The daemon's WARN lines in `log` that a session's speed changed faster than a car's can.
+fn speed_change_lines(log: &str) -> Vec<&str> {
+    log.lines()
+        .filter(|l| l.contains("speed changed faster than a car's can"))
+        .collect()
+}
+
+/// The sequence number a log line names (`seq=`).
+fn seq_of(line: &str) -> Option<u64> {
+    let rest = line.split("seq=").nth(1)?;
+    rest.split(|c: char| !c.is_ascii_digit())
+        .next()?
+        .parse()
+        .ok()
+}
+
 /// A session of `source` that has replayed `poses` (unstamped, 16 in flight), their answers
 /// checked equal to offline correction's.
 fn replayed_as_offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Connection {
-    let mut conn = connect(setup, source);
-    let r = replay(
-        &mut conn,
-        source,
-        poses,
-        &[],
-        Rate::Max(16),
-        Duration::from_secs(10),
-        Duration::from_secs(10),
-    )
-    .unwrap();
-    assert!(poses_of(&r.answers) == offline(setup, source, poses));
+    let (answers, conn) = replay_session(setup, source, poses, &[], Rate::Max(16));
+    assert!(poses_of(&answers) == offline(setup, source, poses));
     conn
 }
 
@@ -340,11 +341,9 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
     let told = |log: &str| -> Vec<u64> {
-        log.lines()
-            .filter(|l| l.contains("speed changed faster than a car's can"))
-            .filter_map(|l| l.split("seq=").nth(1))
-            .filter_map(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
-            .filter_map(|digits| digits.parse().ok())
+        speed_change_lines(log)
+            .into_iter()
+            .filter_map(seq_of)
             .collect()
     };
     for (i, moving) in [300, 45].into_iter().enumerate() {
@@ -504,24 +503,10 @@ fn a_slower_source_is_judged_at_the_rate_of_its_stamps() {
     let stamps_s: Vec<f64> = (0..100).map(|i| 1000.0 + 0.5 * i as f64).collect();
     let stamps: Vec<i64> = stamps_s.iter().map(|t| (t * 1e9).round() as i64).collect();
     for (poses, told) in [(&braking, 0), (&stalled, 1)] {
-        let mut conn = connect(&setup, &name);
-        let r = replay(
-            &mut conn,
-            &name,
-            poses,
-            &stamps,
-            Rate::Max(16),
-            Duration::from_secs(10),
-            Duration::from_secs(10),
-        )
-        .unwrap();
-        assert!(poses_of(&r.answers) == offline_stamped(&setup, &name, poses, Some(&stamps_s)));
+        let (answers, _session) = replay_session(&setup, &name, poses, &stamps, Rate::Max(16));
+        assert!(poses_of(&answers) == offline_stamped(&setup, &name, poses, Some(&stamps_s)));
         let log = daemon.log();
-        let lines = log
-            .lines()
-            .filter(|l| l.contains("speed changed faster than a car's can"))
-            .count();
-        assert_eq!(lines, told, "{log}");
+        assert_eq!(speed_change_lines(&log).len(), told, "{log}");
     }
     let log = daemon.log();
     assert_eq!(
@@ -529,18 +514,12 @@ fn a_slower_source_is_judged_at_the_rate_of_its_stamps() {
         2,
         "{log}"
     );
-    let line = log
-        .lines()
-        .find(|l| l.contains("speed changed faster than a car's can"))
+    let line = *speed_change_lines(&log)
+        .first()
         .unwrap_or_else(|| panic!("{log}"));
     assert!(line.contains("rate_hz=2"), "{line}");
     // Pose 3 goes out as sequence number 4.
-    let seq: u64 = line
-        .split("seq=")
-        .nth(1)
-        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
-        .and_then(|digits| digits.parse().ok())
-        .unwrap_or_else(|| panic!("{line}"));
+    let seq: u64 = seq_of(line).unwrap_or_else(|| panic!("{line}"));
     assert!((2..=6).contains(&seq), "{seq}: {line}");
     assert!(daemon.stop().unwrap(), "clean exit");
 }

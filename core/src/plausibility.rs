@@ -24,14 +24,6 @@ pub const MAX_VERTICAL_SHARE: f64 = 0.33;
 /// Shortest 3D path (metres) the axis check judges: standing still proves nothing.
 const MIN_PATH_FOR_AXIS_CHECK_M: f64 = 10.0;
 
-/// The share of the 3D path length of `poses` (given in `convention`) that goes along the
-/// planar frame's vertical axis; `None` when the path is too short to tell.
-pub fn vertical_share(poses: &[Pose3], convention: AxisConvention) -> Option<f64> {
-    let mut motion = AxisMotion::default();
-    poses.iter().for_each(|p| motion.observe(p));
-    motion.vertical_share(convention)
-}
-
 /// A warning when the motion of `poses` looks like the other axis convention.
 pub fn axis_convention_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
     let mut motion = AxisMotion::default();
@@ -67,7 +59,8 @@ impl AxisMotion {
         self.vertical_and_path_m[0].1
     }
 
-    /// The share of the path along `convention`'s vertical; `None` while it is too short.
+    /// The share of the 3D path length that goes along `convention`'s vertical axis; `None`
+    /// while the path is too short to tell.
     fn vertical_share(&self, convention: AxisConvention) -> Option<f64> {
         let k = AxisConvention::ALL.iter().position(|&c| c == convention)?;
         let (vertical, path) = self.vertical_and_path_m[k];

@@ -323,6 +323,8 @@ pub fn stamp_at(stamps_s: Option<&[f64]>, i: usize) -> f64 {
 /// Counts over a corrected run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counts {
+    /// Poses the corrector answered.
+    pub poses: usize,
     /// Steps where matching ran (the reference figures' "attempts").
     pub attempts: usize,
     /// Accepted corrections.
@@ -331,14 +333,20 @@ pub struct Counts {
     pub resets: usize,
 }
 
+impl Counts {
+    /// Counts one more pose, answered with `status`.
+    pub fn add(&mut self, status: &Status) {
+        self.poses += 1;
+        self.attempts += usize::from(status.attempted());
+        self.accepted += usize::from(matches!(status, Status::Accepted { .. }));
+        self.resets += usize::from(matches!(status, Status::Reset { .. }));
+    }
+}
+
 /// The counts of a corrected run.
 pub fn counts(run: &[CorrectedPose]) -> Counts {
     let mut c = Counts::default();
-    for pose in run {
-        c.attempts += pose.status.attempted() as usize;
-        c.accepted += matches!(pose.status, Status::Accepted { .. }) as usize;
-        c.resets += matches!(pose.status, Status::Reset { .. }) as usize;
-    }
+    run.iter().for_each(|pose| c.add(&pose.status));
     c
 }
 

@@ -21,6 +21,7 @@ use lanealign_core::plausibility::{
 };
 use lanealign_core::pose::Pose3;
 use lanealign_core::report::error_line;
+use lanealign_core::source_corrector::Counts;
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{
     CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START,
@@ -179,33 +180,14 @@ struct Live {
     watch: SourceWatch,
     /// The sequence number of the last pose `watch` took.
     watched_seq: u64,
-    /// The session's alignments so far, to warn when none is accepted.
-    alignments: Alignments,
+    /// The session's poses and alignments so far, to warn when none is accepted.
+    alignments: Counts,
 }
 
 /// How many alignments a session tries, all refused, before the daemon warns that none was
 /// accepted (the robust presets try one per metre of road: 100 m of driving; a session that
 /// ends sooner is told when it ends).
 const REFUSALS_TOLD: usize = 100;
-
-/// A session's alignments so far.
-#[derive(Default)]
-struct Alignments {
-    /// Poses the corrector answered.
-    poses: usize,
-    /// Alignments tried.
-    attempts: usize,
-    /// Alignments accepted.
-    accepted: usize,
-}
-
-impl Alignments {
-    fn count(&mut self, status: &Status) {
-        self.poses += 1;
-        self.attempts += usize::from(status.attempted());
-        self.accepted += usize::from(matches!(status, Status::Accepted { .. }));
-    }
-}
 
 struct Worker {
     name: String,
@@ -237,7 +219,7 @@ impl Worker {
                 self.setup.sessions.placement.convention,
             ),
             watched_seq: 0,
-            alignments: Alignments::default(),
+            alignments: Counts::default(),
         })
     }
 
@@ -423,7 +405,7 @@ impl Worker {
                 .observe(input.stamp_s(), &Pose3::from_row_major(&input.pose));
             live.watched_seq = input.seq;
             tell(&self.name, input.session, live, news, &setup.params);
-            live.alignments.count(&status);
+            live.alignments.add(&status);
             if live.alignments.attempts == REFUSALS_TOLD {
                 tell_refusals(&self.name, input.session, &live.alignments);
             }
@@ -492,7 +474,7 @@ fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Para
 
 /// Logs that session `session` of source `source` had none of its `alignments` accepted, if it
 /// tried any.
-fn tell_refusals(source: &str, session: u64, alignments: &Alignments) {
+fn tell_refusals(source: &str, session: u64, alignments: &Counts) {
     let warning = no_correction_warning(
         alignments.poses,
         alignments.attempts,
