@@ -323,8 +323,6 @@ pub fn stamp_at(stamps_s: Option<&[f64]>, i: usize) -> f64 {
 /// Counts over a corrected run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counts {
-    /// Poses the corrector answered.
-    pub poses: usize,
     /// Steps where matching ran (the reference figures' "attempts").
     pub attempts: usize,
     /// Accepted corrections.
@@ -336,7 +334,6 @@ pub struct Counts {
 impl Counts {
     /// Counts one more pose, answered with `status`.
     pub fn add(&mut self, status: &Status) {
-        self.poses += 1;
         self.attempts += usize::from(status.attempted());
         self.accepted += usize::from(matches!(status, Status::Accepted { .. }));
         self.resets += usize::from(matches!(status, Status::Reset { .. }));

@@ -180,8 +180,10 @@ struct Live {
     watch: SourceWatch,
     /// The sequence number of the last pose `watch` took.
     watched_seq: u64,
-    /// The session's poses and alignments so far, to warn when none is accepted.
+    /// The session's alignments so far, and the poses it answered with a correction, to warn
+    /// when none is accepted.
     alignments: Counts,
+    corrected_poses: usize,
 }
 
 /// How many alignments a session tries, all refused, before the daemon warns that none was
@@ -220,6 +222,7 @@ impl Worker {
             ),
             watched_seq: 0,
             alignments: Counts::default(),
+            corrected_poses: 0,
         })
     }
 
@@ -238,7 +241,7 @@ impl Worker {
             let news = live.watch.finish();
             tell(&self.name, id, &live, news, &self.setup.sessions.params);
             if live.alignments.attempts < REFUSALS_TOLD {
-                tell_refusals(&self.name, id, &live.alignments);
+                tell_refusals(&self.name, id, &live);
             }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
@@ -406,8 +409,9 @@ impl Worker {
             live.watched_seq = input.seq;
             tell(&self.name, input.session, live, news, &setup.params);
             live.alignments.add(&status);
+            live.corrected_poses += 1;
             if live.alignments.attempts == REFUSALS_TOLD {
-                tell_refusals(&self.name, input.session, &live.alignments);
+                tell_refusals(&self.name, input.session, live);
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
@@ -472,16 +476,19 @@ fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Para
     }
 }
 
-/// Logs that session `session` of source `source` had none of its `alignments` accepted, if it
-/// tried any.
-fn tell_refusals(source: &str, session: u64, alignments: &Counts) {
+/// Logs that session `session` (`live`) of source `source` had none of its alignments accepted,
+/// if it tried any.
+fn tell_refusals(source: &str, session: u64, live: &Live) {
+    let Counts {
+        attempts, accepted, ..
+    } = live.alignments;
     let warning = no_correction_warning(
-        alignments.poses,
-        alignments.attempts,
-        alignments.accepted,
+        live.corrected_poses,
+        attempts,
+        accepted,
         "the source's anchor and frame in this configuration and that the tile covers the drive",
     );
-    if let Some(warning) = warning.filter(|_| alignments.attempts > 0) {
+    if let Some(warning) = warning.filter(|_| attempts > 0) {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
 }
