@@ -1,0 +1,90 @@
+//! The rate a source's stamps say it runs at, against the corrector's.
+
+use crate::params::Params;
+
+/// How much faster (or slower) than the corrector's [`Params::odometry_rate_hz`] a source's
+/// stamps may say it is before its window is suspect of spanning too short (or too long) a
+/// stretch of road.
+pub const MAX_RATE_RATIO: f64 = 1.5;
+
+/// Stamps closer than this (seconds) are no sensor's: counters or a fixed value, not time.
+const MIN_PLAUSIBLE_INTERVAL_S: f64 = 1e-5;
+
+/// The rate (Hz) consecutive stamps (seconds, in arrival order) say the source runs at: the
+/// median interval's; `None` unless at least two intervals, and half of them, are plausible
+/// (at least 10 us; a source whose stamps are counters or constant says nothing).
+pub fn rate_from_stamps(stamps_s: &[f64]) -> Option<f64> {
+    let mut intervals: Vec<f64> = stamps_s
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|dt| dt.is_finite() && *dt >= MIN_PLAUSIBLE_INTERVAL_S)
+        .collect();
+    if intervals.len() < 2 || intervals.len() * 2 < stamps_s.len() {
+        return None;
+    }
+    let mid = intervals.len() / 2;
+    let (_, median, _) = intervals.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(1.0 / *median)
+}
+
+/// A warning when a source's measured `rate_hz` is well above or below the rate `params` are set
+/// for: its window then spans a fraction of the road the preset was chosen for, or a multiple of
+/// it (and its first correction comes as many times later).
+pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
+    let set_hz = params.odometry_rate_hz;
+    let consequence = if rate_hz > MAX_RATE_RATIO * set_hz {
+        "only part of the road its preset was chosen for"
+    } else if rate_hz * MAX_RATE_RATIO < set_hz {
+        "more time and road than its preset was chosen for, and its first correction comes later"
+    } else {
+        return None;
+    };
+    // Whole hertz above 10 Hz; below, a tenth matters (2.5 Hz is not 2 or 3).
+    let rate = if rate_hz >= 10.0 {
+        format!("{rate_hz:.0}")
+    } else {
+        format!("{rate_hz:.1}")
+    };
+    Some(format!(
+        "the poses come at about {rate} Hz (their stamps) but the corrector is set for {set_hz} \
+         Hz, so its window spans {consequence}: set odometry_rate_hz = {rate} (--set \
+         odometry_rate_hz={rate}, or in the source's overrides)"
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_source_faster_or_slower_than_its_preset_is_noticed_and_the_setting_named() {
+        let params = crate::params::Preset::KissIcp.robust_params();
+        let stamps = |hz: f64| {
+            (0..100)
+                .map(|i| 1.7e9 + i as f64 / hz)
+                .collect::<Vec<f64>>()
+        };
+        let rate = rate_from_stamps(&stamps(100.0)).unwrap();
+        assert!((rate - 100.0).abs() < 1e-3, "{rate}");
+        let w = rate_warning(rate, &params).unwrap();
+        assert!(w.contains("odometry_rate_hz=100"), "{w}");
+        assert!(rate_warning(rate_from_stamps(&stamps(10.0)).unwrap(), &params).is_none());
+        assert!(rate_warning(rate_from_stamps(&stamps(14.0)).unwrap(), &params).is_none());
+        assert!(rate_warning(rate_from_stamps(&stamps(7.0)).unwrap(), &params).is_none());
+        // A slower source too: its window would span twice the time and road.
+        let w = rate_warning(rate_from_stamps(&stamps(5.0)).unwrap(), &params).unwrap();
+        assert!(
+            w.contains("about 5.0 Hz") && w.contains("odometry_rate_hz=5.0"),
+            "{w}"
+        );
+        assert!(w.contains("first correction comes later"), "{w}");
+        let mut set = params;
+        set.odometry_rate_hz = 100.0;
+        assert!(rate_warning(rate, &set).is_none());
+        // Counters, a constant or stamps out of order tell no rate.
+        let counters: Vec<f64> = (0..100).map(|i| i as f64 * 1e-9).collect();
+        assert_eq!(rate_from_stamps(&counters), None);
+        assert_eq!(rate_from_stamps(&[0.0; 100]), None);
+        assert_eq!(rate_from_stamps(&[3.0, 2.0, 1.0, 0.0]), None);
+    }
+}

@@ -1,0 +1,124 @@
+//! Whether a run's setup lets the map correct it: the anchor against the map, whether any
+//! correction was accepted, the odometry's jumps.
+
+use super::{first_few, plural};
+use crate::corrector::Status;
+use crate::lane_map::LaneMap;
+use crate::params::Params;
+use crate::pose::Pose3;
+use crate::se2::Se2;
+use crate::source_corrector::CorrectedPose;
+
+/// Farthest the anchored start of a run may lie from every lane point before the anchor is
+/// suspect (metres).
+pub const MAX_START_TO_LANE_M: f64 = 1000.0;
+
+/// The distance (metres) from `position_in_map` to the nearest lane point of `map`.
+pub fn distance_to_lanes(map: &LaneMap, position_in_map: [f64; 2]) -> f64 {
+    let mut nearest = Vec::with_capacity(1);
+    map.nearest(position_in_map, 1, &mut nearest);
+    nearest.first().map_or(f64::INFINITY, |c| c.0.sqrt())
+}
+
+/// A warning when the anchor places the start of the run, `first` (planar `flu`), more than
+/// [`MAX_START_TO_LANE_M`] from every lane.
+pub fn anchor_warning(map: &LaneMap, anchored_from_odom: &Se2, first: &Pose3) -> Option<String> {
+    let start = anchored_from_odom.apply(first.planar_position());
+    let distance = distance_to_lanes(map, start);
+    (distance > MAX_START_TO_LANE_M).then(|| {
+        format!(
+            "the anchor places the first pose {} from the nearest lane: check --anchor (LAT,LON \
+             in degrees, YAW_DEG from East counter-clockwise) and that the map covers the drive \
+             (`lanealign-map inspect TILE --geojson lanes.geojson`)",
+            if distance.is_finite() {
+                format!("{:.1} km", distance / 1000.0)
+            } else {
+                "arbitrarily far".to_string()
+            }
+        )
+    })
+}
+
+/// What `lanealign correct` asks to check when no correction was accepted.
+pub const CHECK_CORRECT_SETUP: &str = "the anchor, --frame and that the map covers the drive";
+
+/// A warning when no correction was accepted over a whole run of `poses` poses, in which
+/// `attempts` alignments were tried: that `what_to_check` is the likely cause when they were
+/// refused, and that the run never filled the corrector's window when none was tried.
+pub fn no_correction_warning(
+    poses: usize,
+    attempts: usize,
+    accepted: usize,
+    what_to_check: &str,
+) -> Option<String> {
+    if poses == 0 || accepted > 0 {
+        return None;
+    }
+    Some(if attempts == 0 {
+        format!(
+            "no alignment was tried in {poses} poses, so the output is the raw odometry: the \
+             run ends before the corrector's window fills (or the vehicle stands still \
+             throughout); a source faster than odometry_rate_hz fills it in as many times more \
+             poses; the status file says each pose's status"
+        )
+    } else {
+        format!(
+            "no correction was accepted in {attempts} attempt{} over {poses} poses, so the output \
+             is the raw odometry: check {what_to_check}; the status file's reason column says \
+             why each attempt was refused",
+            plural(attempts)
+        )
+    })
+}
+
+/// A warning when the odometry jumped (status [`Status::OdometryJump`]) in `run`: at which
+/// poses (0-based, the first few), and what to give when the poses only paused.
+pub fn odometry_jump_warning(run: &[CorrectedPose], params: &Params) -> Option<String> {
+    let jumps: Vec<usize> = run
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| matches!(c.status, Status::OdometryJump { .. }))
+        .map(|(i, _)| i)
+        .collect();
+    if jumps.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "the odometry jumped at {} pose{} ({}): farther than max_speed_mps ({} m/s) from the \
+         pose before, so each was continued from where the vehicle was (status odometry_jump); \
+         if the poses only paused or come slower than odometry_rate_hz ({} Hz), give their \
+         stamps (TUM) or the rate",
+        jumps.len(),
+        plural(jumps.len()),
+        first_few(jumps.iter().map(usize::to_string), jumps.len()),
+        params.max_speed_mps,
+        params.odometry_rate_hz,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lane_map::Lane;
+
+    #[test]
+    fn a_far_anchor_is_noticed() {
+        let lane = Lane::new(1, (0..10).map(|i| [i as f64 * 3.0, 0.0]).collect());
+        let map = LaneMap::new(&[lane]).unwrap();
+        let first = Pose3::identity();
+        assert!(anchor_warning(&map, &Se2::new(0.0, 999.0, 0.0), &first).is_none());
+        let w = anchor_warning(&map, &Se2::new(0.0, 2500.0, 0.0), &first).unwrap();
+        assert!(w.contains("2.5 km"), "{w}");
+        let check = CHECK_CORRECT_SETUP;
+        let refused = no_correction_warning(10, 4, 0, check).unwrap();
+        assert!(refused.contains("4 attempts over 10 poses") && refused.contains("--frame"));
+        let untried = no_correction_warning(10, 0, 0, check).unwrap();
+        assert!(
+            untried.contains("no alignment was tried in 10 poses"),
+            "{untried}"
+        );
+        assert!(!untried.contains("--frame"), "{untried}");
+        assert!(no_correction_warning(10, 4, 1, check).is_none());
+        assert!(no_correction_warning(0, 0, 0, check).is_none());
+    }
+}

@@ -1,0 +1,345 @@
+//! Changes of an odometry's speed that no car makes: where it lost track.
+
+use std::collections::VecDeque;
+
+use super::{first_few, plural};
+use crate::pose::{AxisConvention, Pose3};
+
+/// The most a car's speed changes per second (m/s^2): about 1 g, what its tyres give at most
+/// when it brakes. Measured as [`SpeedWatch`] does, the speed of the 30 shared KITTI runs
+/// (ground truth, LiDAR and visual odometry) changes by at most 5.5 m/s^2, but for the visual
+/// odometry of sequence 01, which falls from 19 to 1 m/s within 0.6 s on the highway while the
+/// car drives on at 22 m/s (docs/method.md, "Confidence").
+pub const MAX_ACCELERATION_MPS2: f64 = 10.0;
+
+/// How long (seconds) a stretch of poses the speed check measures a speed over: the median of
+/// its steps' speeds, so that one long step (poses missing from the input, a jump) or one noisy
+/// step does not count as a change of speed.
+pub const SPEED_SPAN_S: f64 = 0.5;
+
+/// A change of the odometry's speed faster than [`MAX_ACCELERATION_MPS2`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SpeedChange {
+    /// The pose (0-based) between the stretch before the change and the one after it.
+    pub pose: usize,
+    /// The speed before (m/s): the median over the [`SPEED_SPAN_S`] before `pose`.
+    pub from_mps: f64,
+    /// The speed after (m/s): the median over the [`SPEED_SPAN_S`] after `pose`.
+    pub to_mps: f64,
+    /// The time (seconds) from one stretch's middle to the other's: [`SPEED_SPAN_S`] in whole
+    /// poses, at least one.
+    pub over_s: f64,
+}
+
+impl SpeedChange {
+    /// The acceleration (m/s^2, negative when braking) from one stretch's middle to the other's.
+    pub fn acceleration_mps2(&self) -> f64 {
+        (self.to_mps - self.from_mps) / self.over_s
+    }
+}
+
+/// The most steps the speed check takes the median of: at a higher rate it looks at every few
+/// poses only, so that a pose costs it a median of a few numbers at any rate.
+const MAX_SPAN_STEPS: usize = 8;
+
+/// Watches an odometry's speed, pose by pose, for changes faster than a car's can be
+/// ([`MAX_ACCELERATION_MPS2`]): the speed is the median of the steps' over [`SPEED_SPAN_S`],
+/// compared with the one over the [`SPEED_SPAN_S`] after it, so that one long step (poses missing
+/// from the input, a jump) or one noisy step is no change. Above 16 Hz it takes every few poses
+/// (at most eight steps to a span). Of the changes next to one another, the
+/// steepest stands for them all, told when they end.
+#[derive(Clone, Debug)]
+pub struct SpeedWatch {
+    /// The rate (Hz) of the poses it takes.
+    rate_hz: f64,
+    /// It takes every `every`-th pose.
+    every: usize,
+    /// Steps to a span.
+    span: usize,
+    /// Poses observed.
+    seen: usize,
+    /// The last pose taken (planar, metres).
+    last: Option<[f64; 2]>,
+    /// The last `2 span` steps' speeds (m/s), oldest first.
+    speeds: VecDeque<f64>,
+    scratch: Vec<f64>,
+    /// The steepest change of the ones under way, and the pose of the last one as steep.
+    open: Option<(SpeedChange, usize)>,
+}
+
+impl SpeedWatch {
+    /// A watch for poses coming at `rate_hz` (a rate that is no rate, zero or not finite, is
+    /// taken as the presets' 10 Hz).
+    pub fn new(rate_hz: f64) -> Self {
+        let rate_hz = if rate_hz.is_finite() && rate_hz > 0.0 {
+            rate_hz
+        } else {
+            crate::params::PRESET_RATE_HZ
+        };
+        let steps = SPEED_SPAN_S * rate_hz;
+        let every = ((steps / MAX_SPAN_STEPS as f64).ceil() as usize).max(1);
+        let rate_hz = rate_hz / every as f64;
+        // At most MAX_SPAN_STEPS already, but for rates beyond what `every` can count.
+        let span = ((SPEED_SPAN_S * rate_hz).round() as usize).clamp(1, MAX_SPAN_STEPS);
+        SpeedWatch {
+            rate_hz,
+            every,
+            span,
+            seen: 0,
+            last: None,
+            speeds: VecDeque::with_capacity(2 * span),
+            scratch: Vec::with_capacity(span),
+            open: None,
+        }
+    }
+
+    /// Takes the next pose's position (planar, metres, any fixed frame); returns a change of
+    /// speed no car makes when one has ended with this pose.
+    pub fn observe(&mut self, position: [f64; 2]) -> Option<SpeedChange> {
+        let index = self.seen;
+        self.seen += 1;
+        if !index.is_multiple_of(self.every) {
+            return None;
+        }
+        let last = self.last.replace(position)?;
+        if self.speeds.len() == 2 * self.span {
+            self.speeds.pop_front();
+        }
+        let moved = (position[0] - last[0]).hypot(position[1] - last[1]);
+        self.speeds.push_back(moved * self.rate_hz);
+        if self.speeds.len() < 2 * self.span {
+            return None;
+        }
+        let change = SpeedChange {
+            pose: index.saturating_sub(self.span.saturating_mul(self.every)),
+            from_mps: self.median(0),
+            to_mps: self.median(self.span),
+            over_s: self.span as f64 / self.rate_hz,
+        };
+        // NaN compares false: a span without a speed is no change.
+        let steepness = change.acceleration_mps2().abs();
+        if steepness > MAX_ACCELERATION_MPS2 {
+            match &mut self.open {
+                Some((steepest, last_as_steep)) => {
+                    let steepest_so_far = steepest.acceleration_mps2().abs();
+                    if steepness > steepest_so_far {
+                        (*steepest, *last_as_steep) = (change, change.pose);
+                    } else if steepness == steepest_so_far {
+                        *last_as_steep = change.pose;
+                    }
+                }
+                None => self.open = Some((change, change.pose)),
+            }
+            return None;
+        }
+        self.finish()
+    }
+
+    /// How many poses `change` (told by this watch) lies before the last pose observed.
+    pub fn poses_since(&self, change: &SpeedChange) -> usize {
+        self.seen.saturating_sub(1 + change.pose)
+    }
+
+    /// The change under way when the poses end, if one is.
+    pub fn finish(&mut self) -> Option<SpeedChange> {
+        let (mut steepest, last_as_steep) = self.open.take()?;
+        // Spans that see the same change from a few poses apart are as steep (a change within
+        // a step, medians of the same speeds): it lies in their middle.
+        steepest.pose = (steepest.pose + last_as_steep) / 2;
+        Some(steepest)
+    }
+
+    /// The median speed (m/s) of the span of steps from `first`; NaN when half of them or more
+    /// are not finite.
+    fn median(&mut self, first: usize) -> f64 {
+        self.scratch.clear();
+        let span = self.speeds.range(first..first + self.span);
+        self.scratch.extend(span.copied().filter(|s| s.is_finite()));
+        if self.scratch.len() * 2 <= self.span {
+            return f64::NAN;
+        }
+        let mid = self.scratch.len() / 2;
+        *self.scratch.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+}
+
+/// The changes of speed faster than [`MAX_ACCELERATION_MPS2`] along `positions` (planar, metres,
+/// any fixed frame) coming at `rate_hz`, as a [`SpeedWatch`] tells them.
+pub fn speed_changes(positions: &[[f64; 2]], rate_hz: f64) -> Vec<SpeedChange> {
+    let mut watch = SpeedWatch::new(rate_hz);
+    let mut changes: Vec<SpeedChange> =
+        positions.iter().filter_map(|&p| watch.observe(p)).collect();
+    changes.extend(watch.finish());
+    changes
+}
+
+/// A warning when the odometry's speed (the planar positions of `poses`, given in `convention`,
+/// at `rate_hz`) changes faster than a car's can ([`speed_changes`]): where, and what it means
+/// for the corrected poses.
+pub fn speed_change_warning(
+    poses: &[Pose3],
+    convention: AxisConvention,
+    rate_hz: f64,
+) -> Option<String> {
+    let positions: Vec<[f64; 2]> = poses
+        .iter()
+        .map(|p| convention.to_planar(p).planar_position())
+        .collect();
+    let changes = speed_changes(&positions, rate_hz);
+    if changes.is_empty() {
+        return None;
+    }
+    let shown = changes
+        .iter()
+        .map(|c| format!("pose {} ({:.1} -> {:.1} m/s)", c.pose, c.from_mps, c.to_mps));
+    Some(format!(
+        "the odometry's speed changes faster than a car's can (more than {MAX_ACCELERATION_MPS2} \
+         m/s^2 over {SPEED_SPAN_S} s) at {} place{}: {}; it probably lost track there (a \
+         visual odometry stalls where it sees too little), and where the lanes run straight the \
+         corrector cannot tell how far the vehicle went meanwhile, so the corrected poses after \
+         it may be off along the road by more than their covariance says (this takes the poses \
+         to come at {rate_hz} Hz: where they do not, give their stamps or odometry_rate_hz)",
+        changes.len(),
+        plural(changes.len()),
+        first_few(shown, changes.len()),
+    ))
+}
+
+#[cfg(test)]
+pub(super) mod tests {
+    use super::*;
+
+    /// A drive along x at 10 Hz whose speed (m/s) at each step `speed(step)` gives.
+    pub(in crate::plausibility) fn drive(
+        steps: usize,
+        speed: impl Fn(usize) -> f64,
+    ) -> Vec<[f64; 2]> {
+        drive_at(10.0, steps, speed)
+    }
+
+    /// A drive along x at `rate_hz` whose speed (m/s) at each step `speed(step)` gives.
+    pub(in crate::plausibility) fn drive_at(
+        rate_hz: f64,
+        steps: usize,
+        speed: impl Fn(usize) -> f64,
+    ) -> Vec<[f64; 2]> {
+        let mut x = 0.0;
+        let mut out = vec![[x, 0.0]];
+        for k in 0..steps {
+            x += speed(k) / rate_hz;
+            out.push([x, 0.0]);
+        }
+        out
+    }
+
+    #[test]
+    fn an_odometry_that_stalls_at_speed_is_noticed_and_hard_braking_is_not() {
+        // 20 m/s for 10 s, then braking at 8 m/s^2 (0.8 g) to a stop: a car can.
+        let braking = drive(200, |k| {
+            if k < 100 {
+                20.0
+            } else {
+                (20.0 - 0.8 * (k - 100) as f64).max(0.0)
+            }
+        });
+        assert_eq!(speed_changes(&braking, 10.0), []);
+        // The odometry falls from 20 m/s to 1 m/s in 0.4 s and stays there: no car can.
+        let stalled = drive(200, |k| match k {
+            0..100 => 20.0,
+            100..104 => 20.0 - 4.75 * (k - 99) as f64,
+            _ => 1.0,
+        });
+        let changes = speed_changes(&stalled, 10.0);
+        assert_eq!(changes.len(), 1, "{changes:?}");
+        let stall = changes[0];
+        assert!((99..=105).contains(&stall.pose), "{stall:?}");
+        assert!(stall.from_mps >= 15.0 && stall.to_mps <= 5.0, "{stall:?}");
+        assert!(stall.acceleration_mps2() < -MAX_ACCELERATION_MPS2);
+        let poses: Vec<Pose3> = stalled
+            .iter()
+            .map(|&[x, y]| Pose3::planar(x, y, 0.0, 0.0))
+            .collect();
+        let w = speed_change_warning(&poses, AxisConvention::Flu, 10.0).unwrap();
+        assert!(
+            w.contains(&format!("at 1 place: pose {}", stall.pose)),
+            "{w}"
+        );
+        assert!(speed_change_warning(&poses[..100], AxisConvention::Flu, 10.0).is_none());
+    }
+
+    #[test]
+    fn a_stall_is_noticed_at_any_rate_and_one_under_way_at_the_end_too() {
+        for rate_hz in [1.0, 4.0, 25.0, 100.0, 1000.0] {
+            // 20 m/s for 30 s, then 1 m/s, the change within one step.
+            let n = (60.0 * rate_hz) as usize;
+            let positions: Vec<[f64; 2]> = (0..n)
+                .map(|i| {
+                    let t = i as f64 / rate_hz;
+                    [20.0 * t.min(30.0) + (t - 30.0).max(0.0), 0.0]
+                })
+                .collect();
+            let changes = speed_changes(&positions, rate_hz);
+            assert_eq!(changes.len(), 1, "{rate_hz} Hz: {changes:?}");
+            let full = changes[0];
+            let at_s = full.pose as f64 / rate_hz;
+            assert!(
+                (at_s - 30.0).abs() <= full.over_s / 2.0,
+                "{rate_hz} Hz: {full:?}"
+            );
+            // Cut where the span after the change ends: it is still under way, and is told
+            // when the poses end.
+            let end = full.pose + (full.over_s * rate_hz).round() as usize + 1;
+            let mut watch = SpeedWatch::new(rate_hz);
+            assert!(positions[..end].iter().all(|&p| watch.observe(p).is_none()));
+            let cut = watch.finish().unwrap();
+            assert_eq!((cut.from_mps, cut.to_mps), (full.from_mps, full.to_mps));
+            assert!((cut.pose as f64 - full.pose as f64).abs() <= full.over_s * rate_hz);
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 256, rng_seed: proptest::test_runner::RngSeed::Fixed(31), ..Default::default() })]
+
+        /// Any positions (NaN, infinite, 1e308 m) at any rate: changes name poses of the input,
+        /// with speeds that are numbers, one at most for every two spans.
+        #[test]
+        fn any_positions_give_changes_within_the_input(
+            positions in proptest::collection::vec(
+                (proptest::num::f64::ANY, proptest::num::f64::ANY), 0..300),
+            rate_hz in proptest::prop_oneof![0.1f64..2000.0, proptest::num::f64::ANY],
+        ) {
+            let positions: Vec<[f64; 2]> = positions.into_iter().map(|(x, y)| [x, y]).collect();
+            let changes = speed_changes(&positions, rate_hz);
+            for c in &changes {
+                proptest::prop_assert!(c.pose < positions.len(), "{c:?}");
+                proptest::prop_assert!(!c.from_mps.is_nan() && !c.to_mps.is_nan(), "{c:?}");
+            }
+            proptest::prop_assert!(changes.len() <= positions.len() / 2 + 1);
+        }
+    }
+
+    #[test]
+    fn poses_missing_noise_and_bad_positions_are_no_change_of_speed() {
+        // One step over five missing poses.
+        let gap = drive(100, |k| if k == 50 { 120.0 } else { 20.0 });
+        assert_eq!(speed_changes(&gap, 10.0), []);
+        // 100 Hz with every position off by up to 2 cm (per-step speeds off by up to 4 m/s).
+        let mut rng = crate::rng::Lcg(7);
+        let noisy: Vec<[f64; 2]> = (0..2000)
+            .map(|i| [0.2 * i as f64 + 0.04 * (rng.uniform() - 0.5), 0.0])
+            .collect();
+        assert_eq!(speed_changes(&noisy, 100.0), []);
+        // A stretch of non-finite positions tells no speed.
+        let mut holed = drive(100, |_| 20.0);
+        holed[40..46].fill([f64::NAN, 0.0]);
+        assert_eq!(speed_changes(&holed, 10.0), []);
+        let stalled = drive(100, |k| if k < 50 { 20.0 } else { 0.0 });
+        assert_eq!(speed_changes(&stalled, 10.0).len(), 1);
+        // A rate that is no rate is taken as the presets'.
+        assert_eq!(speed_changes(&stalled, 0.0), speed_changes(&stalled, 10.0));
+        assert_eq!(
+            speed_changes(&stalled, f64::NAN),
+            speed_changes(&stalled, 10.0)
+        );
+    }
+}
