@@ -23,6 +23,7 @@ use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{read, Format};
+use lanealign_service::cpu_latency;
 use lanealign_tests::shared_data;
 use lanealign_wire::payload::{CorrectedPose, StatusCode};
 use lanealign_wire::service::{Ipc, DAEMON_NODE, WIRE_VERSION};
@@ -42,13 +43,15 @@ fn root_with(test: &str, tools: &[&str]) -> bool {
     if rustix::process::geteuid().is_root() && missing.is_empty() {
         return true;
     }
-    use std::io::Write;
-    let _ = writeln!(
-        std::io::stderr(),
-        "SKIPPED {test}: needs root and {}",
-        tools.join(", ")
-    );
+    skipped(test, &format!("needs root and {}", tools.join(", ")));
     false
+}
+
+/// Says on the terminal, past the harness's capture of passing tests, that `test` is skipped
+/// and why.
+fn skipped(test: &str, why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {why}");
 }
 
 /// A new session on `source` of the daemon of `setup`, once the daemon serves it and has
@@ -923,6 +926,71 @@ fn a_source_that_cannot_start_stops_the_daemon() {
     assert!(!out.status.success(), "{err}");
     assert!(err.contains("error: source many-"), "{err}");
     assert!(err.contains("caused by"), "{err}");
+}
+
+/// A configuration's `cpu_dma_latency_us` is asked of the kernel while the daemon runs: in
+/// effect as soon as the daemon is ready, and ended with it, stopped or killed (the kernel ends
+/// the request with the process); `check` passes and asks nothing. Without write access to the
+/// device (it is root's), `check` and the daemon refuse the key, naming the device and the way
+/// to grant it, and the rest is skipped.
+#[test]
+fn the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let setup = town_setup(&["lidar"]);
+    let text = std::fs::read_to_string(&setup.config).unwrap();
+    std::fs::write(&setup.config, format!("cpu_dma_latency_us = 0\n{text}")).unwrap();
+    let check = || {
+        Command::new(daemon_binary().unwrap())
+            .arg("check")
+            .arg("--config")
+            .arg(&setup.config)
+            .output()
+            .unwrap()
+    };
+    let device = std::path::Path::new(cpu_latency::DEVICE);
+    if cpu_latency::check(device).is_err() {
+        let out = check();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert!(
+            err.contains(cpu_latency::DEVICE) && err.contains("udev rule"),
+            "{err}"
+        );
+        skipped(
+            "the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs",
+            &format!("needs write access to {}", cpu_latency::DEVICE),
+        );
+        return;
+    }
+    let latency = || cpu_latency::current(device).unwrap();
+    let before = latency();
+    if before == 0 {
+        skipped(
+            "the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs",
+            "another process holds 0 us already",
+        );
+        return;
+    }
+    let out = check();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(latency(), before, "check asks nothing");
+    let daemon = start(&setup);
+    assert_eq!(latency(), 0);
+    assert!(
+        daemon.log().contains("cpu_dma_latency_us=0"),
+        "{}",
+        daemon.log()
+    );
+    daemon.kill().unwrap();
+    assert_eq!(latency(), before, "a killed daemon's request ends with it");
+    let daemon = start(&setup);
+    assert_eq!(latency(), 0);
+    assert!(daemon.stop().unwrap());
+    assert_eq!(latency(), before);
 }
 
 /// Always runs: SIGHUP reloads the tile. A running session keeps the tile it started with and

@@ -56,6 +56,11 @@ pub struct Config {
     /// Not empty: the tile must carry a valid signature by one of them.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub trusted_tile_keys: Vec<String>,
+    /// Keep every CPU able to run within this many microseconds while the daemon runs (0 to
+    /// 1000000; 0: idle CPUs poll instead of halting), through the kernel's
+    /// `/dev/cpu_dma_latency` ([`crate::cpu_latency`]). Absent (the default): no request.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_dma_latency_us: Option<u32>,
     /// The odometry sources.
     #[serde(rename = "source")]
     pub sources: Vec<SourceConfig>,
@@ -295,6 +300,18 @@ impl Config {
             ));
         }
         self.grid.validate().map_err(|e| value("grid".into(), e))?;
+        if let Some(us) = self
+            .cpu_dma_latency_us
+            .filter(|&us| us > crate::cpu_latency::MAX_US)
+        {
+            return Err(value(
+                "cpu_dma_latency_us".into(),
+                format!(
+                    "{us}: must be at most {} microseconds",
+                    crate::cpu_latency::MAX_US
+                ),
+            ));
+        }
         if !(1..=64).contains(&self.max_sessions) {
             return Err(value(
                 "max_sessions".into(),
@@ -526,6 +543,11 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
                 "namespace 'nnnnnnnnnnnnnnnn': longer than 15 characters",
             ),
             (format!("max_sessions = 0\n{GOOD}"), "max_sessions"),
+            (
+                format!("cpu_dma_latency_us = 1000001\n{GOOD}"),
+                "cpu_dma_latency_us: 1000001: must be at most 1000000",
+            ),
+            (format!("cpu_dma_latency_us = -1\n{GOOD}"), "cpu_dma_latency_us"),
             (format!("session_timeout_s = -1\n{GOOD}"), "session_timeout_s"),
             (
                 format!("{GOOD}\n[[source]]\nname = \"lidar\"\nanchor = {{ lat = 1.0, lon = 1.0, yaw_deg = 0.0 }}\ncorrector = {{ preset = \"basalt\" }}\n"),

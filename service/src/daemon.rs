@@ -1,5 +1,6 @@
 //! The daemon: checks the configuration and the tile ([`prepare`], which `lanealignd check`
-//! runs too), takes its namespace's instance lock, starts a worker per source (each restoring
+//! runs too), takes its namespace's instance lock, holds the CPU wake-up latency the
+//! configuration asks for ([`crate::cpu_latency`]), starts a worker per source (each restoring
 //! its journaled sessions) and stops if any cannot start, tells systemd it is ready and alive,
 //! cleans up after dead processes, watches for poses sent to unknown sources, reloads the tile
 //! on SIGHUP for new sessions, and shuts down cleanly on SIGINT or SIGTERM.
@@ -27,6 +28,7 @@ use lanealign_wire::service::{
 };
 
 use crate::config::{Config, ConfigError, ResolvedSource};
+use crate::cpu_latency::{self, CpuLatencyError, CpuLatencyRequest};
 use crate::grid_loader::{load_trusted, GridLoader};
 use crate::journal::fingerprint;
 use crate::session::SessionSetup;
@@ -96,6 +98,9 @@ pub enum DaemonError {
     /// The persistence thread could not be started.
     #[error("starting the persistence thread: {0}")]
     Persistence(std::io::Error),
+    /// The CPU wake-up latency the configuration asks for cannot be requested.
+    #[error(transparent)]
+    CpuLatency(#[from] CpuLatencyError),
 }
 
 /// A configuration that passed every check, with its tile loaded.
@@ -174,6 +179,9 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     let resolved = config.resolve(path)?;
     if let Some(dir) = &resolved.state_dir {
         check_state_dir(dir)?;
+    }
+    if config.cpu_dma_latency_us.is_some() {
+        cpu_latency::check(Path::new(cpu_latency::DEVICE))?;
     }
     let (namespace, sources) = (resolved.namespace, resolved.sources);
     if grid::is_grid(&config.tile) {
@@ -500,6 +508,18 @@ pub fn run(
         tile: info,
     } = prepared;
     let _lock = lock(&namespace, state_dir.as_deref())?;
+    // Held for the daemon's life: dropping it (or the process ending) ends the request.
+    let _cpu_latency = match config.cpu_dma_latency_us {
+        Some(us) => {
+            let request = CpuLatencyRequest::hold(us)?;
+            tracing::info!(
+                cpu_dma_latency_us = us,
+                "every CPU kept able to run within the latency while the daemon runs"
+            );
+            Some(request)
+        }
+        None => None,
+    };
     tracing::info!(
         tile = %config.tile.display(),
         lanes = info.lanes,

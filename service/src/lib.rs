@@ -4,6 +4,7 @@
 //! continues it exactly. See [`daemon::run`] and `configs/lanealignd.toml`.
 
 pub mod config;
+pub mod cpu_latency;
 pub mod daemon;
 pub mod grid_loader;
 pub mod journal;
