@@ -977,6 +977,8 @@ fn the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(said.contains("CPU wake-up latency 0 us"), "{said}");
     assert_eq!(latency(), before, "check asks nothing");
     let daemon = start(&setup);
     assert_eq!(latency(), 0);

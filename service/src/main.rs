@@ -68,8 +68,16 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
     match cli.command {
         Some(Command::Check) => {
+            let latency = prepared
+                .config
+                .cpu_dma_latency_us
+                .map_or(String::new(), |us| {
+                    format!(
+                        "; CPU wake-up latency {us} us asked of the kernel while the daemon runs"
+                    )
+                });
             println!(
-                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {})",
+                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {}){latency}",
                 path.display(),
                 prepared.sources.len(),
                 prepared.namespace,
