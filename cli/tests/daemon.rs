@@ -995,6 +995,59 @@ fn the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs() {
     assert_eq!(latency(), before);
 }
 
+/// `lanealign soak --cpu-dma-latency-us 0` has each phase's daemon ask for the latency: the
+/// kernel's latency reads 0 while the soak runs and what it was after it, and the table's header
+/// says so. Without write access to the device the soak fails naming it, and the rest is
+/// skipped.
+#[test]
+fn a_soak_has_its_daemons_ask_for_the_cpu_wake_up_latency() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let soak = || {
+        Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args(["soak", "--sources", "1", "--rate", "100", "--duration", "2"])
+            .args(["--waits", "event", "--cpu-dma-latency-us", "0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let test = "a_soak_has_its_daemons_ask_for_the_cpu_wake_up_latency";
+    let device = std::path::Path::new(cpu_latency::DEVICE);
+    if cpu_latency::check(device).is_err() {
+        let out = soak().wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert!(err.contains(cpu_latency::DEVICE), "{err}");
+        skipped(
+            test,
+            &format!("needs write access to {}", cpu_latency::DEVICE),
+        );
+        return;
+    }
+    let latency = || cpu_latency::current(device).unwrap();
+    let before = latency();
+    if before == 0 {
+        skipped(test, "another process holds 0 us already");
+        return;
+    }
+    let mut child = soak();
+    let mut held = false;
+    while child.try_wait().unwrap().is_none() {
+        held |= latency() == 0;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{said}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(said.contains("CPU wake-up latency 0 us"), "{said}");
+    assert!(held, "the latency never read 0 while the soak ran");
+    assert_eq!(latency(), before);
+}
+
 /// Always runs: SIGHUP reloads the tile. A running session keeps the tile it started with and
 /// loses no pose; a session started after the reload uses the new tile.
 /// Streams the town's drive through one session while, 300 poses in, `replace` changes the map

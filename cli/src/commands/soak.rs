@@ -43,6 +43,11 @@ pub struct SoakArgs {
         default_value = "event,spin-then-block:100,busy-spin"
     )]
     waits: Vec<WaitStrategy>,
+    /// Have each phase's daemon ask the kernel to keep every CPU able to run within this many
+    /// microseconds (the daemon's `cpu_dma_latency_us`; 0: idle CPUs poll instead of halting).
+    /// Needs write access to /dev/cpu_dma_latency.
+    #[arg(long)]
+    cpu_dma_latency_us: Option<u32>,
 }
 
 /// One source's outcome: round trips (ns) of the answered poses, and the poses not answered.
@@ -110,16 +115,15 @@ fn run_phase(
             wait,
         })
         .collect();
-    daemon_config::write(
-        &config,
-        &daemon_config::config(
-            tile_path,
-            namespace.as_str(),
-            5.0,
-            &dir.join("state"),
-            &entries,
-        ),
-    )?;
+    let mut daemon_config = daemon_config::config(
+        tile_path,
+        namespace.as_str(),
+        5.0,
+        &dir.join("state"),
+        &entries,
+    );
+    daemon_config.cpu_dma_latency_us = args.cpu_dma_latency_us;
+    daemon_config::write(&config, &daemon_config)?;
     let daemon = DaemonProcess::start_ready(
         &config,
         &dir.join(format!("{tag}.log")),
@@ -206,7 +210,10 @@ pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
     synthetic::write_town_tile(&tile_path)?;
     // The soak's own iceoryx2 namespace: one per run, its files removed after each phase.
     let namespace = daemon_config::run_namespace("soak", std::process::id())?;
-    println!("soak: {rate} Hz x {duration} s per phase, synthetic town, kiss-icp; round trip = client send to client receive; {cores} cores");
+    let latency = args.cpu_dma_latency_us.map_or(String::new(), |us| {
+        format!("; CPU wake-up latency {us} us asked of the kernel by each daemon")
+    });
+    println!("soak: {rate} Hz x {duration} s per phase, synthetic town, kiss-icp; round trip = client send to client receive; {cores} cores{latency}");
     println!("| mode | wait | sources | poses | lost | p50 (us) | p99 (us) | max (us) | daemon memory at start / 25 / 50 / 75 % / end (KiB) |");
     println!("|---|---|---|---|---|---|---|---|---|");
     let mut phase_index = 0;
