@@ -928,6 +928,32 @@ fn a_source_that_cannot_start_stops_the_daemon() {
     assert!(err.contains("caused by"), "{err}");
 }
 
+/// The kernel's CPU wake-up latency (us) before `test` has a daemon ask for 0 us, or `None` (and
+/// `test` said skipped) where it cannot tell: without write access to the device, once `refused`
+/// has asserted how the daemon refuses the request there; or where another process holds 0 us
+/// already.
+fn latency_before(test: &str, refused: impl FnOnce()) -> Option<i32> {
+    if cpu_latency::check(std::path::Path::new(cpu_latency::DEVICE)).is_err() {
+        refused();
+        skipped(
+            test,
+            &format!("needs write access to {}", cpu_latency::DEVICE),
+        );
+        return None;
+    }
+    let before = kernel_latency();
+    if before == 0 {
+        skipped(test, "another process holds 0 us already");
+        return None;
+    }
+    Some(before)
+}
+
+/// The CPU wake-up latency the kernel keeps to now (us).
+fn kernel_latency() -> i32 {
+    cpu_latency::current(std::path::Path::new(cpu_latency::DEVICE)).unwrap()
+}
+
 /// A configuration's `cpu_dma_latency_us` is asked of the kernel while the daemon runs: in
 /// effect as soon as the daemon is ready, and ended with it, stopped or killed (the kernel ends
 /// the request with the process); `check` passes and asks nothing. Without write access to the
@@ -947,8 +973,7 @@ fn the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs() {
             .output()
             .unwrap()
     };
-    let device = std::path::Path::new(cpu_latency::DEVICE);
-    if cpu_latency::check(device).is_err() {
+    let refused = || {
         let out = check();
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{err}");
@@ -956,21 +981,12 @@ fn the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs() {
             err.contains(cpu_latency::DEVICE) && err.contains("udev rule"),
             "{err}"
         );
-        skipped(
-            "the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs",
-            &format!("needs write access to {}", cpu_latency::DEVICE),
-        );
+    };
+    let test = "the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs";
+    let Some(before) = latency_before(test, refused) else {
         return;
-    }
-    let latency = || cpu_latency::current(device).unwrap();
-    let before = latency();
-    if before == 0 {
-        skipped(
-            "the_cpu_wake_up_latency_is_asked_for_while_the_daemon_runs",
-            "another process holds 0 us already",
-        );
-        return;
-    }
+    };
+    let latency = kernel_latency;
     let out = check();
     assert!(
         out.status.success(),
@@ -1011,25 +1027,17 @@ fn a_soak_has_its_daemons_ask_for_the_cpu_wake_up_latency() {
             .spawn()
             .unwrap()
     };
-    let test = "a_soak_has_its_daemons_ask_for_the_cpu_wake_up_latency";
-    let device = std::path::Path::new(cpu_latency::DEVICE);
-    if cpu_latency::check(device).is_err() {
+    let refused = || {
         let out = soak().wait_with_output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{err}");
         assert!(err.contains(cpu_latency::DEVICE), "{err}");
-        skipped(
-            test,
-            &format!("needs write access to {}", cpu_latency::DEVICE),
-        );
+    };
+    let test = "a_soak_has_its_daemons_ask_for_the_cpu_wake_up_latency";
+    let Some(before) = latency_before(test, refused) else {
         return;
-    }
-    let latency = || cpu_latency::current(device).unwrap();
-    let before = latency();
-    if before == 0 {
-        skipped(test, "another process holds 0 us already");
-        return;
-    }
+    };
+    let latency = kernel_latency;
     let mut child = soak();
     let mut held = false;
     while child.try_wait().unwrap().is_none() {
