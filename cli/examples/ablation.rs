@@ -191,6 +191,7 @@ fn ablation() -> anyhow::Result<Vec<Variant>> {
         "robust, an alignment on every pose:alignment_spacing_m=0",
         "robust, every standing pose in the window:standstill_speed_mps=0",
         "robust, no scale estimate:scale_sigma=0",
+        "robust, stalls not watched:watch_stalls=false",
         "robust, smooth:+smooth",
     ]
     .into_iter()

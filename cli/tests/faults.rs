@@ -16,6 +16,7 @@ use lanealign_cli::daemon_config;
 use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::synthetic::{self, Lcg};
 use lanealign_core::pose::{apply_planar_correction, Pose3};
+use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
 use lanealign_wire::clock::monotonic_ns;
@@ -308,6 +309,42 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_restarts() {
     assert!(moved(&t.poses) > 20.0, "{} m", moved(&t.poses));
     assert!(moved(&out) < 5.0, "{} m", moved(&out));
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 14, "800");
+}
+
+/// The same with an odometry that stalls (its steps 1 % of the road for 3 s, every 30 s of the
+/// drive): the restored sessions watch its speed on from where the killed ones were, and every
+/// covariance the stalls widen and every window they restart is offline's.
+#[test]
+fn killed_daemons_lose_nothing_of_an_odometry_that_stalls() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, poses) = synthetic::drive(2, 7);
+    let mut stalled = vec![poses[0]];
+    for i in 1..poses.len() {
+        let step = poses[i - 1].to_se2().inverse() * poses[i].to_se2();
+        let step = if i % 300 >= 270 {
+            let [x, y] = step.translation();
+            Se2::new(step.yaw(), 0.01 * x, 0.01 * y)
+        } else {
+            step
+        };
+        let last = stalled[i - 1];
+        stalled.push(apply_planar_correction(
+            &(last.to_se2() * step * poses[i].to_se2().inverse()),
+            &poses[i],
+        ));
+    }
+    let t = town_driven(town_setup, stalled);
+    let out = offline_run(&t.setup, &t.name, &t.poses, None);
+    let sd_m = |c: &lanealign_core::source_corrector::CorrectedPose| {
+        (c.covariance[0][0] + c.covariance[1][1]).sqrt()
+    };
+    assert!(
+        sd_m(&out[265]) < 10.0,
+        "{} m before the first stall",
+        sd_m(&out[265])
+    );
+    assert!(sd_m(&out[299]) > 20.0, "{} m after it", sd_m(&out[299]));
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 16, "800");
 }
 
 /// The same with a session that estimates its odometry's scale (the orb-slam3 preset; the town's

@@ -425,6 +425,17 @@ impl PoseUncertainty {
         self.symmetrize();
     }
 
+    /// Widens the position's uncertainty along `direction` (a unit vector, map plane) by
+    /// `variance_m2` (metres squared): road the odometry may have missed there, which no
+    /// alignment has seen ([`crate::stall`]). Nothing else changes.
+    pub fn widen_along(&mut self, direction: [f64; 2], variance_m2: f64) {
+        for r in 0..2 {
+            for c in 0..2 {
+                self.covariance[(r, c)] += variance_m2 * direction[r] * direction[c];
+            }
+        }
+    }
+
     /// The part of `proposed` (a correction about the same center as `information`) the
     /// evidence supports. In the eigen-directions of the window's `information` against the
     /// current covariance, one whose ratio is at least `min_ratio` is applied whole; in the others

@@ -440,6 +440,25 @@ impl Corrector {
         c
     }
 
+    /// Widens the current pose's uncertainty along `direction` (a unit vector, map plane) by
+    /// `variance_m2` (metres squared), in the filter that decides what is applied and in the
+    /// published covariance alike: road the odometry may have missed ([`crate::stall`]).
+    pub fn widen_along(&mut self, direction: [f64; 2], variance_m2: f64) {
+        self.uncertainty.widen_along(direction, variance_m2);
+        if let Some(scale) = &mut self.scale {
+            scale.published.widen_along(direction, variance_m2);
+        }
+    }
+
+    /// Restarts the window from its newest pose: the poses before it are no longer one rigid
+    /// piece of trajectory with the ones to come (an odometry that stalled missed road between
+    /// them, [`crate::stall`]). The correction in force and the uncertainty stay; the window
+    /// warms up again as at the start.
+    pub fn restart_window(&mut self) {
+        self.drop_oldest(self.window.len().saturating_sub(1));
+        self.failures = 0;
+    }
+
     /// The lane map in use.
     pub fn map(&self) -> &Arc<LaneMap> {
         &self.map

@@ -53,6 +53,7 @@ pub mod scale;
 pub mod se2;
 pub mod smoothing;
 pub mod source_corrector;
+pub mod stall;
 pub mod tile;
 pub mod trajectory;
 mod window;

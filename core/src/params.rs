@@ -106,6 +106,12 @@ pub struct Params {
     /// relocalisation): the source corrector continues the odometry from where the vehicle was
     /// ([`crate::continuity`]). inf = paper (every step is motion).
     pub max_speed_mps: f64,
+    /// Beyond the paper: an odometry whose speed falls faster than a car can brake has lost
+    /// track (a stalled visual odometry; [`crate::stall`]). The window restarts after it, since
+    /// the poses before and after the road it missed are no longer one rigid piece, and the
+    /// covariance widens along the direction of travel by the distance it may have missed until
+    /// it finds its track again. false = paper (every pose is taken as the odometry gives it).
+    pub watch_stalls: bool,
     /// Beyond the paper: how far off the odometry's scale may be at the start (a ratio, 1
     /// sigma; 0.05: its distances 5 % long or short). Above 0 the corrector estimates the scale
     /// from the lanes and multiplies the odometry's steps by it ([`crate::scale`]); 0 = paper
@@ -257,6 +263,7 @@ impl Preset {
             alignment_spacing_m: 0.0,
             standstill_speed_mps: 0.0,
             max_speed_mps: f64::INFINITY,
+            watch_stalls: false,
             scale_sigma: 0.0,
             scale_drift_var_per_m: 0.0,
         }
@@ -322,6 +329,9 @@ impl Preset {
             // 01): an odometry that restarts at its origin mid-drive would otherwise put the
             // corrected poses where the drive began (KITTI 00; docs/method.md, item 10).
             max_speed_mps: 70.0,
+            // A visual odometry that stalled on the highway of KITTI 01 lost some 100 m of road
+            // its covariance said nothing of (docs/method.md, "Confidence").
+            watch_stalls: true,
             scale_sigma,
             scale_drift_var_per_m: 1e-7,
             ..self.params()
@@ -608,6 +618,9 @@ pub struct Overrides {
     /// See [`Params::max_speed_mps`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_speed_mps: Option<f64>,
+    /// See [`Params::watch_stalls`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub watch_stalls: Option<bool>,
     /// See [`Params::scale_sigma`].
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scale_sigma: Option<f64>,
@@ -690,6 +703,7 @@ impl Overrides {
                 .standstill_speed_mps
                 .unwrap_or(base.standstill_speed_mps),
             max_speed_mps: self.max_speed_mps.unwrap_or(base.max_speed_mps),
+            watch_stalls: self.watch_stalls.unwrap_or(base.watch_stalls),
             scale_sigma: self.scale_sigma.unwrap_or(base.scale_sigma),
             scale_drift_var_per_m: self
                 .scale_drift_var_per_m

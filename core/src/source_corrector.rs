@@ -21,6 +21,7 @@ use crate::pose::{apply_planar_correction, AxisConvention, Pose3};
 use crate::scale::ScaledOdometry;
 use crate::se2::Se2;
 use crate::smoothing::{Smoother, Smoothing};
+use crate::stall::{StallState, StallWatch};
 
 /// The per-pose record of a correction.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -81,6 +82,10 @@ pub struct SourceState {
     pub continuity: Continuity,
     /// The odometry's steps as the scale estimate multiplied them so far.
     pub scaled: ScaledOdometry,
+    /// The watch for stalls of the odometry, where the source has one
+    /// ([`Params::watch_stalls`]); `None` in a state saved before it, which then
+    /// starts afresh.
+    pub stall: Option<StallState>,
 }
 
 /// A corrector for one source: converts, places, corrects and converts back.
@@ -92,6 +97,8 @@ pub struct SourceCorrector {
     smoother: Option<Smoother>,
     continuity: Continuity,
     scaled: ScaledOdometry,
+    /// Where [`Params::watch_stalls`]: the watch for stalls of the odometry.
+    stall: Option<StallWatch>,
 }
 
 impl SourceCorrector {
@@ -105,6 +112,9 @@ impl SourceCorrector {
             smoother: placement.smoothing.map(Smoother::new),
             continuity: Continuity::default(),
             scaled: ScaledOdometry::default(),
+            stall: params
+                .watch_stalls
+                .then(|| StallWatch::new(params.odometry_rate_hz)),
             placement,
         }
     }
@@ -154,6 +164,7 @@ impl SourceCorrector {
             smoothed: self.smoother.as_ref().and_then(Smoother::output_from_odom),
             continuity: self.continuity,
             scaled: self.scaled,
+            stall: self.stall.as_ref().map(StallWatch::state),
         }
     }
 
@@ -174,6 +185,10 @@ impl SourceCorrector {
                 .map(|limits| Smoother::restore(limits, state.smoothed)),
             continuity: state.continuity,
             scaled: state.scaled,
+            stall: params.watch_stalls.then(|| match state.stall {
+                Some(saved) => StallWatch::restore(params.odometry_rate_hz, saved),
+                None => StallWatch::new(params.odometry_rate_hz),
+            }),
             placement,
         }
     }
@@ -231,6 +246,19 @@ impl SourceCorrector {
             self.scaled
                 .place(anchored.planar_position(), self.corrector.odometry_scale());
             anchored = apply_planar_correction(&self.scaled.scaled_from_anchored(), &anchored);
+        }
+        if let Some(watch) = &mut self.stall {
+            let corrector = &mut self.corrector;
+            let position = anchored.planar_position();
+            watch.observe(position, anchored.planar_heading(), stamp_s, |widening| {
+                // The pose is in frame `scaled` here, the corrector's own: its correction turns
+                // the direction into the map plane.
+                let direction = corrector.map_from_anchored().rotate(widening.direction);
+                corrector.widen_along(direction, widening.variance_m2);
+                if widening.began {
+                    corrector.restart_window();
+                }
+            });
         }
         let (status, covariance, timing, published) = if continued == Continued::Jumped {
             let held = self.corrector.map_from_anchored();
@@ -452,6 +480,97 @@ mod tests {
             SourceCorrector::restore(map, params, MatchMode::Fast, placement, first.state());
         for pose in &restarted[350..] {
             assert_eq!(first.correct(pose).0, second.correct(pose).0);
+        }
+    }
+
+    /// A straight eastbound road 3 km long, driven at 20 m/s by an odometry that stalls for
+    /// 3 s after 300 poses (0.2 m/s) and then goes on at 20 m/s: the poses in the odometry's
+    /// frame, on the lane.
+    fn stalled_drive() -> (Arc<LaneMap>, Vec<Pose3>) {
+        let lane = Lane::new(1, (0..1000).map(|i| [i as f64 * 3.0, 0.0]).collect());
+        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
+        let mut x = 0.0;
+        let poses = (0..600)
+            .map(|i| {
+                x += if (300..330).contains(&i) { 0.02 } else { 2.0 };
+                Pose3::planar(x, 0.3, 0.0, 0.0)
+            })
+            .collect();
+        (map, poses)
+    }
+
+    #[test]
+    fn a_stall_restarts_the_window_and_widens_the_covariance_along_the_road() {
+        let (map, poses) = stalled_drive();
+        let placement = Placement {
+            convention: AxisConvention::Flu,
+            anchored_from_odom: Se2::new(0.0, 0.0, 0.0),
+            smoothing: None,
+        };
+        let params = crate::params::Method::Robust.params(Preset::KissIcp);
+        assert!(params.watch_stalls);
+        let unwatched = Params {
+            watch_stalls: false,
+            ..params
+        };
+        let run = |params: Params| {
+            let mut c = SourceCorrector::new(map.clone(), params, MatchMode::Fast, placement);
+            poses.iter().map(|p| c.correct(p).0).collect::<Vec<_>>()
+        };
+        let (watched, before) = (run(params), run(unwatched));
+        let told = watched
+            .iter()
+            .zip(&before)
+            .position(|(a, b)| a != b)
+            .expect("the stall changes the answers");
+        assert!((300..312).contains(&told), "told at pose {told}");
+        // The window restarted from the last pose that entered it (this one stands still).
+        assert_eq!(watched[told].status.window_len(), 1);
+        assert!(before[told].status.window_len() > 100);
+        // 30 poses missed 1.98 m each along the road (x); across it (y) nothing changed.
+        let missed_m = 30.0 * 1.98;
+        for i in [340, 450, 599] {
+            let (now, then) = (&watched[i].covariance, &before[i].covariance);
+            let added = now[0][0] - then[0][0];
+            assert!(
+                (added.sqrt() - missed_m).abs() < 0.05 * missed_m,
+                "pose {i}: {} m along the road",
+                added.sqrt()
+            );
+        }
+        // Across the road the lanes take it back to what it was once the window has warmed
+        // up again after its restart.
+        let (now, then) = (&watched[599].covariance, &before[599].covariance);
+        assert!(now[1][1] < 1.2 * then[1][1], "{now:?} against {then:?}");
+        // The corrections stay on the lane.
+        assert!(watched
+            .iter()
+            .all(|c| (c.pose.planar_position()[1] - 0.3).abs() < 1.0));
+    }
+
+    #[test]
+    fn a_corrector_restored_in_a_stall_goes_on_as_the_one_it_was_saved_from() {
+        let (map, poses) = stalled_drive();
+        let placement = Placement {
+            convention: AxisConvention::Flu,
+            anchored_from_odom: Se2::new(0.3, 5.0, -2.0),
+            smoothing: None,
+        };
+        let params = crate::params::Method::Robust.params(Preset::KissIcp);
+        let mut whole = SourceCorrector::new(map.clone(), params, MatchMode::Fast, placement);
+        let expected: Vec<CorrectedPose> = poses.iter().map(|p| whole.correct(p).0).collect();
+        for cut in [302, 306, 320, 335] {
+            let mut first = SourceCorrector::new(map.clone(), params, MatchMode::Fast, placement);
+            for p in &poses[..cut] {
+                first.correct(p);
+            }
+            let state = first.state();
+            assert!(state.stall.is_some());
+            let mut restored =
+                SourceCorrector::restore(map.clone(), params, MatchMode::Fast, placement, state);
+            for (i, p) in poses.iter().enumerate().skip(cut) {
+                assert_eq!(restored.correct(p).0, expected[i], "cut {cut}, pose {i}");
+            }
         }
     }
 

@@ -43,9 +43,11 @@ use memmap2::MmapMut;
 
 use lanealign_core::continuity::Continuity;
 use lanealign_core::corrector::CorrectorState;
+use lanealign_core::plausibility::{SpeedChange, SpeedHistory};
 use lanealign_core::scale::{ScaleEstimate, ScaledOdometry};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::SourceState;
+use lanealign_core::stall::{Stall, StallState};
 use lanealign_wire::payload::{CorrectedPose, OdomPose, MAX_IN_FLIGHT};
 use xxhash_rust::xxh3::xxh3_64;
 
@@ -59,7 +61,10 @@ const SESSION_MAGIC: &[u8; 8] = b"LASESS02";
 /// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
 /// records cannot be appended to, so their sessions are not restored (they start afresh).
 const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP07";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP08";
+/// Snapshots before stalls of the odometry widened the covariance (read with the watch for them
+/// starting afresh where the session's parameters have one).
+const SNAPSHOT_MAGIC_V7: &[u8; 8] = b"LASNAP07";
 /// Snapshots before the odometry's scale was estimated (read with the estimate at its start
 /// when the session's parameters estimate it).
 const SNAPSHOT_MAGIC_V6: &[u8; 8] = b"LASNAP06";
@@ -77,6 +82,8 @@ const SNAPSHOT_MAGIC_V3: &[u8; 8] = b"LASNAP03";
 const SNAPSHOT_MAGIC_V2: &[u8; 8] = b"LASNAP02";
 /// The largest window a snapshot may hold (poses): the corrector's own limit.
 const MAX_WINDOW: u64 = 1_000_000;
+/// The most poses or speeds a snapshot's stall watch may hold (it keeps 64 and 16).
+const MAX_STALL_VALUES: u64 = 1024;
 
 /// A journal that could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -355,6 +362,12 @@ impl Snapshot {
             }
             None => e.u32(0).f64s(&[0.0; 12]),
         };
+        match &self.state.stall {
+            Some(stall) => encode_stall(e.u32(1), stall),
+            None => {
+                e.u32(0);
+            }
+        }
         e.u64(c.window.len() as u64);
         for p in &c.window {
             e.f64s(p);
@@ -374,7 +387,8 @@ impl Snapshot {
         let magic = body.get(..8)?;
         // Each format kept what the one before did and added a part.
         let version = match magic {
-            m if m == SNAPSHOT_MAGIC => 7,
+            m if m == SNAPSHOT_MAGIC => 8,
+            m if m == SNAPSHOT_MAGIC_V7 => 7,
             m if m == SNAPSHOT_MAGIC_V6 => 6,
             m if m == SNAPSHOT_MAGIC_V5 => 5,
             m if m == SNAPSHOT_MAGIC_V4 => 4,
@@ -387,6 +401,7 @@ impl Snapshot {
         let has_unanchored = version >= 5;
         let has_continuity = version >= 6;
         let has_scale = version >= 7;
+        let has_stall = version >= 8;
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -439,6 +454,11 @@ impl Snapshot {
         } else {
             (None, ScaledOdometry::default(), None)
         };
+        let stall = if has_stall && flag(d.u32()?)? {
+            Some(decode_stall(&mut d)?)
+        } else {
+            None
+        };
         let n = d.u64()?;
         if n > MAX_WINDOW || d.0.len() as u64 != n * 16 {
             return None;
@@ -475,6 +495,7 @@ impl Snapshot {
             smoothed: flag(smoothed.0)?.then_some(smoothed.1),
             continuity,
             scaled,
+            stall,
         };
         finite.then_some(Snapshot {
             last_seq,
@@ -482,6 +503,104 @@ impl Snapshot {
             state,
         })
     }
+}
+
+/// Appends a stall watch's state.
+fn encode_stall(e: &mut Encoder, stall: &StallState) {
+    e.u64(stall.held.len() as u64);
+    for held in &stall.held {
+        e.f64s(held);
+    }
+    match &stall.judged {
+        Some((rate_hz, speed)) => {
+            e.u32(1).f64(*rate_hz).u64(speed.seen as u64);
+            match speed.last {
+                Some(p) => e.u32(1).f64s(&p),
+                None => e.u32(0).f64s(&[0.0, 0.0]),
+            };
+            e.u64(speed.repeats as u64);
+            e.u64(speed.speeds.len() as u64).f64s(&speed.speeds);
+            match speed.open {
+                Some((change, last_as_steep)) => e
+                    .u32(1)
+                    .u64(change.pose as u64)
+                    .f64s(&[change.from_mps, change.to_mps, change.over_s])
+                    .u64(last_as_steep as u64),
+                None => e.u32(0).u64(0).f64s(&[0.0; 3]).u64(0),
+            };
+        }
+        None => {
+            e.u32(0);
+        }
+    }
+    match stall.last {
+        Some(p) => e.u32(1).f64s(&p),
+        None => e.u32(0).f64s(&[0.0, 0.0]),
+    };
+    match stall.open {
+        Some(open) => e
+            .u32(1)
+            .f64(open.before_mps)
+            .f64s(&open.heading)
+            .f64(open.missed_m),
+        None => e.u32(0).f64s(&[0.0; 4]),
+    };
+}
+
+/// A stall watch's state ([`encode_stall`]); `None` unless every part is there and every
+/// number but a held stamp (NaN without stamps) is finite.
+fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
+    let flag = |f: u32| (f <= 1).then_some(f == 1);
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    let count = |d: &mut Decoder<'_>| d.u64().filter(|&n| n <= MAX_STALL_VALUES);
+    let held: Vec<[f64; 4]> = (0..count(d)?)
+        .map(|_| d.f64s::<4>().filter(|h| finite(&h[1..])))
+        .collect::<Option<_>>()?;
+    let judged = if flag(d.u32()?)? {
+        let (rate_hz, seen) = (d.f64()?, usize::try_from(d.u64()?).ok()?);
+        let last = (d.u32()?, d.f64s::<2>()?);
+        let repeats = usize::try_from(d.u64()?).ok()?;
+        let speeds: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
+        let change = (d.u32()?, d.u64()?, d.f64s::<3>()?, d.u64()?);
+        let valid = rate_hz.is_finite()
+            && rate_hz > 0.0
+            && finite(&last.1)
+            && finite(&speeds)
+            && finite(&change.2);
+        valid.then_some(())?;
+        let open = flag(change.0)?.then_some((
+            SpeedChange {
+                pose: usize::try_from(change.1).ok()?,
+                from_mps: change.2[0],
+                to_mps: change.2[1],
+                over_s: change.2[2],
+            },
+            usize::try_from(change.3).ok()?,
+        ));
+        let history = SpeedHistory {
+            seen,
+            last: flag(last.0)?.then_some(last.1),
+            repeats,
+            speeds,
+            open,
+        };
+        Some((rate_hz, history))
+    } else {
+        None
+    };
+    let last = (d.u32()?, d.f64s::<2>()?);
+    let open = (d.u32()?, d.f64()?, d.f64s::<2>()?, d.f64()?);
+    (finite(&last.1) && finite(&[open.1, open.2[0], open.2[1], open.3])).then_some(())?;
+    Some(StallState {
+        held,
+        judged,
+        last: flag(last.0)?.then_some(last.1),
+        open: flag(open.0)?.then_some(Stall {
+            before_mps: open.1,
+            heading: open.2,
+            missed_m: open.3,
+        }),
+    })
 }
 
 /// What a session's journal was written under: refused on restore when it differs from now.
@@ -808,6 +927,7 @@ impl SegmentCopier {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use lanealign_core::stall::StallWatch;
 
     fn record(seq: u64) -> Record {
         let input = OdomPose {
@@ -902,16 +1022,51 @@ mod tests {
                     last_in_anchored: Some([310.5, -20.25]),
                     offset: [-4.5, 0.75],
                 },
+                stall: Some(StallState {
+                    held: Vec::new(),
+                    judged: Some((
+                        10.0,
+                        SpeedHistory {
+                            seen: 812,
+                            last: Some([300.5, -19.5]),
+                            repeats: 2,
+                            speeds: vec![19.0, 18.5, 2.0, 0.5, 0.25],
+                            open: Some((
+                                SpeedChange {
+                                    pose: 806,
+                                    from_mps: 19.0,
+                                    to_mps: 1.5,
+                                    over_s: 0.5,
+                                },
+                                808,
+                            )),
+                        },
+                    )),
+                    last: Some([310.5, -20.25]),
+                    open: Some(Stall {
+                        before_mps: 19.0,
+                        heading: [0.6, -0.8],
+                        missed_m: 42.5,
+                    }),
+                }),
             },
         };
         let bytes = snap.encode();
         assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
+        // A session without a stall watch (the paper's method), and one whose watch has seen
+        // nothing.
+        for stall in [None, Some(StallWatch::new(10.0).state())] {
+            let mut other = snap.clone();
+            other.state.stall = stall;
+            assert_eq!(Snapshot::decode(&other.encode()), Some(other));
+        }
         // Where the map error starts; the count of carried poses follows it, the odometry's
         // continuity (112 bytes) comes after the last position and the smoothed correction, and
         // the scale estimate, the scaled odometry and the published uncertainty (156 bytes)
-        // after that.
+        // after that, then the stall watch (168 bytes and its 5 speeds).
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
-        let (continuity_at, scale_at, window_at) = (at + 100, at + 212, at + 368);
+        let (continuity_at, scale_at, stall_at) = (at + 100, at + 212, at + 368);
+        let window_at = stall_at + 168 + 5 * 8;
         let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
             for part in parts {
@@ -921,8 +1076,12 @@ mod tests {
             v
         };
         let tail = window_at..bytes.len() - 8;
-        // The format before: no scale estimate, read as none.
+        // The format before: no stall watch, read as none (it starts afresh).
         let mut old = snap.clone();
+        old.state.stall = None;
+        let v7 = frame(SNAPSHOT_MAGIC_V7, &[8..stall_at, tail.clone()]);
+        assert_eq!(Snapshot::decode(&v7), Some(old.clone()));
+        // The one before: no scale estimate, read as none.
         old.state.corrector.scale = None;
         old.state.corrector.published_uncertainty = None;
         old.state.scaled = ScaledOdometry::default();
@@ -954,6 +1113,14 @@ mod tests {
         let mut bad = bytes.clone();
         bad[50] ^= 4;
         assert!(Snapshot::decode(&bad).is_none());
+        // A stall watch with a speed that is no number is refused, checksum and all.
+        let mut nan = snap.clone();
+        if let Some(stall) = &mut nan.state.stall {
+            if let Some((_, speed)) = &mut stall.judged {
+                speed.speeds[2] = f64::NAN;
+            }
+        }
+        assert!(Snapshot::decode(&nan.encode()).is_none());
     }
 
     fn seqs(records: &[Record]) -> Vec<u64> {

@@ -23,8 +23,8 @@ pub use setup::{
 };
 pub use source_watch::{SourceNews, SourceWatch, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M};
 pub use speed::{
-    speed_change_warning, speed_changes, SpeedChange, SpeedWatch, MAX_ACCELERATION_MPS2,
-    SPEED_SPAN_S,
+    speed_change_warning, speed_changes, SpeedChange, SpeedHistory, SpeedWatch,
+    MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
 };
 
 /// `"s"` unless `count` is one.

@@ -38,6 +38,22 @@ impl SpeedChange {
     }
 }
 
+/// What a [`SpeedWatch`] has seen ([`SpeedWatch::history`]): enough to continue exactly where
+/// it was (a daemon's snapshot of a session).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpeedHistory {
+    /// Poses observed.
+    pub seen: usize,
+    /// The last pose it took (planar, metres).
+    pub last: Option<[f64; 2]>,
+    /// Poses in a row it took exactly where the last one was (at most a span).
+    pub repeats: usize,
+    /// The last steps' speeds (m/s), oldest first: at most two spans of them.
+    pub speeds: Vec<f64>,
+    /// The steepest change of the ones under way, and the pose of the last one as steep.
+    pub open: Option<(SpeedChange, usize)>,
+}
+
 /// The most steps the speed check takes the median of: at a higher rate it looks at every few
 /// poses only, so that a pose costs it a median of a few numbers at any rate.
 const MAX_SPAN_STEPS: usize = 8;
@@ -45,7 +61,11 @@ const MAX_SPAN_STEPS: usize = 8;
 /// Watches an odometry's speed, pose by pose, for changes faster than a car's can be
 /// ([`MAX_ACCELERATION_MPS2`]): the speed is the median of the steps' over [`SPEED_SPAN_S`],
 /// compared with the one over the [`SPEED_SPAN_S`] after it, so that one long step (poses missing
-/// from the input, a jump) or one noisy step is no change. Above 16 Hz it takes every few poses
+/// from the input, a jump) or one noisy step is no change. A pose exactly where the last one was
+/// is no new estimate while fewer than a span of them come in a row (an odometry that
+/// publishes every estimate twice keeps its speed: the next step's is taken over the time since
+/// the last estimate); beyond that it stands or is frozen, and each is a step of no speed.
+/// Above 16 Hz it takes every few poses
 /// (at most eight steps to a span). Of the changes next to one another, the
 /// steepest stands for them all, told when they end.
 #[derive(Clone, Debug)]
@@ -60,6 +80,8 @@ pub struct SpeedWatch {
     seen: usize,
     /// The last pose taken (planar, metres).
     last: Option<[f64; 2]>,
+    /// Poses in a row taken exactly where the last one was, while no more than a span.
+    repeats: usize,
     /// The last `2 span` steps' speeds (m/s), oldest first.
     speeds: VecDeque<f64>,
     scratch: Vec<f64>,
@@ -87,6 +109,7 @@ impl SpeedWatch {
             span,
             seen: 0,
             last: None,
+            repeats: 0,
             speeds: VecDeque::with_capacity(2 * span),
             scratch: Vec::with_capacity(span),
             open: None,
@@ -102,11 +125,20 @@ impl SpeedWatch {
             return None;
         }
         let last = self.last.replace(position)?;
+        let periods = if position == last {
+            if self.repeats < self.span {
+                self.repeats += 1;
+                return None;
+            }
+            1
+        } else {
+            std::mem::take(&mut self.repeats) + 1
+        };
+        let moved = (position[0] - last[0]).hypot(position[1] - last[1]);
         if self.speeds.len() == 2 * self.span {
             self.speeds.pop_front();
         }
-        let moved = (position[0] - last[0]).hypot(position[1] - last[1]);
-        self.speeds.push_back(moved * self.rate_hz);
+        self.speeds.push_back(moved * self.rate_hz / periods as f64);
         if self.speeds.len() < 2 * self.span {
             return None;
         }
@@ -133,6 +165,32 @@ impl SpeedWatch {
             return None;
         }
         self.finish()
+    }
+
+    /// What the watch has seen, to continue from later ([`SpeedWatch::resume`]).
+    pub fn history(&self) -> SpeedHistory {
+        SpeedHistory {
+            seen: self.seen,
+            last: self.last,
+            repeats: self.repeats,
+            speeds: self.speeds.iter().copied().collect(),
+            open: self.open,
+        }
+    }
+
+    /// A watch for poses coming at `rate_hz` that continues from `history` (what one for the
+    /// same rate had seen), exactly as that one would. Speeds beyond what a watch for this rate
+    /// keeps are dropped, the oldest first.
+    pub fn resume(rate_hz: f64, history: SpeedHistory) -> Self {
+        let mut watch = SpeedWatch::new(rate_hz);
+        let keep = history.speeds.len().min(2 * watch.span);
+        let dropped = history.speeds.len() - keep;
+        watch.speeds.extend(&history.speeds[dropped..]);
+        watch.seen = history.seen;
+        watch.last = history.last;
+        watch.repeats = history.repeats.min(watch.span);
+        watch.open = history.open;
+        watch
     }
 
     /// How many poses `change` (told by this watch) lies before the last pose observed.
@@ -197,8 +255,10 @@ pub fn speed_change_warning(
          m/s^2 over {SPEED_SPAN_S} s) at {} place{}: {}; it probably lost track there (a \
          visual odometry stalls where it sees too little), and where the lanes run straight the \
          corrector cannot tell how far the vehicle went meanwhile, so the corrected poses after \
-         it may be off along the road by more than their covariance says (this takes the poses \
-         to come at {rate_hz} Hz: where they do not, give their stamps or odometry_rate_hz)",
+         it may be off along the road; the corrector takes the vehicle to have driven on at the \
+         speed before a fall, restarts its window and widens the covariance along the road by \
+         the distance that misses (watch_stalls) (this takes the poses to come at {rate_hz} Hz: \
+         where they do not, give their stamps or odometry_rate_hz)",
         changes.len(),
         plural(changes.len()),
         first_few(shown, changes.len()),
@@ -265,6 +325,33 @@ pub(super) mod tests {
             "{w}"
         );
         assert!(speed_change_warning(&poses[..100], AxisConvention::Flu, 10.0).is_none());
+    }
+
+    #[test]
+    fn every_estimate_published_twice_is_no_change_but_a_frozen_odometry_is() {
+        // 20 m/s braking to 10 m/s at 4 m/s^2, every pose published twice at the rate set for
+        // once: a step, then none.
+        let once: Vec<[f64; 2]> = (0..300)
+            .scan(0.0, |x, i| {
+                let t = i as f64 / 10.0;
+                *x += (20.0 - 4.0 * (t - 10.0).clamp(0.0, 2.5)) / 10.0;
+                Some([*x, 3.0])
+            })
+            .collect();
+        let twice: Vec<[f64; 2]> = once.iter().flat_map(|&p| [p, p]).collect();
+        assert_eq!(speed_changes(&twice, 10.0), []);
+        // An odometry that freezes (repeats its last pose) for 3 s at 20 m/s, then goes on.
+        let frozen: Vec<[f64; 2]> = (0..300)
+            .map(|i| once[if (100..130).contains(&i) { 99 } else { i }])
+            .collect();
+        let changes = speed_changes(&frozen, 10.0);
+        assert!(
+            changes
+                .iter()
+                .any(|c| c.acceleration_mps2() < -MAX_ACCELERATION_MPS2
+                    && (99..110).contains(&c.pose)),
+            "{changes:?}"
+        );
     }
 
     #[test]
