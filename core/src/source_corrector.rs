@@ -218,7 +218,9 @@ impl SourceCorrector {
     /// one) is answered as invalid input and changes nothing. A pose the vehicle cannot have
     /// driven to is a jump of the odometry ([`crate::continuity`]): it is answered with the
     /// correction in force where the last motion leads, and the poses after it continue from
-    /// there.
+    /// there. Where the source watches stalls ([`Params::watch_stalls`]), an odometry whose speed
+    /// falls faster than a car brakes widens the covariance along the road by what it may have
+    /// missed, and the window restarts ([`crate::stall`]).
     pub fn correct_at(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         if pose.problem().is_some() {
             let record = CorrectedPose {

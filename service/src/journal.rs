@@ -520,6 +520,10 @@ fn encode_stall(e: &mut Encoder, stall: &StallState) {
             };
             e.u64(speed.repeats as u64);
             e.u64(speed.speeds.len() as u64).f64s(&speed.speeds);
+            e.u64(speed.ends.len() as u64);
+            for &end in &speed.ends {
+                e.u64(end as u64);
+            }
             match speed.open {
                 Some((change, last_as_steep)) => e
                     .u32(1)
@@ -561,11 +565,15 @@ fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
         let last = (d.u32()?, d.f64s::<2>()?);
         let repeats = usize::try_from(d.u64()?).ok()?;
         let speeds: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
+        let ends: Vec<usize> = (0..count(d)?)
+            .map(|_| d.u64().and_then(|v| usize::try_from(v).ok()))
+            .collect::<Option<_>>()?;
         let change = (d.u32()?, d.u64()?, d.f64s::<3>()?, d.u64()?);
         let valid = rate_hz.is_finite()
             && rate_hz > 0.0
             && finite(&last.1)
             && finite(&speeds)
+            && ends.len() == speeds.len()
             && finite(&change.2);
         valid.then_some(())?;
         let open = flag(change.0)?.then_some((
@@ -582,6 +590,7 @@ fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
             last: flag(last.0)?.then_some(last.1),
             repeats,
             speeds,
+            ends,
             open,
         };
         Some((rate_hz, history))
@@ -1031,6 +1040,7 @@ mod tests {
                             last: Some([300.5, -19.5]),
                             repeats: 2,
                             speeds: vec![19.0, 18.5, 2.0, 0.5, 0.25],
+                            ends: vec![805, 806, 807, 809, 810],
                             open: Some((
                                 SpeedChange {
                                     pose: 806,
@@ -1063,10 +1073,11 @@ mod tests {
         // Where the map error starts; the count of carried poses follows it, the odometry's
         // continuity (112 bytes) comes after the last position and the smoothed correction, and
         // the scale estimate, the scaled odometry and the published uncertainty (156 bytes)
-        // after that, then the stall watch (168 bytes and its 5 speeds).
+        // after that, then the stall watch (176 bytes and its 5 speeds and the 5 poses they
+        // ended at).
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
         let (continuity_at, scale_at, stall_at) = (at + 100, at + 212, at + 368);
-        let window_at = stall_at + 168 + 5 * 8;
+        let window_at = stall_at + 176 + 5 * 16;
         let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
             for part in parts {

@@ -24,7 +24,7 @@ pub use setup::{
 pub use source_watch::{SourceNews, SourceWatch, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M};
 pub use speed::{
     speed_change_warning, speed_changes, SpeedChange, SpeedHistory, SpeedWatch,
-    MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
+    MAX_ACCELERATION_MPS2, MAX_REPEATS, SPEED_SPAN_S,
 };
 
 /// `"s"` unless `count` is one.

@@ -46,13 +46,19 @@ pub struct SpeedHistory {
     pub seen: usize,
     /// The last pose it took (planar, metres).
     pub last: Option<[f64; 2]>,
-    /// Poses in a row it took exactly where the last one was (at most a span).
+    /// Poses in a row it took exactly where the last one was (at most [`MAX_REPEATS`]).
     pub repeats: usize,
     /// The last steps' speeds (m/s), oldest first: at most two spans of them.
     pub speeds: Vec<f64>,
+    /// The pose (0-based) each of them ended at; as many as `speeds`.
+    pub ends: Vec<usize>,
     /// The steepest change of the ones under way, and the pose of the last one as steep.
     pub open: Option<(SpeedChange, usize)>,
 }
+
+/// How many poses in a row exactly where the last one was are no new estimate of the odometry
+/// (one that publishes up to three times faster than it updates); more stand still or are frozen.
+pub const MAX_REPEATS: usize = 2;
 
 /// The most steps the speed check takes the median of: at a higher rate it looks at every few
 /// poses only, so that a pose costs it a median of a few numbers at any rate.
@@ -62,7 +68,7 @@ const MAX_SPAN_STEPS: usize = 8;
 /// ([`MAX_ACCELERATION_MPS2`]): the speed is the median of the steps' over [`SPEED_SPAN_S`],
 /// compared with the one over the [`SPEED_SPAN_S`] after it, so that one long step (poses missing
 /// from the input, a jump) or one noisy step is no change. A pose exactly where the last one was
-/// is no new estimate while fewer than a span of them come in a row (an odometry that
+/// is no new estimate while at most [`MAX_REPEATS`] of them come in a row (an odometry that
 /// publishes every estimate twice keeps its speed: the next step's is taken over the time since
 /// the last estimate); beyond that it stands or is frozen, and each is a step of no speed.
 /// Above 16 Hz it takes every few poses
@@ -80,10 +86,12 @@ pub struct SpeedWatch {
     seen: usize,
     /// The last pose taken (planar, metres).
     last: Option<[f64; 2]>,
-    /// Poses in a row taken exactly where the last one was, while no more than a span.
+    /// Poses in a row taken exactly where the last one was, while at most [`MAX_REPEATS`].
     repeats: usize,
     /// The last `2 span` steps' speeds (m/s), oldest first.
     speeds: VecDeque<f64>,
+    /// The pose each of them ended at (0-based).
+    ends: VecDeque<usize>,
     scratch: Vec<f64>,
     /// The steepest change of the ones under way, and the pose of the last one as steep.
     open: Option<(SpeedChange, usize)>,
@@ -111,6 +119,7 @@ impl SpeedWatch {
             last: None,
             repeats: 0,
             speeds: VecDeque::with_capacity(2 * span),
+            ends: VecDeque::with_capacity(2 * span),
             scratch: Vec::with_capacity(span),
             open: None,
         }
@@ -126,7 +135,7 @@ impl SpeedWatch {
         }
         let last = self.last.replace(position)?;
         let periods = if position == last {
-            if self.repeats < self.span {
+            if self.repeats < MAX_REPEATS {
                 self.repeats += 1;
                 return None;
             }
@@ -137,13 +146,16 @@ impl SpeedWatch {
         let moved = (position[0] - last[0]).hypot(position[1] - last[1]);
         if self.speeds.len() == 2 * self.span {
             self.speeds.pop_front();
+            self.ends.pop_front();
         }
         self.speeds.push_back(moved * self.rate_hz / periods as f64);
+        self.ends.push_back(index);
         if self.speeds.len() < 2 * self.span {
             return None;
         }
         let change = SpeedChange {
-            pose: index.saturating_sub(self.span.saturating_mul(self.every)),
+            // Where the span after the change begins: the end of the span before it.
+            pose: self.ends[self.span - 1],
             from_mps: self.median(0),
             to_mps: self.median(self.span),
             over_s: self.span as f64 / self.rate_hz,
@@ -174,21 +186,30 @@ impl SpeedWatch {
             last: self.last,
             repeats: self.repeats,
             speeds: self.speeds.iter().copied().collect(),
+            ends: self.ends.iter().copied().collect(),
             open: self.open,
         }
     }
 
     /// A watch for poses coming at `rate_hz` that continues from `history` (what one for the
     /// same rate had seen), exactly as that one would. Speeds beyond what a watch for this rate
-    /// keeps are dropped, the oldest first.
+    /// keeps, or without the pose they ended at, are dropped, the oldest first.
     pub fn resume(rate_hz: f64, history: SpeedHistory) -> Self {
         let mut watch = SpeedWatch::new(rate_hz);
-        let keep = history.speeds.len().min(2 * watch.span);
-        let dropped = history.speeds.len() - keep;
-        watch.speeds.extend(&history.speeds[dropped..]);
+        let keep = history
+            .speeds
+            .len()
+            .min(history.ends.len())
+            .min(2 * watch.span);
+        watch
+            .speeds
+            .extend(&history.speeds[history.speeds.len() - keep..]);
+        watch
+            .ends
+            .extend(&history.ends[history.ends.len() - keep..]);
         watch.seen = history.seen;
         watch.last = history.last;
-        watch.repeats = history.repeats.min(watch.span);
+        watch.repeats = history.repeats.min(MAX_REPEATS);
         watch.open = history.open;
         watch
     }
@@ -340,6 +361,8 @@ pub(super) mod tests {
             .collect();
         let twice: Vec<[f64; 2]> = once.iter().flat_map(|&p| [p, p]).collect();
         assert_eq!(speed_changes(&twice, 10.0), []);
+        let thrice: Vec<[f64; 2]> = once.iter().flat_map(|&p| [p, p, p]).collect();
+        assert_eq!(speed_changes(&thrice, 10.0), []);
         // An odometry that freezes (repeats its last pose) for 3 s at 20 m/s, then goes on.
         let frozen: Vec<[f64; 2]> = (0..300)
             .map(|i| once[if (100..130).contains(&i) { 99 } else { i }])
