@@ -8,16 +8,16 @@
 //!
 //! [`StallWatch`] watches the odometry's speed as the warning does ([`SpeedWatch`], at the rate
 //! the stamps say). From a fall faster than [`MAX_ACCELERATION_MPS2`] until the
-//! odometry has found its track again (its speed rises as fast, or is back at what it was
-//! before the fall) it counts the distance the odometry fell short of its speed before the
+//! odometry has found its track again (its speed rises as fast, or one step is as long as the
+//! speed before the fall covers) it counts the distance the odometry fell short of its speed before the
 //! fall: the vehicle is taken to have driven on at that speed. The pose's uncertainty along the
 //! direction the vehicle was heading widens by that distance squared: all of it was missed in
 //! one direction, so it adds up as one error, not as independent ones. Alignments take it away
 //! as they do any other uncertainty, where the lanes show the position along that direction
 //! (a curve, a crossing road).
 //!
-//! Frames: positions and headings are in any fixed planar frame (the corrector's `anchored`);
-//! a [`Widening`]'s direction is in the same frame.
+//! Frames: positions and headings are in any fixed planar frame (the source corrector's
+//! `scaled`, [`crate::source_corrector`]); a [`Widening`]'s direction is in the same frame.
 
 use crate::plausibility::{
     rate_from_stamps, SourceWatch, SpeedChange, SpeedHistory, SpeedWatch, MAX_ACCELERATION_MPS2,
