@@ -71,9 +71,8 @@ const MAX_SPAN_STEPS: usize = 8;
 /// is no new estimate while at most [`MAX_REPEATS`] of them come in a row (an odometry that
 /// publishes every estimate twice keeps its speed: the next step's is taken over the time since
 /// the last estimate); beyond that it stands or is frozen, and each is a step of no speed.
-/// Above 16 Hz it takes every few poses
-/// (at most eight steps to a span). Of the changes next to one another, the
-/// steepest stands for them all, told when they end.
+/// Above 16 Hz it takes every few poses (at most eight steps to a span). Of the changes next to
+/// one another, the steepest stands for them all, told when they end.
 #[derive(Clone, Debug)]
 pub struct SpeedWatch {
     /// The rate (Hz) of the poses it takes.
