@@ -135,6 +135,10 @@ impl Encoder {
         }
         self
     }
+    /// A point that may be absent: a flag, then the point (zeros when absent).
+    fn point(&mut self, p: Option<[f64; 2]>) -> &mut Self {
+        self.u32(p.is_some() as u32).f64s(&p.unwrap_or_default())
+    }
     fn se2(&mut self, t: &Se2) -> &mut Self {
         let (c, s) = t.rotation();
         let [x, y] = t.translation();
@@ -324,10 +328,7 @@ impl Snapshot {
             e.f64s(row);
         }
         e.u32(c.carried).f64(c.gate_travelled_m);
-        match c.last_position_in_anchored {
-            Some(p) => e.u32(1).f64s(&p),
-            None => e.u32(0).f64s(&[0.0, 0.0]),
-        };
+        e.point(c.last_position_in_anchored);
         match &self.state.smoothed {
             Some(t) => e.u32(1).se2(t),
             None => e.u32(0).se2(&Se2::IDENTITY),
@@ -347,10 +348,7 @@ impl Snapshot {
             None => e.u32(0).f64(1.0).f64(0.0),
         };
         let scaled = &self.state.scaled;
-        match scaled.last_in_anchored {
-            Some(last) => e.u32(1).f64s(&last),
-            None => e.u32(0).f64s(&[0.0, 0.0]),
-        };
+        e.point(scaled.last_in_anchored);
         e.f64s(&scaled.offset);
         match &c.published_uncertainty {
             Some((covariance, cross)) => {
@@ -514,11 +512,7 @@ fn encode_stall(e: &mut Encoder, stall: &StallState) {
     match &stall.judged {
         Some((rate_hz, speed)) => {
             e.u32(1).f64(*rate_hz).u64(speed.seen as u64);
-            match speed.last {
-                Some(p) => e.u32(1).f64s(&p),
-                None => e.u32(0).f64s(&[0.0, 0.0]),
-            };
-            e.u64(speed.repeats as u64);
+            e.point(speed.last).u64(speed.repeats as u64);
             e.u64(speed.speeds.len() as u64).f64s(&speed.speeds);
             e.u64(speed.ends.len() as u64);
             for &end in &speed.ends {
@@ -537,10 +531,7 @@ fn encode_stall(e: &mut Encoder, stall: &StallState) {
             e.u32(0);
         }
     }
-    match stall.last {
-        Some(p) => e.u32(1).f64s(&p),
-        None => e.u32(0).f64s(&[0.0, 0.0]),
-    };
+    e.point(stall.last);
     match stall.open {
         Some(open) => e
             .u32(1)
