@@ -87,10 +87,9 @@ pub struct SpeedWatch {
     last: Option<[f64; 2]>,
     /// Poses in a row taken exactly where the last one was, while at most [`MAX_REPEATS`].
     repeats: usize,
-    /// The last `2 span` steps' speeds (m/s), oldest first.
-    speeds: VecDeque<f64>,
-    /// The pose each of them ended at (0-based).
-    ends: VecDeque<usize>,
+    /// The last `2 span` steps' speeds (m/s), oldest first, each with the pose (0-based) it
+    /// ended at.
+    steps: VecDeque<(f64, usize)>,
     scratch: Vec<f64>,
     /// The steepest change of the ones under way, and the pose of the last one as steep.
     open: Option<(SpeedChange, usize)>,
@@ -117,8 +116,7 @@ impl SpeedWatch {
             seen: 0,
             last: None,
             repeats: 0,
-            speeds: VecDeque::with_capacity(2 * span),
-            ends: VecDeque::with_capacity(2 * span),
+            steps: VecDeque::with_capacity(2 * span),
             scratch: Vec::with_capacity(span),
             open: None,
         }
@@ -143,18 +141,17 @@ impl SpeedWatch {
             std::mem::take(&mut self.repeats) + 1
         };
         let moved = (position[0] - last[0]).hypot(position[1] - last[1]);
-        if self.speeds.len() == 2 * self.span {
-            self.speeds.pop_front();
-            self.ends.pop_front();
+        if self.steps.len() == 2 * self.span {
+            self.steps.pop_front();
         }
-        self.speeds.push_back(moved * self.rate_hz / periods as f64);
-        self.ends.push_back(index);
-        if self.speeds.len() < 2 * self.span {
+        self.steps
+            .push_back((moved * self.rate_hz / periods as f64, index));
+        if self.steps.len() < 2 * self.span {
             return None;
         }
         let change = SpeedChange {
             // Where the span after the change begins: the end of the span before it.
-            pose: self.ends[self.span - 1],
+            pose: self.steps[self.span - 1].1,
             from_mps: self.median(0),
             to_mps: self.median(self.span),
             over_s: self.span as f64 / self.rate_hz,
@@ -184,28 +181,21 @@ impl SpeedWatch {
             seen: self.seen,
             last: self.last,
             repeats: self.repeats,
-            speeds: self.speeds.iter().copied().collect(),
-            ends: self.ends.iter().copied().collect(),
+            speeds: self.steps.iter().map(|s| s.0).collect(),
+            ends: self.steps.iter().map(|s| s.1).collect(),
             open: self.open,
         }
     }
 
     /// A watch for poses coming at `rate_hz` that continues from `history` (what one for the
-    /// same rate had seen), exactly as that one would. Speeds beyond what a watch for this rate
-    /// keeps, or without the pose they ended at, are dropped, the oldest first.
+    /// same rate had seen), exactly as that one would. Speeds pair with the poses they ended at
+    /// in order (one without its pair is dropped); those beyond what a watch for this rate keeps
+    /// are dropped, the oldest first.
     pub fn resume(rate_hz: f64, history: SpeedHistory) -> Self {
         let mut watch = SpeedWatch::new(rate_hz);
-        let keep = history
-            .speeds
-            .len()
-            .min(history.ends.len())
-            .min(2 * watch.span);
-        watch
-            .speeds
-            .extend(&history.speeds[history.speeds.len() - keep..]);
-        watch
-            .ends
-            .extend(&history.ends[history.ends.len() - keep..]);
+        let steps: Vec<(f64, usize)> = history.speeds.into_iter().zip(history.ends).collect();
+        let keep = steps.len().min(2 * watch.span);
+        watch.steps.extend(&steps[steps.len() - keep..]);
         watch.seen = history.seen;
         watch.last = history.last;
         watch.repeats = history.repeats.min(MAX_REPEATS);
@@ -231,8 +221,9 @@ impl SpeedWatch {
     /// are not finite.
     fn median(&mut self, first: usize) -> f64 {
         self.scratch.clear();
-        let span = self.speeds.range(first..first + self.span);
-        self.scratch.extend(span.copied().filter(|s| s.is_finite()));
+        let span = self.steps.range(first..first + self.span);
+        self.scratch
+            .extend(span.map(|s| s.0).filter(|s| s.is_finite()));
         if self.scratch.len() * 2 <= self.span {
             return f64::NAN;
         }
