@@ -34,6 +34,7 @@ use crate::lane_map::LaneMap;
 use crate::matching::Correspondence;
 use crate::params::Params;
 use crate::se2::Se2;
+use crate::stall::Widening;
 
 /// Covariance of a planar pose error (x and y in metres, yaw in radians), row-major, in the map
 /// plane.
@@ -425,15 +426,40 @@ impl PoseUncertainty {
         self.symmetrize();
     }
 
-    /// Widens the position's uncertainty along `direction` (a unit vector, map plane) by
-    /// `variance_m2` (metres squared): road the odometry may have missed there, which no
-    /// alignment has seen ([`crate::stall`]). Nothing else changes.
-    pub fn widen_along(&mut self, direction: [f64; 2], variance_m2: f64) {
+    /// The pose moved by `widening`'s missed road (its direction in the map plane) that the
+    /// odometry did not see (it stalled, [`crate::stall`]), which no alignment has seen either:
+    /// the position's variance along that direction and the heading's grow by the widening's,
+    /// and then the heading error turns the motion into position error as in
+    /// [`PoseUncertainty::drive`]. The odometry's drift and scale take no part: it measured none
+    /// of that motion.
+    pub fn drive_unseen(&mut self, widening: &Widening) {
+        let Widening {
+            direction,
+            missed_m,
+            along_variance_m2,
+            yaw_variance_rad2,
+            ..
+        } = *widening;
         for r in 0..2 {
             for c in 0..2 {
-                self.covariance[(r, c)] += variance_m2 * direction[r] * direction[c];
+                self.covariance[(r, c)] += along_variance_m2 * direction[r] * direction[c];
             }
         }
+        self.covariance[(2, 2)] += yaw_variance_rad2;
+        let f = Matrix3::new(
+            1.0,
+            0.0,
+            -missed_m * direction[1], //
+            0.0,
+            1.0,
+            missed_m * direction[0], //
+            0.0,
+            0.0,
+            1.0,
+        );
+        self.covariance = f * self.covariance * f.transpose();
+        self.scale_cross = f * self.scale_cross;
+        self.symmetrize();
     }
 
     /// The part of `proposed` (a correction about the same center as `information`) the
@@ -523,5 +549,37 @@ impl PoseUncertainty {
 
     fn symmetrize(&mut self) {
         self.covariance = (self.covariance + self.covariance.transpose()) * 0.5;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn road_driven_unseen_turns_the_heading_error_into_position_error_across_it() {
+        // 1 m in x and y, 0.1 rad in heading; 10 m missed northwards, 10 m sd along it, and
+        // 0.2 rad more in heading.
+        let mut u =
+            PoseUncertainty::from_covariance(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.01]]);
+        u.drive_unseen(&Widening {
+            direction: [0.0, 1.0],
+            missed_m: 10.0,
+            along_variance_m2: 100.0,
+            yaw_variance_rad2: 0.04,
+            began: true,
+        });
+        let c = u.covariance();
+        let expected = [
+            // Across the road (x) the heading's 0.05 rad^2 over 10 m.
+            [1.0 + 100.0 * 0.05, 0.0, -10.0 * 0.05],
+            [0.0, 1.0 + 100.0, 0.0],
+            [-10.0 * 0.05, 0.0, 0.05],
+        ];
+        for r in 0..3 {
+            for k in 0..3 {
+                assert!((c[r][k] - expected[r][k]).abs() < 1e-12, "{c:?}");
+            }
+        }
     }
 }

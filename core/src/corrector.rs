@@ -24,6 +24,7 @@ use crate::matching::{match_window, Correspondence, MatchParams};
 use crate::params::Params;
 use crate::scale::{scale_evidence, ScaleEstimate};
 use crate::se2::{distance, Se2};
+use crate::stall::Widening;
 use crate::window::Window;
 
 /// Why a matching attempt did not produce an accepted correction.
@@ -440,13 +441,14 @@ impl Corrector {
         c
     }
 
-    /// Widens the current pose's uncertainty along `direction` (a unit vector, map plane) by
-    /// `variance_m2` (metres squared), in the filter that decides what is applied and in the
-    /// published covariance alike: road the odometry may have missed ([`crate::stall`]).
-    pub fn widen_along(&mut self, direction: [f64; 2], variance_m2: f64) {
-        self.uncertainty.widen_along(direction, variance_m2);
+    /// Drives the current pose's uncertainty over the road an odometry that stalled missed
+    /// (`widening`, its direction in the map plane; [`PoseUncertainty::drive_unseen`]), in the
+    /// filter that decides what is applied and in the published covariance alike
+    /// ([`crate::stall`]).
+    pub fn drive_unseen(&mut self, widening: &Widening) {
+        self.uncertainty.drive_unseen(widening);
         if let Some(scale) = &mut self.scale {
-            scale.published.widen_along(direction, variance_m2);
+            scale.published.drive_unseen(widening);
         }
     }
 

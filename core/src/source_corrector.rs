@@ -21,7 +21,7 @@ use crate::pose::{apply_planar_correction, AxisConvention, Pose3};
 use crate::scale::ScaledOdometry;
 use crate::se2::Se2;
 use crate::smoothing::{Smoother, Smoothing};
-use crate::stall::{StallState, StallWatch};
+use crate::stall::{StallState, StallWatch, Widening};
 
 /// The per-pose record of a correction.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -219,8 +219,8 @@ impl SourceCorrector {
     /// driven to is a jump of the odometry ([`crate::continuity`]): it is answered with the
     /// correction in force where the last motion leads, and the poses after it continue from
     /// there. Where the source watches stalls ([`Params::watch_stalls`]), an odometry whose speed
-    /// falls faster than a car brakes widens the covariance along the road by what it may have
-    /// missed, and the window restarts ([`crate::stall`]).
+    /// falls faster than a car brakes widens the covariance by the road it may have missed and
+    /// the turns it may have made there, and the window restarts ([`crate::stall`]).
     pub fn correct_at(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         if pose.problem().is_some() {
             let record = CorrectedPose {
@@ -255,8 +255,10 @@ impl SourceCorrector {
             watch.observe(position, anchored.planar_heading(), stamp_s, |widening| {
                 // The pose is in frame `scaled` here, the corrector's own: its correction turns
                 // the direction into the map plane.
-                let direction = corrector.map_from_anchored().rotate(widening.direction);
-                corrector.widen_along(direction, widening.variance_m2);
+                corrector.drive_unseen(&Widening {
+                    direction: corrector.map_from_anchored().rotate(widening.direction),
+                    ..widening
+                });
                 if widening.began {
                     corrector.restart_window();
                 }

@@ -13,7 +13,7 @@ use lanealign_core::metrics::{
 use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::plausibility;
 use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
-use lanealign_core::se2::Se2;
+use lanealign_core::se2::{distance, wrap_angle, Se2};
 use lanealign_core::smoothing::Smoothing;
 use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
 use lanealign_core::trajectory::{read, Format};
@@ -101,12 +101,35 @@ fn run_with(
     params: Params,
     smoothing: Option<Smoothing>,
 ) -> (Run, Vec<Pose3>, Vec<[[f64; 2]; 2]>) {
-    let cam = AxisConvention::KittiCamera;
     let odom = read(
         &data.join(format!("odometry/{odometry}/{}.txt", s.name)),
         Format::Kitti,
     )
     .unwrap();
+    let c = run_poses(s, &odom.poses, method, params, smoothing);
+    (c.run, c.est, c.cov)
+}
+
+/// What [`run_poses`] gives.
+struct Corrected {
+    run: Run,
+    /// The corrected poses (planar, the odometry's frame).
+    est: Vec<Pose3>,
+    /// Their position covariances (the odometry's frame).
+    cov: Vec<[[f64; 2]; 2]>,
+    /// What the corrector answered for each pose.
+    answers: Vec<CorrectedPose>,
+}
+
+/// [`run_with`] on the odometry `odom` (KITTI's camera convention).
+fn run_poses(
+    s: &Sequence,
+    odom: &[Pose3],
+    method: Method,
+    params: Params,
+    smoothing: Option<Smoothing>,
+) -> Corrected {
+    let cam = AxisConvention::KittiCamera;
     let anchored_from_odom = s.anchor.anchored_from_odom(&s.plane);
     let placement = Placement {
         convention: cam,
@@ -117,10 +140,10 @@ fn run_with(
         Method::Paper => &s.paper_map,
         Method::Robust => &s.map,
     };
-    let out = correct_trajectory(map.clone(), params, MatchMode::Fast, placement, &odom.poses);
+    let out = correct_trajectory(map.clone(), params, MatchMode::Fast, placement, odom);
     let planar = |v: &[Pose3]| v.iter().map(|p| cam.to_planar(p)).collect::<Vec<_>>();
     let gt = planar(&s.gt);
-    let raw = planar(&odom.poses);
+    let raw = planar(odom);
     let est = planar(&out.iter().map(|c| c.pose).collect::<Vec<_>>());
     let scale_after: Vec<f64> = out.iter().map(|c| c.odometry_scale).collect();
     let odom_from_map = anchored_from_odom.inverse();
@@ -138,7 +161,12 @@ fn run_with(
         jumps: output_jumps(&scaled_steps(&raw, &scale_after), &est).unwrap(),
         calibration: calibration(&gt, &est, &cov).unwrap(),
     };
-    (run, est, cov)
+    Corrected {
+        run,
+        est,
+        cov,
+        answers: out,
+    }
 }
 
 fn mean(runs: &[Run], f: impl Fn(&Run) -> f64) -> f64 {
@@ -908,4 +936,98 @@ fn a_stalled_visual_odometry_has_a_covariance_that_says_so() {
         watched.corrected.mean_m,
         before.corrected.mean_m
     );
+}
+
+/// Where a drive turns: from a fifth of the way on, the first pose where ground truth (planar)
+/// drives faster than 6 m/s and turns by at least 30 degrees over the next 3 s (30 poses); then
+/// the next one 300 poses on, up to 130 poses before the end.
+fn turns(gt: &[Pose3]) -> Vec<usize> {
+    let mut found = Vec::new();
+    let mut i = gt.len() / 5;
+    while i + 130 < gt.len() {
+        let speed_mps = 10.0 * distance(gt[i].planar_position(), gt[i + 1].planar_position());
+        let turned = wrap_angle(gt[i + 30].planar_heading() - gt[i].planar_heading());
+        if speed_mps > 6.0 && turned.abs() >= 30f64.to_radians() {
+            found.push(i);
+            i += 300;
+        } else {
+            i += 1;
+        }
+    }
+    found
+}
+
+/// `odom` (KITTI's camera convention) frozen at pose `from` for `count` poses, as a visual
+/// odometry that loses track: it repeats that pose, then goes on with its own motion from
+/// there. The motion it missed, the turn included, is lost.
+fn frozen(odom: &[Pose3], from: usize, count: usize) -> Vec<Pose3> {
+    let cam = AxisConvention::KittiCamera;
+    let at = |i: usize| cam.to_planar(&odom[i]).to_se2();
+    let resumed = at(from) * at(from + count).inverse();
+    odom.iter()
+        .enumerate()
+        .map(|(i, pose)| match i {
+            i if i <= from => *pose,
+            i if i < from + count => odom[from],
+            _ => cam.from_planar(&apply_planar_correction(&resumed, &cam.to_planar(pose))),
+        })
+        .collect()
+}
+
+/// An odometry that freezes for 3 s in a turn (every turn of every sequence that [`turns`]
+/// finds, on both runs) misses the turn: its heading is off by 30 degrees and more when it
+/// goes on. The stall watch widens the heading's uncertainty by what a car may turn over the
+/// road missed, so the published heading covers the error it left, and the position's
+/// covariance grows as that heading error turns into position error.
+#[test]
+fn an_odometry_frozen_in_a_turn_has_a_heading_covariance_that_says_so() {
+    let Some(data) = shared_data() else { return };
+    let cam = AxisConvention::KittiCamera;
+    let mut cases = 0;
+    for (odometry, preset) in [("lidar", Preset::KissIcp), ("stereo_vo", Preset::OrbSlam3)] {
+        let mut nees = Vec::new();
+        for s in sequences(&data) {
+            let gt: Vec<Pose3> = s.gt.iter().map(|p| cam.to_planar(p)).collect();
+            let odom = read(
+                &data.join(format!("odometry/{odometry}/{}.txt", s.name)),
+                Format::Kitti,
+            )
+            .unwrap()
+            .poses;
+            for from in turns(&gt) {
+                let params = Method::Robust.params(preset);
+                let Corrected {
+                    est, cov, answers, ..
+                } = run_poses(&s, &frozen(&odom, from, 30), Method::Robust, params, None);
+                let on = from + 31;
+                let heading_error = wrap_angle(est[on].planar_heading() - gt[on].planar_heading());
+                let heading_sd = answers[on].covariance[2][2].sqrt();
+                let after = calibration(&gt[from..], &est[from..], &cov[from..]).unwrap();
+                println!(
+                    "{odometry} {} frozen at {from}: heading {:.1} deg off, sd {:.1} deg; after \
+                     it coverage {:.3}, NEES {:.2}",
+                    s.name,
+                    heading_error.to_degrees(),
+                    heading_sd.to_degrees(),
+                    after.cov95_coverage,
+                    after.nees_mean
+                );
+                assert!(heading_error.abs() > 25f64.to_radians());
+                assert!(
+                    heading_error.abs() < 2.0 * heading_sd,
+                    "{odometry} {} at {from}: the heading {:.1} deg off, its sd {:.1} deg",
+                    s.name,
+                    heading_error.to_degrees(),
+                    heading_sd.to_degrees()
+                );
+                nees.push(after.nees_mean);
+                cases += 1;
+            }
+        }
+        nees.sort_by(f64::total_cmp);
+        let median = nees[nees.len() / 2];
+        println!("{odometry}: median NEES after the freeze {median:.2}");
+        assert!(median < 60.0, "{odometry}: median NEES {median}");
+    }
+    assert!(cases >= 60, "{cases} turns");
 }
