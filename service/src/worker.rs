@@ -472,7 +472,7 @@ fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Para
         let seq = live
             .watched_seq
             .saturating_sub(live.watch.poses_since(&change) as u64);
-        tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road; where the source watches stalls (watch_stalls), a fall restarts its window and widens the covariance along the road by the distance missed at the speed before it");
+        tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road; where the source watches stalls (watch_stalls), a fall restarts its window and widens the covariance along the road by the distance missed at the speed before it and the heading by what a car may turn there");
     }
 }
 

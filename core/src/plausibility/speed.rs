@@ -268,7 +268,8 @@ pub fn speed_change_warning(
          corrector cannot tell how far the vehicle went meanwhile, so the corrected poses after \
          it may be off along the road; the corrector takes the vehicle to have driven on at the \
          speed before a fall, restarts its window and widens the covariance along the road by \
-         the distance that misses (watch_stalls) (this takes the poses to come at {rate_hz} Hz: \
+         the distance that misses and the heading by what a car may turn there (watch_stalls) \
+         (this takes the poses to come at {rate_hz} Hz: \
          where they do not, give their stamps or odometry_rate_hz)",
         changes.len(),
         plural(changes.len()),
