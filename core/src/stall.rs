@@ -34,6 +34,10 @@ use crate::plausibility::{
 /// ramps of 01's highway): two standard deviations cover all but the sharpest turns.
 pub const TURN_ACCELERATION_SD_MPS2: f64 = 2.0;
 
+/// The standard deviation (radians) of a heading known not at all, spread evenly over the
+/// circle: `pi / sqrt(3)`. A stall widens the heading no further (after 58 m missed at 8 m/s).
+pub const UNKNOWN_HEADING_SD_RAD: f64 = 1.813_799_364_234_217_8;
+
 /// A stall under way: the odometry's speed fell faster than a car can brake.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Stall {
@@ -217,13 +221,15 @@ impl StallWatch {
             // does: by the lateral acceleration over the speed squared per metre (a stall's
             // speed before is at least the fall it was told by, MAX_ACCELERATION_MPS2 times a
             // span).
+            // It stops at a heading known not at all.
             let turn_per_m = TURN_ACCELERATION_SD_MPS2 / stall.before_mps.powi(2);
-            let squares = stall.missed_m.powi(2) - missed_before.powi(2);
+            let heading_sd = |missed_m: f64| (turn_per_m * missed_m).min(UNKNOWN_HEADING_SD_RAD);
             Widening {
                 direction: stall.heading,
                 missed_m,
-                along_variance_m2: squares,
-                yaw_variance_rad2: turn_per_m.powi(2) * squares,
+                along_variance_m2: stall.missed_m.powi(2) - missed_before.powi(2),
+                yaw_variance_rad2: heading_sd(stall.missed_m).powi(2)
+                    - heading_sd(missed_before).powi(2),
                 began: !was_open,
             }
         })
@@ -362,6 +368,17 @@ mod tests {
         assert!(watch.stall().is_some());
         // 20 s of 15 m/s.
         assert!((added.sqrt() - 300.0).abs() < 15.0, "{}", added.sqrt());
+        // The heading's sd grows by 2 m/s^2 / (15 m/s)^2 per metre, to a heading known not at
+        // all after 204 m, and no further.
+        let yaw: f64 = widen(&mut StallWatch::new(10.0), &poses, 0.0)
+            .iter()
+            .map(|(_, w)| w.yaw_variance_rad2)
+            .sum();
+        assert!(
+            (yaw.sqrt() - UNKNOWN_HEADING_SD_RAD).abs() < 1e-9,
+            "{} rad",
+            yaw.sqrt()
+        );
     }
 
     #[test]
