@@ -405,11 +405,7 @@ impl PoseUncertainty {
         if step == 0.0 {
             return;
         }
-        let f = Matrix3::new(
-            1.0, 0.0, -motion[1], //
-            0.0, 1.0, motion[0], //
-            0.0, 0.0, 1.0,
-        );
+        let f = moved_by(motion);
         let q = Vector3::new(
             params.drift_var_per_m * step,
             params.drift_var_per_m * step,
@@ -446,17 +442,7 @@ impl PoseUncertainty {
             }
         }
         self.covariance[(2, 2)] += yaw_variance_rad2;
-        let f = Matrix3::new(
-            1.0,
-            0.0,
-            -missed_m * direction[1], //
-            0.0,
-            1.0,
-            missed_m * direction[0], //
-            0.0,
-            0.0,
-            1.0,
-        );
+        let f = moved_by([missed_m * direction[0], missed_m * direction[1]]);
         self.covariance = f * self.covariance * f.transpose();
         self.scale_cross = f * self.scale_cross;
         self.symmetrize();
@@ -550,6 +536,16 @@ impl PoseUncertainty {
     fn symmetrize(&mut self) {
         self.covariance = (self.covariance + self.covariance.transpose()) * 0.5;
     }
+}
+
+/// How a pose error (x, y, yaw) changes when the pose moves by `motion` (metres, map plane): the
+/// heading error turns the motion into position error across it.
+fn moved_by(motion: [f64; 2]) -> Matrix3<f64> {
+    Matrix3::new(
+        1.0, 0.0, -motion[1], //
+        0.0, 1.0, motion[0], //
+        0.0, 0.0, 1.0,
+    )
 }
 
 #[cfg(test)]

@@ -220,8 +220,7 @@ impl StallWatch {
             // The heading's standard deviation grows with the road missed, as a car's turn
             // does: by the lateral acceleration over the speed squared per metre (a stall's
             // speed before is at least the fall it was told by, MAX_ACCELERATION_MPS2 times a
-            // span).
-            // It stops at a heading known not at all.
+            // span), up to a heading known not at all.
             let turn_per_m = TURN_ACCELERATION_SD_MPS2 / stall.before_mps.powi(2);
             let heading_sd = |missed_m: f64| (turn_per_m * missed_m).min(UNKNOWN_HEADING_SD_RAD);
             Widening {
