@@ -101,13 +101,24 @@ fn run_with(
     params: Params,
     smoothing: Option<Smoothing>,
 ) -> (Run, Vec<Pose3>, Vec<[[f64; 2]; 2]>) {
-    let odom = read(
+    let c = run_poses(
+        s,
+        &odometry_of(data, odometry, s),
+        method,
+        params,
+        smoothing,
+    );
+    (c.run, c.est, c.cov)
+}
+
+/// The shared `odometry` run's poses of sequence `s` (KITTI's camera convention).
+fn odometry_of(data: &std::path::Path, odometry: &str, s: &Sequence) -> Vec<Pose3> {
+    read(
         &data.join(format!("odometry/{odometry}/{}.txt", s.name)),
         Format::Kitti,
     )
-    .unwrap();
-    let c = run_poses(s, &odom.poses, method, params, smoothing);
-    (c.run, c.est, c.cov)
+    .unwrap()
+    .poses
 }
 
 /// What [`run_poses`] gives.
@@ -984,21 +995,17 @@ fn an_odometry_frozen_in_a_turn_has_a_heading_covariance_that_says_so() {
     let Some(data) = shared_data() else { return };
     let cam = AxisConvention::KittiCamera;
     let mut cases = 0;
+    let sequences = sequences(&data);
     for (odometry, preset) in [("lidar", Preset::KissIcp), ("stereo_vo", Preset::OrbSlam3)] {
         let mut nees = Vec::new();
-        for s in sequences(&data) {
+        for s in &sequences {
             let gt: Vec<Pose3> = s.gt.iter().map(|p| cam.to_planar(p)).collect();
-            let odom = read(
-                &data.join(format!("odometry/{odometry}/{}.txt", s.name)),
-                Format::Kitti,
-            )
-            .unwrap()
-            .poses;
+            let odom = odometry_of(&data, odometry, s);
             for from in turns(&gt) {
                 let params = Method::Robust.params(preset);
                 let Corrected {
                     est, cov, answers, ..
-                } = run_poses(&s, &frozen(&odom, from, 30), Method::Robust, params, None);
+                } = run_poses(s, &frozen(&odom, from, 30), Method::Robust, params, None);
                 let on = from + 31;
                 let heading_error = wrap_angle(est[on].planar_heading() - gt[on].planar_heading());
                 let heading_sd = answers[on].covariance[2][2].sqrt();
