@@ -19,12 +19,14 @@ pub fn axis_convention_warning(poses: &[Pose3], convention: AxisConvention) -> O
 }
 
 /// The path length of a stream of poses, and how much of it goes along the vertical axis, in
-/// every axis convention, pose by pose.
-#[derive(Clone, Debug, Default)]
-pub(super) struct AxisMotion {
-    last: Option<Pose3>,
+/// every axis convention, pose by pose. Its fields are what it has seen, to continue from
+/// later (a daemon's snapshot of a session).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AxisMotion {
+    /// The last pose observed (in the set axis convention, metres).
+    pub last: Option<Pose3>,
     /// Per convention of [`AxisConvention::ALL`]: metres along the vertical, metres in all.
-    vertical_and_path_m: [(f64, f64); AxisConvention::ALL.len()],
+    pub vertical_and_path_m: [(f64, f64); AxisConvention::ALL.len()],
 }
 
 impl AxisMotion {

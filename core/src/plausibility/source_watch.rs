@@ -3,7 +3,7 @@
 
 use super::axes::AxisMotion;
 use super::rate::rate_from_stamps;
-use super::speed::{SpeedChange, SpeedWatch};
+use super::speed::{SpeedChange, SpeedHistory, SpeedWatch};
 use crate::pose::{AxisConvention, Pose3};
 
 /// From how far (metres of path) into a stream a [`SourceWatch`] tells that its poses move
@@ -43,6 +43,22 @@ pub struct SourceWatch {
     speed: Option<(SpeedWatch, f64)>,
 }
 
+/// What a [`SourceWatch`] has seen, to continue from later (a daemon's snapshot of a session):
+/// with the rate the source's corrector is set for and the axis convention, all it needs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SourceWatchState {
+    /// The motion so far, while the axes are still followed.
+    pub axes: Option<AxisMotion>,
+    /// The first stamps (seconds, any number a client sent), while they have not told the
+    /// rate yet; empty once they have.
+    pub stamps_s: Vec<f64>,
+    /// The planar positions (metres) that came with them.
+    pub held: Vec<[f64; 2]>,
+    /// The rate (Hz) the speed is judged at and what the speed watch has seen, once the stamps
+    /// have told it.
+    pub speed: Option<(f64, SpeedHistory)>,
+}
+
 /// What one pose told a [`SourceWatch`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SourceNews {
@@ -71,6 +87,35 @@ impl SourceWatch {
             stamps_s: Vec::with_capacity(Self::STAMPS),
             held: Vec::with_capacity(Self::STAMPS),
             speed: None,
+        }
+    }
+
+    /// A watch for a source whose corrector is set for `set_rate_hz` and whose poses are said
+    /// to come in `convention` that continues from `state`, exactly as the one it was saved from
+    /// ([`SourceWatch::state`]) would.
+    pub fn restore(set_rate_hz: f64, convention: AxisConvention, state: SourceWatchState) -> Self {
+        SourceWatch {
+            set_rate_hz,
+            convention,
+            axes: state.axes,
+            stamps_s: state.stamps_s,
+            held: state.held,
+            speed: state
+                .speed
+                .map(|(rate_hz, history)| (SpeedWatch::resume(rate_hz, history), rate_hz)),
+        }
+    }
+
+    /// What the watch has seen (see [`SourceWatch::restore`]).
+    pub fn state(&self) -> SourceWatchState {
+        SourceWatchState {
+            axes: self.axes.clone(),
+            stamps_s: self.stamps_s.clone(),
+            held: self.held.clone(),
+            speed: self
+                .speed
+                .as_ref()
+                .map(|(watch, rate_hz)| (*rate_hz, watch.history())),
         }
     }
 
@@ -237,6 +282,50 @@ mod tests {
         let news: Vec<SourceNews> = stalled.iter().map(|p| watch.observe(0.0, p)).collect();
         assert!(news.iter().all(|n| n.rate_hz.is_none()));
         assert_eq!(watch.speed_rate_hz(), Some(10.0));
+    }
+
+    /// A watch saved at any pose and restored tells from there on exactly what the one that
+    /// went on tells: the rate (held stamps and positions included), the axes (poses that climb
+    /// as far as they drive), the stalls and their recoveries, and a stall under way at the end.
+    #[test]
+    fn a_restored_watch_goes_on_as_if_never_stopped() {
+        let stamps: Vec<f64> = (0..300).map(|i| 100.0 + 0.5 * i as f64).collect();
+        // Climbing as steeply as it drives (half the path vertical: axes no vehicle moves in).
+        let poses: Vec<Pose3> = drive_at(2.0, 231, |k| if k % 100 < 30 { 20.0 } else { 0.5 })
+            .iter()
+            .map(|&[x, y]| Pose3::planar(x, y, 0.0, x))
+            .collect();
+        let told = |news: &SourceNews| {
+            news.rate_hz.is_some() || news.axis_warning.is_some() || !news.speed_changes.is_empty()
+        };
+        let mut whole = SourceWatch::new(10.0, AxisConvention::Flu);
+        let expected: Vec<(usize, SourceNews)> = (0..poses.len())
+            .map(|i| (i, whole.observe(stamps[i], &poses[i])))
+            .filter(|(_, n)| told(n))
+            .collect();
+        let expected_end = whole.finish();
+        assert!(expected.iter().any(|(_, n)| n.rate_hz.is_some()));
+        assert!(expected.iter().any(|(_, n)| n.axis_warning.is_some()));
+        assert!(
+            expected
+                .iter()
+                .filter(|(_, n)| !n.speed_changes.is_empty())
+                .count()
+                >= 4
+        );
+        assert_eq!(expected_end.speed_changes.len(), 1, "{expected_end:?}");
+        for saved_at in (0..poses.len()).step_by(7).chain([63, 64, 65]) {
+            let mut before = SourceWatch::new(10.0, AxisConvention::Flu);
+            let mut got: Vec<(usize, SourceNews)> = (0..saved_at)
+                .map(|i| (i, before.observe(stamps[i], &poses[i])))
+                .collect();
+            let mut after = SourceWatch::restore(10.0, AxisConvention::Flu, before.state());
+            assert_eq!(after.state(), before.state());
+            got.extend((saved_at..poses.len()).map(|i| (i, after.observe(stamps[i], &poses[i]))));
+            got.retain(|(_, n)| told(n));
+            assert_eq!(got, expected, "saved at pose {saved_at}");
+            assert_eq!(after.finish(), expected_end, "saved at pose {saved_at}");
+        }
     }
 
     /// Poses along x (planar `flu`, heading along x) at `positions`.
