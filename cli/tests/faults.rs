@@ -15,6 +15,7 @@ use common::*;
 use lanealign_cli::daemon_config;
 use lanealign_cli::daemon_process::DaemonProcess;
 use lanealign_cli::synthetic::{self, Lcg};
+use lanealign_client::Connection;
 use lanealign_core::pose::{apply_planar_correction, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
@@ -317,6 +318,23 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_restarts() {
 #[test]
 fn killed_daemons_lose_nothing_of_an_odometry_that_stalls() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town_driven(town_setup, stalled_town_drive());
+    let out = offline_run(&t.setup, &t.name, &t.poses, None);
+    let sd_m = |c: &lanealign_core::source_corrector::CorrectedPose| {
+        (c.covariance[0][0] + c.covariance[1][1]).sqrt()
+    };
+    assert!(
+        sd_m(&out[265]) < 10.0,
+        "{} m before the first stall",
+        sd_m(&out[265])
+    );
+    assert!(sd_m(&out[299]) > 20.0, "{} m after it", sd_m(&out[299]));
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 16, "800");
+}
+
+/// Two laps of the town's odometry, stalled for 3 s every 30 s of the drive (from pose 270 on,
+/// its steps 1 % of the road's).
+fn stalled_town_drive() -> Vec<Pose3> {
     let (_, poses) = synthetic::drive(2, 7);
     let mut stalled = vec![poses[0]];
     for i in 1..poses.len() {
@@ -333,18 +351,102 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_stalls() {
             &poses[i],
         ));
     }
-    let t = town_driven(town_setup, stalled);
-    let out = offline_run(&t.setup, &t.name, &t.poses, None);
-    let sd_m = |c: &lanealign_core::source_corrector::CorrectedPose| {
-        (c.covariance[0][0] + c.covariance[1][1]).sqrt()
+    stalled
+}
+
+/// A session's warnings through daemon kills are those of a daemon that ran on. Its stamps
+/// say 20 Hz (the source is set for 10) and its odometry stalls every 30 s. The daemon is
+/// killed twice while the odometry's speed falls, before the fall is told: once restored from
+/// the session's records from its first, once from a snapshot and the records after it. Each
+/// restored session tells the fall under way once it ends, and does not tell again what was
+/// told before (the rate its stamps say).
+#[test]
+fn a_restored_session_warns_as_if_its_daemon_had_run_on() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town_driven(town_setup, stalled_town_drive()[..1300].to_vec());
+    let stamp_ns = |i: usize| 1_700_000_000_000_000_000 + i as i64 * 50_000_000;
+    let answer = |conn: &mut Connection, i: usize| {
+        conn.publish(stamp_ns(i), &t.poses[i].to_row_major())
+            .unwrap();
+        conn.recv(Duration::from_secs(5))
+            .unwrap()
+            .expect("an answer within 5 s")
     };
-    assert!(
-        sd_m(&out[265]) < 10.0,
-        "{} m before the first stall",
-        sd_m(&out[265])
+    let close = |conn: Connection, daemon: &DaemonProcess, before: usize| {
+        assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
+        let until = Instant::now() + Duration::from_secs(5);
+        while daemon.log().matches("closed by its client").count() <= before {
+            assert!(Instant::now() < until, "{}", daemon.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    // The warnings of session `id` in `log`, without their time and the session's id.
+    let warnings = |log: &str, id: u64| -> Vec<String> {
+        let id = format!("{id:016x}");
+        log.lines()
+            .filter(|l| l.contains(" WARN ") && l.contains(&id))
+            .map(|l| l.split(" WARN ").nth(1).unwrap_or(l).replace(&id, "S"))
+            .collect()
+    };
+    let mut daemon = start(&t.setup);
+    let mut conn = connect(&t.setup, &t.name);
+    wait_for_daemon(&mut conn);
+    let ran_on = conn.session();
+    for i in 0..t.poses.len() {
+        answer(&mut conn, i);
+    }
+    close(conn, &daemon, 0);
+    let expected = warnings(&daemon.log(), ran_on);
+    let falls: Vec<u64> = expected
+        .iter()
+        .filter(|w| w.contains("to_mps=0."))
+        .filter_map(|w| w.split("seq=").nth(1)?.split(' ').next()?.parse().ok())
+        .collect();
+    assert_eq!(falls.len(), 4, "{expected:#?}");
+    assert_eq!(
+        expected.iter().filter(|w| w.contains("20 Hz")).count(),
+        1,
+        "{expected:#?}"
     );
-    assert!(sd_m(&out[299]) > 20.0, "{} m after it", sd_m(&out[299]));
-    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 16, "800");
+    let mut conn = connect(&t.setup, &t.name);
+    let killed = conn.session();
+    let mut logs = Vec::new();
+    let mut next = 0;
+    // Killed two poses into the first fall (no snapshot yet: 512 records fill a segment) and
+    // the second (after one).
+    for fall_seq in &falls[..2] {
+        let upto = *fall_seq as usize + 2;
+        while next < upto {
+            answer(&mut conn, next);
+            next += 1;
+        }
+        // The log's writer runs on its own thread: what was told by now is written.
+        std::thread::sleep(Duration::from_millis(300));
+        let log = daemon.log();
+        assert!(
+            !warnings(&log, killed)
+                .iter()
+                .any(|w| w.contains(&format!("seq={fall_seq} "))),
+            "killed before the fall at {fall_seq} was told: {log}"
+        );
+        logs.push(log);
+        daemon.kill().unwrap();
+        daemon = start(&t.setup);
+        assert!(
+            daemon.log().contains("session restored"),
+            "{}",
+            daemon.log()
+        );
+    }
+    while next < t.poses.len() {
+        answer(&mut conn, next);
+        next += 1;
+    }
+    close(conn, &daemon, 0);
+    logs.push(daemon.log());
+    let got: Vec<String> = logs.iter().flat_map(|l| warnings(l, killed)).collect();
+    assert_eq!(got, expected);
+    assert!(daemon.stop().unwrap());
 }
 
 /// The same with a session that estimates its odometry's scale (the orb-slam3 preset; the town's

@@ -24,6 +24,7 @@ use lanealign_core::source_corrector::Placement;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_service::journal::{Record, SegmentWriter, Snapshot, SEGMENT_RECORDS};
+use lanealign_service::metrics::Outcome;
 use lanealign_service::session::{self, Session, SessionSetup};
 use lanealign_wire::payload::OdomPose;
 
@@ -126,13 +127,16 @@ fn main() -> anyhow::Result<()> {
         .map(|(i, p)| {
             let input = input(i as u64 + 1, p);
             let (handled, _) = session.handle(&input, 0, &record_setup, || false);
+            if let Outcome::Corrected(status) = &handled.outcome {
+                session.watch.observe(&input, status);
+            }
             Record {
                 input,
                 answer: handled.answer,
             }
         })
         .collect();
-    let state = session.state();
+    let (state, watch) = (session.state(), session.watch.state());
     let mut append_us = Vec::new();
     let mut snapshot_us = Vec::new();
     for round in 0..rounds {
@@ -147,6 +151,7 @@ fn main() -> anyhow::Result<()> {
                     last_seq: i as u64,
                     next_segment: 1,
                     state: state.clone(),
+                    watch: Some(watch.clone()),
                 }
                 .encode();
                 std::hint::black_box(bytes);
@@ -257,12 +262,17 @@ fn write_snapshot(dir: &Path, s: &SessionSetup, poses: &[Pose3]) -> anyhow::Resu
     };
     let (mut replica, _) = Session::start(7, 1, &no_journal);
     for (i, p) in poses[..boundary].iter().enumerate() {
-        replica.handle(&input(i as u64 + 1, p), 0, &no_journal, || false);
+        let input = input(i as u64 + 1, p);
+        let (handled, _) = replica.handle(&input, 0, &no_journal, || false);
+        if let Outcome::Corrected(status) = &handled.outcome {
+            replica.watch.observe(&input, status);
+        }
     }
     let snapshot = Snapshot {
         last_seq: boundary as u64,
         next_segment: (boundary / 512) as u64,
         state: replica.state(),
+        watch: Some(replica.watch.state()),
     };
     lanealign_service::journal::write_durably(&dir.join("snapshot"), &snapshot.encode())?;
     Ok(())

@@ -43,13 +43,16 @@ use memmap2::MmapMut;
 
 use lanealign_core::continuity::Continuity;
 use lanealign_core::corrector::CorrectorState;
-use lanealign_core::plausibility::{SpeedChange, SpeedHistory};
+use lanealign_core::plausibility::{AxisMotion, SourceWatchState, SpeedChange, SpeedHistory};
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::scale::{ScaleEstimate, ScaledOdometry};
 use lanealign_core::se2::Se2;
-use lanealign_core::source_corrector::SourceState;
+use lanealign_core::source_corrector::{Counts, SourceState};
 use lanealign_core::stall::{Stall, StallState};
 use lanealign_wire::payload::{CorrectedPose, OdomPose, MAX_IN_FLIGHT};
 use xxhash_rust::xxh3::xxh3_64;
+
+use crate::session_watch::SessionWatchState;
 
 /// Records per segment: the last full segment alone holds [`MAX_IN_FLIGHT`] answers.
 pub const SEGMENT_RECORDS: u64 = MAX_IN_FLIGHT;
@@ -61,7 +64,10 @@ const SESSION_MAGIC: &[u8; 8] = b"LASESS02";
 /// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
 /// records cannot be appended to, so their sessions are not restored (they start afresh).
 const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP08";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP09";
+/// Snapshots before the session's watch for the daemon's warnings was kept (read with none: it
+/// starts afresh after the replay, as it then did).
+const SNAPSHOT_MAGIC_V8: &[u8; 8] = b"LASNAP08";
 /// Snapshots before stalls of the odometry widened the covariance (read with the watch for them
 /// starting afresh where the session's parameters have one).
 const SNAPSHOT_MAGIC_V7: &[u8; 8] = b"LASNAP07";
@@ -82,8 +88,9 @@ const SNAPSHOT_MAGIC_V3: &[u8; 8] = b"LASNAP03";
 const SNAPSHOT_MAGIC_V2: &[u8; 8] = b"LASNAP02";
 /// The largest window a snapshot may hold (poses): the corrector's own limit.
 const MAX_WINDOW: u64 = 1_000_000;
-/// The most poses or speeds a snapshot's stall watch may hold (it keeps 64 and 16).
-const MAX_STALL_VALUES: u64 = 1024;
+/// The most poses, stamps or speeds a snapshot's stall watch or session watch may hold (they
+/// keep 64 and 16).
+const MAX_WATCH_VALUES: u64 = 1024;
 
 /// A journal that could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -307,6 +314,9 @@ pub struct Snapshot {
     pub next_segment: u64,
     /// The source corrector's state.
     pub state: SourceState,
+    /// The session's watch for the daemon's warnings; `None` in snapshots of the formats before
+    /// it was kept.
+    pub watch: Option<SessionWatchState>,
 }
 
 impl Snapshot {
@@ -366,6 +376,12 @@ impl Snapshot {
                 e.u32(0);
             }
         }
+        match &self.watch {
+            Some(watch) => encode_watch(e.u32(1), watch),
+            None => {
+                e.u32(0);
+            }
+        }
         e.u64(c.window.len() as u64);
         for p in &c.window {
             e.f64s(p);
@@ -385,7 +401,8 @@ impl Snapshot {
         let magic = body.get(..8)?;
         // Each format kept what the one before did and added a part.
         let version = match magic {
-            m if m == SNAPSHOT_MAGIC => 8,
+            m if m == SNAPSHOT_MAGIC => 9,
+            m if m == SNAPSHOT_MAGIC_V8 => 8,
             m if m == SNAPSHOT_MAGIC_V7 => 7,
             m if m == SNAPSHOT_MAGIC_V6 => 6,
             m if m == SNAPSHOT_MAGIC_V5 => 5,
@@ -400,6 +417,7 @@ impl Snapshot {
         let has_continuity = version >= 6;
         let has_scale = version >= 7;
         let has_stall = version >= 8;
+        let has_watch = version >= 9;
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -457,6 +475,11 @@ impl Snapshot {
         } else {
             None
         };
+        let watch = if has_watch && flag(d.u32()?)? {
+            Some(decode_watch(&mut d)?)
+        } else {
+            None
+        };
         let n = d.u64()?;
         if n > MAX_WINDOW || d.0.len() as u64 != n * 16 {
             return None;
@@ -499,6 +522,7 @@ impl Snapshot {
             last_seq,
             next_segment,
             state,
+            watch,
         })
     }
 }
@@ -509,7 +533,45 @@ fn encode_stall(e: &mut Encoder, stall: &StallState) {
     for held in &stall.held {
         e.f64s(held);
     }
-    match &stall.judged {
+    encode_judged(e, &stall.judged);
+    e.point(stall.last);
+    match stall.open {
+        Some(open) => e
+            .u32(1)
+            .f64(open.before_mps)
+            .f64s(&open.heading)
+            .f64(open.missed_m),
+        None => e.u32(0).f64s(&[0.0; 4]),
+    };
+}
+
+/// A stall watch's state ([`encode_stall`]); `None` unless every part is there and every
+/// number but a held stamp (NaN without stamps) is finite.
+fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
+    let flag = |f: u32| (f <= 1).then_some(f == 1);
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    let held: Vec<[f64; 4]> = (0..count(d)?)
+        .map(|_| d.f64s::<4>().filter(|h| finite(&h[1..])))
+        .collect::<Option<_>>()?;
+    let judged = decode_judged(d)?;
+    let last = (d.u32()?, d.f64s::<2>()?);
+    let open = (d.u32()?, d.f64()?, d.f64s::<2>()?, d.f64()?);
+    (finite(&last.1) && finite(&[open.1, open.2[0], open.2[1], open.3])).then_some(())?;
+    Some(StallState {
+        held,
+        judged,
+        last: flag(last.0)?.then_some(last.1),
+        open: flag(open.0)?.then_some(Stall {
+            before_mps: open.1,
+            heading: open.2,
+            missed_m: open.3,
+        }),
+    })
+}
+
+/// Appends the rate a speed watch judges at and what it has seen, once the stamps told it.
+fn encode_judged(e: &mut Encoder, judged: &Option<(f64, SpeedHistory)>) {
+    match judged {
         Some((rate_hz, speed)) => {
             e.u32(1).f64(*rate_hz).u64(speed.seen as u64);
             e.point(speed.last).u64(speed.repeats as u64);
@@ -531,75 +593,133 @@ fn encode_stall(e: &mut Encoder, stall: &StallState) {
             e.u32(0);
         }
     }
-    e.point(stall.last);
-    match stall.open {
-        Some(open) => e
-            .u32(1)
-            .f64(open.before_mps)
-            .f64s(&open.heading)
-            .f64(open.missed_m),
-        None => e.u32(0).f64s(&[0.0; 4]),
-    };
 }
 
-/// A stall watch's state ([`encode_stall`]); `None` unless every part is there and every
-/// number but a held stamp (NaN without stamps) is finite.
-fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
+/// A count of values that follow: at most [`MAX_WATCH_VALUES`].
+fn count(d: &mut Decoder<'_>) -> Option<u64> {
+    d.u64().filter(|&n| n <= MAX_WATCH_VALUES)
+}
+
+/// What [`encode_judged`] appended (`Some(None)`: not judged yet); `None` unless every part is
+/// there and every number is finite, the rate positive.
+fn decode_judged(d: &mut Decoder<'_>) -> Option<Option<(f64, SpeedHistory)>> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-    let count = |d: &mut Decoder<'_>| d.u64().filter(|&n| n <= MAX_STALL_VALUES);
-    let held: Vec<[f64; 4]> = (0..count(d)?)
-        .map(|_| d.f64s::<4>().filter(|h| finite(&h[1..])))
+    if !flag(d.u32()?)? {
+        return Some(None);
+    }
+    let (rate_hz, seen) = (d.f64()?, usize::try_from(d.u64()?).ok()?);
+    let last = (d.u32()?, d.f64s::<2>()?);
+    let repeats = usize::try_from(d.u64()?).ok()?;
+    let speeds: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
+    let ends: Vec<usize> = (0..count(d)?)
+        .map(|_| d.u64().and_then(|v| usize::try_from(v).ok()))
         .collect::<Option<_>>()?;
-    let judged = if flag(d.u32()?)? {
-        let (rate_hz, seen) = (d.f64()?, usize::try_from(d.u64()?).ok()?);
-        let last = (d.u32()?, d.f64s::<2>()?);
-        let repeats = usize::try_from(d.u64()?).ok()?;
-        let speeds: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
-        let ends: Vec<usize> = (0..count(d)?)
-            .map(|_| d.u64().and_then(|v| usize::try_from(v).ok()))
-            .collect::<Option<_>>()?;
-        let change = (d.u32()?, d.u64()?, d.f64s::<3>()?, d.u64()?);
-        let valid = rate_hz.is_finite()
-            && rate_hz > 0.0
-            && finite(&last.1)
-            && finite(&speeds)
-            && ends.len() == speeds.len()
-            && finite(&change.2);
-        valid.then_some(())?;
-        let open = flag(change.0)?.then_some((
-            SpeedChange {
-                pose: usize::try_from(change.1).ok()?,
-                from_mps: change.2[0],
-                to_mps: change.2[1],
-                over_s: change.2[2],
-            },
-            usize::try_from(change.3).ok()?,
-        ));
-        let history = SpeedHistory {
-            seen,
-            last: flag(last.0)?.then_some(last.1),
-            repeats,
-            speeds,
-            ends,
-            open,
-        };
-        Some((rate_hz, history))
+    let change = (d.u32()?, d.u64()?, d.f64s::<3>()?, d.u64()?);
+    let valid = rate_hz.is_finite()
+        && rate_hz > 0.0
+        && finite(&last.1)
+        && finite(&speeds)
+        && ends.len() == speeds.len()
+        && finite(&change.2);
+    valid.then_some(())?;
+    let open = flag(change.0)?.then_some((
+        SpeedChange {
+            pose: usize::try_from(change.1).ok()?,
+            from_mps: change.2[0],
+            to_mps: change.2[1],
+            over_s: change.2[2],
+        },
+        usize::try_from(change.3).ok()?,
+    ));
+    let history = SpeedHistory {
+        seen,
+        last: flag(last.0)?.then_some(last.1),
+        repeats,
+        speeds,
+        ends,
+        open,
+    };
+    Some(Some((rate_hz, history)))
+}
+
+/// Appends a session watch's state.
+fn encode_watch(e: &mut Encoder, watch: &SessionWatchState) {
+    let source = &watch.source;
+    match &source.axes {
+        Some(axes) => {
+            match &axes.last {
+                Some(pose) => e.u32(1).u32(1).f64s(&pose.to_row_major()),
+                None => e.u32(1).u32(0).f64s(&[0.0; 12]),
+            };
+            for &(vertical, path) in &axes.vertical_and_path_m {
+                e.f64(vertical).f64(path);
+            }
+        }
+        None => {
+            e.u32(0);
+        }
+    }
+    e.u64(source.stamps_s.len() as u64).f64s(&source.stamps_s);
+    e.u64(source.held.len() as u64);
+    for held in &source.held {
+        e.f64s(held);
+    }
+    encode_judged(e, &source.speed);
+    let Counts {
+        attempts,
+        accepted,
+        resets,
+    } = watch.alignments;
+    e.u64(watch.watched_seq)
+        .u64(attempts as u64)
+        .u64(accepted as u64)
+        .u64(resets as u64)
+        .u64(watch.corrected_poses as u64);
+}
+
+/// A session watch's state ([`encode_watch`]); `None` unless every part is there and every
+/// number but a stamp (any number a client sent) is finite.
+fn decode_watch(d: &mut Decoder<'_>) -> Option<SessionWatchState> {
+    let flag = |f: u32| (f <= 1).then_some(f == 1);
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    let axes = if flag(d.u32()?)? {
+        let last = (d.u32()?, d.f64s::<12>().filter(|p| finite(p))?);
+        let mut vertical_and_path_m = [(0.0, 0.0); AxisConvention::ALL.len()];
+        for pair in &mut vertical_and_path_m {
+            *pair = (d.f64()?, d.f64()?);
+            finite(&[pair.0, pair.1]).then_some(())?;
+        }
+        Some(AxisMotion {
+            last: flag(last.0)?.then(|| Pose3::from_row_major(&last.1)),
+            vertical_and_path_m,
+        })
     } else {
         None
     };
-    let last = (d.u32()?, d.f64s::<2>()?);
-    let open = (d.u32()?, d.f64()?, d.f64s::<2>()?, d.f64()?);
-    (finite(&last.1) && finite(&[open.1, open.2[0], open.2[1], open.3])).then_some(())?;
-    Some(StallState {
-        held,
-        judged,
-        last: flag(last.0)?.then_some(last.1),
-        open: flag(open.0)?.then_some(Stall {
-            before_mps: open.1,
-            heading: open.2,
-            missed_m: open.3,
-        }),
+    let stamps_s: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
+    let held: Vec<[f64; 2]> = (0..count(d)?)
+        .map(|_| d.f64s::<2>().filter(|p| finite(p)))
+        .collect::<Option<_>>()?;
+    let speed = decode_judged(d)?;
+    let mut number = || d.u64().and_then(|v| usize::try_from(v).ok());
+    let watched_seq = number()? as u64;
+    let alignments = Counts {
+        attempts: number()?,
+        accepted: number()?,
+        resets: number()?,
+    };
+    let corrected_poses = number()?;
+    Some(SessionWatchState {
+        source: SourceWatchState {
+            axes,
+            stamps_s,
+            held,
+            speed,
+        },
+        watched_seq,
+        alignments,
+        corrected_poses,
     })
 }
 
@@ -927,6 +1047,7 @@ impl SegmentCopier {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::session_watch::SessionWatch;
     use lanealign_core::stall::StallWatch;
 
     fn record(seq: u64) -> Record {
@@ -1051,13 +1172,63 @@ mod tests {
                     }),
                 }),
             },
+            watch: Some(SessionWatchState {
+                source: SourceWatchState {
+                    axes: Some(AxisMotion {
+                        last: Some(Pose3::planar(310.5, -20.25, 0.3, 2.0)),
+                        vertical_and_path_m: [(3.5, 250.25), (240.0, 250.5)],
+                    }),
+                    stamps_s: vec![f64::NAN, 1.5],
+                    held: vec![[1.0, 2.0], [3.0, 4.5]],
+                    speed: Some((
+                        10.0,
+                        SpeedHistory {
+                            seen: 811,
+                            last: Some([300.0, -19.5]),
+                            repeats: 1,
+                            speeds: vec![19.0, 2.0],
+                            ends: vec![806, 808],
+                            open: None,
+                        },
+                    )),
+                },
+                watched_seq: 1234,
+                alignments: Counts {
+                    attempts: 600,
+                    accepted: 550,
+                    resets: 2,
+                },
+                corrected_poses: 1200,
+            }),
         };
         let bytes = snap.encode();
-        assert_eq!(Snapshot::decode(&bytes), Some(snap.clone()));
+        // NaN stamps (no stamps at all) compare unequal: compare the bytes decoded again.
+        let decoded = Snapshot::decode(&bytes).expect("decodes");
+        assert_eq!(decoded.encode(), bytes);
+        let stamps = |s: &Snapshot| s.watch.as_ref().map(|w| w.source.stamps_s[1]);
+        assert_eq!(stamps(&decoded), Some(1.5));
+        let without_stamps = |mut s: Snapshot| {
+            if let Some(w) = &mut s.watch {
+                w.source.stamps_s.clear();
+            }
+            s
+        };
+        assert_eq!(without_stamps(decoded), without_stamps(snap.clone()));
+        // A session watch that has seen nothing, whose stamps have told the rate and whose axes
+        // are judged, and none (the format before).
+        let mut told = snap.watch.clone().unwrap();
+        (told.source.axes, told.source.stamps_s, told.source.held) = (None, vec![], vec![]);
+        let fresh = SessionWatch::new(10.0, AxisConvention::Flu).state();
+        for watch in [Some(fresh), Some(told), None] {
+            let mut other = snap.clone();
+            other.watch = watch;
+            assert_eq!(Snapshot::decode(&other.encode()), Some(other));
+        }
         // A session without a stall watch (the paper's method), and one whose watch has seen
         // nothing.
         for stall in [None, Some(StallWatch::new(10.0).state())] {
             let mut other = snap.clone();
+            other.watch = None;
             other.state.stall = stall;
             assert_eq!(Snapshot::decode(&other.encode()), Some(other));
         }
@@ -1065,10 +1236,13 @@ mod tests {
         // continuity (112 bytes) comes after the last position and the smoothed correction, and
         // the scale estimate, the scaled odometry and the published uncertainty (156 bytes)
         // after that, then the stall watch (176 bytes and its 5 speeds and the 5 poses they
-        // ended at).
+        // ended at), then the session watch.
         let at = 8 + 8 + 8 + 32 + 8 + 4 + 8 + 72;
         let (continuity_at, scale_at, stall_at) = (at + 100, at + 212, at + 368);
-        let window_at = stall_at + 176 + 5 * 16;
+        let watch_at = stall_at + 176 + 5 * 16;
+        let mut unwatched = snap.clone();
+        unwatched.watch = None;
+        let window_at = watch_at + 4 + bytes.len() - unwatched.encode().len();
         let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
             for part in parts {
@@ -1078,8 +1252,13 @@ mod tests {
             v
         };
         let tail = window_at..bytes.len() - 8;
-        // The format before: no stall watch, read as none (it starts afresh).
+        // The format before: no session watch, read as none (it starts afresh after the
+        // replay).
         let mut old = snap.clone();
+        old.watch = None;
+        let v8 = frame(SNAPSHOT_MAGIC_V8, &[8..watch_at, tail.clone()]);
+        assert_eq!(Snapshot::decode(&v8), Some(old.clone()));
+        // The one before: no stall watch, read as none (it starts afresh).
         old.state.stall = None;
         let v7 = frame(SNAPSHOT_MAGIC_V7, &[8..stall_at, tail.clone()]);
         assert_eq!(Snapshot::decode(&v7), Some(old.clone()));
@@ -1121,6 +1300,12 @@ mod tests {
             if let Some((_, speed)) = &mut stall.judged {
                 speed.speeds[2] = f64::NAN;
             }
+        }
+        assert!(Snapshot::decode(&nan.encode()).is_none());
+        // So is a session watch with a position that is no number.
+        let mut nan = snap.clone();
+        if let Some(watch) = &mut nan.watch {
+            watch.source.held[1][0] = f64::INFINITY;
         }
         assert!(Snapshot::decode(&nan.encode()).is_none());
     }

@@ -11,6 +11,7 @@ pub mod journal;
 pub mod metrics;
 pub mod persistence;
 pub mod session;
+pub mod session_watch;
 pub mod tile_watch;
 pub mod worker;
 

@@ -28,6 +28,7 @@ use crate::journal::{
     Snapshot, SEGMENT_RECORDS,
 };
 use crate::metrics::Outcome;
+use crate::session_watch::SessionWatch;
 use crate::worker::wire_status;
 
 /// Work for the persistence thread: nothing a worker waits for.
@@ -115,6 +116,9 @@ pub struct Session {
     recent: VecDeque<Record>,
     journal: Option<Journal>,
     grid: Option<GridView>,
+    /// What its corrected poses have told so far, for the daemon's warnings: the worker feeds
+    /// it each pose answered with a correction, after publishing the answer. Snapshots hold it.
+    pub watch: SessionWatch,
 }
 
 /// A journal that failed: the session goes on without persistence, and the daemon says so.
@@ -180,6 +184,7 @@ impl Session {
             recent: VecDeque::new(),
             journal: None,
             grid: setup.grid.as_ref().map(|g| g.view(id)),
+            watch: new_watch(setup),
         };
         let mut failure = None;
         if let Some(root) = &setup.journal_dir {
@@ -353,8 +358,13 @@ impl Session {
         if !journal.segment.is_full() {
             return Ok(());
         }
-        let last_seq = self.expected_seq - 1;
-        let result = roll(journal, last_seq, &self.corrector, setup);
+        let snapshot = Snapshot {
+            last_seq: self.expected_seq - 1,
+            next_segment: journal.segment.number + 1,
+            state: self.corrector.state(),
+            watch: Some(self.watch.state()),
+        };
+        let result = roll(journal, snapshot, setup);
         if result.is_err() {
             self.journal = None;
         }
@@ -432,20 +442,14 @@ fn track(setup: &SessionSetup, dir: &Path, segment: &SegmentWriter) -> Result<()
     Ok(())
 }
 
-/// Starts the segment after the journal's full one, and hands a snapshot of `corrector`'s
-/// state after the full one's last record (`last_seq`) to the persistence thread.
+/// Starts the segment after the journal's full one, and hands `snapshot` (the session's state
+/// after the full one's last record) to the persistence thread.
 fn roll(
     journal: &mut Journal,
-    last_seq: u64,
-    corrector: &SourceCorrector,
+    snapshot: Snapshot,
     setup: &SessionSetup,
 ) -> Result<(), JournalError> {
-    let next = journal.segment.number + 1;
-    let snapshot = Snapshot {
-        last_seq,
-        next_segment: next,
-        state: corrector.state(),
-    };
+    let next = snapshot.next_segment;
     journal.segment = SegmentWriter::create(&journal.dir, next)?;
     track(setup, &journal.dir, &journal.segment)?;
     if let Some(p) = &setup.persistence {
@@ -495,8 +499,14 @@ fn follow_grid(
     Ok(())
 }
 
+/// A watch for a new session of `setup`'s source.
+fn new_watch(setup: &SessionSetup) -> SessionWatch {
+    SessionWatch::new(setup.params.odometry_rate_hz, setup.placement.convention)
+}
+
 /// Restores the session journaled in `dir`: its snapshot, then every later record replayed
-/// through the corrector, each answer computed again and checked against the one logged.
+/// through the corrector, each answer computed again and checked against the one logged, and
+/// through the session's watch (what it told then was told before the daemon went down).
 pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError> {
     let io = |source| JournalError::Io {
         path: dir.join("session"),
@@ -534,6 +544,17 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
             s.state.clone(),
         ),
         None => SourceCorrector::new(setup.map.clone(), setup.params, setup.mode, setup.placement),
+    };
+    // A snapshot of a format without the watch leaves it to start afresh after the replay.
+    let mut watch = match &snapshot {
+        Some(s) => s.watch.clone().map(|state| {
+            SessionWatch::restore(
+                setup.params.odometry_rate_hz,
+                setup.placement.convention,
+                state,
+            )
+        }),
+        None => Some(new_watch(setup)),
     };
     // On a grid, the replay loads the cells each pose needs right here (nothing is served yet),
     // so that it runs on the maps the session had.
@@ -575,6 +596,12 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
                         r.input.seq
                     )));
                 }
+                if let Some(watch) = watch
+                    .as_mut()
+                    .filter(|_| again.status != Status::InvalidInput)
+                {
+                    watch.observe(&r.input, &again.status);
+                }
                 last_seq = Some(r.input.seq);
             }
             if recent.len() as u64 >= MAX_IN_FLIGHT {
@@ -601,5 +628,6 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
             dir: dir.to_path_buf(),
             segment,
         }),
+        watch: watch.unwrap_or_else(|| new_watch(setup)),
     })
 }

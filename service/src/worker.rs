@@ -16,10 +16,8 @@ use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
 use lanealign_core::plausibility::{
-    no_correction_warning, rate_warning, SourceNews, SourceWatch, MAX_ACCELERATION_MPS2,
-    SPEED_SPAN_S,
+    no_correction_warning, rate_warning, SourceNews, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
 };
-use lanealign_core::pose::Pose3;
 use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Counts;
 use lanealign_wire::clock::monotonic_ns;
@@ -36,6 +34,7 @@ use crate::config::ResolvedSource;
 use crate::grid_loader::GridLoader;
 use crate::metrics::{Outcome, SourceMetrics};
 use crate::session::{self, JournalFailure, PersistJob, Session, SessionSetup};
+use crate::session_watch::SessionWatch;
 
 /// How long a worker waits for a pose before it checks for shutdown and idle sessions.
 const WAKE_UP: Duration = Duration::from_millis(100);
@@ -174,16 +173,6 @@ struct Live {
     notifier: Notifier<Ipc>,
     _services: SessionServices<Ipc>,
     last_active: Instant,
-    /// The session's stamps and poses, to warn once when the source is faster or slower than
-    /// its corrector is set for or its poses move as no vehicle does in the source's frame, and
-    /// when its speed changes faster than a car's can (an odometry that lost track).
-    watch: SourceWatch,
-    /// The sequence number of the last pose `watch` took.
-    watched_seq: u64,
-    /// The session's alignments so far, and the poses it answered with a correction, to warn
-    /// when none is accepted.
-    alignments: Counts,
-    corrected_poses: usize,
 }
 
 /// How many alignments a session tries, all refused, before the daemon warns that none was
@@ -216,13 +205,6 @@ impl Worker {
             notifier,
             _services: services,
             last_active: Instant::now(),
-            watch: SourceWatch::new(
-                self.setup.sessions.params.odometry_rate_hz,
-                self.setup.sessions.placement.convention,
-            ),
-            watched_seq: 0,
-            alignments: Counts::default(),
-            corrected_poses: 0,
         })
     }
 
@@ -238,10 +220,12 @@ impl Worker {
 
     fn end_session(&mut self, id: u64, why: &str) {
         if let Some(mut live) = self.sessions.remove(&id) {
-            let news = live.watch.finish();
-            tell(&self.name, id, &live, news, &self.setup.sessions.params);
-            if live.alignments.attempts < REFUSALS_TOLD {
-                tell_refusals(&self.name, id, &live);
+            if let Some(watch) = live.session.as_mut().map(|s| &mut s.watch) {
+                let news = watch.finish();
+                tell(&self.name, id, watch, news, &self.setup.sessions.params);
+                if watch.alignments().attempts < REFUSALS_TOLD {
+                    tell_refusals(&self.name, id, watch);
+                }
             }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
@@ -402,16 +386,12 @@ impl Worker {
                 false
             }
         };
-        if let Outcome::Corrected(status) = outcome {
-            let news = live
-                .watch
-                .observe(input.stamp_s(), &Pose3::from_row_major(&input.pose));
-            live.watched_seq = input.seq;
-            tell(&self.name, input.session, live, news, &setup.params);
-            live.alignments.add(&status);
-            live.corrected_poses += 1;
-            if live.alignments.attempts == REFUSALS_TOLD {
-                tell_refusals(&self.name, input.session, live);
+        let watch = live.session.as_mut().map(|s| &mut s.watch);
+        if let (Outcome::Corrected(status), Some(watch)) = (&outcome, watch) {
+            let news = watch.observe(&input, status);
+            tell(&self.name, input.session, watch, news, &setup.params);
+            if watch.alignments().attempts == REFUSALS_TOLD {
+                tell_refusals(&self.name, input.session, watch);
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
@@ -456,34 +436,29 @@ impl Worker {
     }
 }
 
-/// Logs what `live`'s watch told of session `session` of source `source` (`news`): the rate its
+/// Logs what `watch` told of session `session` of source `source` (`news`): the rate its
 /// stamps say when `params` are set for another, that its poses move as no vehicle does in the
 /// source's frame, and each change of speed no car makes, with its sequence number.
-fn tell(source: &str, session: u64, live: &Live, news: SourceNews, params: &Params) {
+fn tell(source: &str, session: u64, watch: &SessionWatch, news: SourceNews, params: &Params) {
     let rate = news.rate_hz.and_then(|r| rate_warning(r, params));
     for warning in rate.into_iter().chain(news.axis_warning) {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
-    let rate_hz = live
-        .watch
-        .speed_rate_hz()
-        .unwrap_or(params.odometry_rate_hz);
+    let rate_hz = watch.speed_rate_hz().unwrap_or(params.odometry_rate_hz);
     for change in news.speed_changes {
-        let seq = live
-            .watched_seq
-            .saturating_sub(live.watch.poses_since(&change) as u64);
+        let seq = watch.seq_of(&change);
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road; where the source watches stalls (watch_stalls), a fall restarts its window and widens the covariance along the road by the distance missed at the speed before it and the heading by what a car may turn there");
     }
 }
 
-/// Logs that session `session` (`live`) of source `source` had none of its alignments accepted,
-/// if it tried any.
-fn tell_refusals(source: &str, session: u64, live: &Live) {
+/// Logs that session `session` (`watch`) of source `source` had none of its alignments
+/// accepted, if it tried any.
+fn tell_refusals(source: &str, session: u64, watch: &SessionWatch) {
     let Counts {
         attempts, accepted, ..
-    } = live.alignments;
+    } = watch.alignments();
     let warning = no_correction_warning(
-        live.corrected_poses,
+        watch.corrected_poses(),
         attempts,
         accepted,
         "the source's anchor and frame in this configuration and that the tile covers the drive",
