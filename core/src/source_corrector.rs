@@ -364,11 +364,15 @@ pub struct Counts {
 }
 
 impl Counts {
-    /// Counts one more pose, answered with `status`.
+    /// Counts one more pose, answered with `status` (each count stops at `usize::MAX`).
     pub fn add(&mut self, status: &Status) {
-        self.attempts += usize::from(status.attempted());
-        self.accepted += usize::from(matches!(status, Status::Accepted { .. }));
-        self.resets += usize::from(matches!(status, Status::Reset { .. }));
+        let count = |n: &mut usize, yes: bool| *n = n.saturating_add(usize::from(yes));
+        count(&mut self.attempts, status.attempted());
+        count(
+            &mut self.accepted,
+            matches!(status, Status::Accepted { .. }),
+        );
+        count(&mut self.resets, matches!(status, Status::Reset { .. }));
     }
 }
 

@@ -386,8 +386,8 @@ impl Snapshot {
         for p in &c.window {
             e.f64s(p);
         }
-        let sum = xxh3_64(&e.0);
-        e.u64(sum);
+        e.u64(0);
+        seal(&mut e.0);
         e.0
     }
 
@@ -527,6 +527,16 @@ impl Snapshot {
     }
 }
 
+/// Writes the checksum of a snapshot's bytes (all but the last 8) into its last 8 bytes; bytes
+/// shorter than that are left as they are. What [`Snapshot::encode`] ends with; a fuzz harness
+/// reseals its mutants with it, so that they reach the decoding past the checksum.
+pub fn seal(bytes: &mut [u8]) {
+    if let Some(at) = bytes.len().checked_sub(8) {
+        let sum = xxh3_64(&bytes[..at]);
+        bytes[at..].copy_from_slice(&sum.to_le_bytes());
+    }
+}
+
 /// Appends a stall watch's state.
 fn encode_stall(e: &mut Encoder, stall: &StallState) {
     e.u64(stall.held.len() as u64);
@@ -595,6 +605,10 @@ fn encode_judged(e: &mut Encoder, judged: &Option<(f64, SpeedHistory)>) {
     }
 }
 
+/// More poses than a speed watch in a snapshot may have seen: 2^62, at 1 kHz a hundred million
+/// years of one session.
+const MAX_POSES_SEEN: usize = 1 << 62;
+
 /// A count of values that follow: at most [`MAX_WATCH_VALUES`].
 fn count(d: &mut Decoder<'_>) -> Option<u64> {
     d.u64().filter(|&n| n <= MAX_WATCH_VALUES)
@@ -616,12 +630,17 @@ fn decode_judged(d: &mut Decoder<'_>) -> Option<Option<(f64, SpeedHistory)>> {
         .map(|_| d.u64().and_then(|v| usize::try_from(v).ok()))
         .collect::<Option<_>>()?;
     let change = (d.u32()?, d.u64()?, d.f64s::<3>()?, d.u64()?);
+    // Every pose it names is one it has seen, and it has seen fewer than any session sends.
+    let seen_pose = |pose: u64| pose < seen as u64;
     let valid = rate_hz.is_finite()
         && rate_hz > 0.0
         && finite(&last.1)
         && finite(&speeds)
         && ends.len() == speeds.len()
-        && finite(&change.2);
+        && finite(&change.2)
+        && seen < MAX_POSES_SEEN
+        && ends.iter().all(|&end| seen_pose(end as u64))
+        && (change.0 == 0 || (seen_pose(change.1) && seen_pose(change.3)));
     valid.then_some(())?;
     let open = flag(change.0)?.then_some((
         SpeedChange {
@@ -710,6 +729,12 @@ fn decode_watch(d: &mut Decoder<'_>) -> Option<SessionWatchState> {
         resets: number()?,
     };
     let corrected_poses = number()?;
+    // What a session counts: every alignment accepted or reset was tried, and every one tried
+    // was a pose answered with a correction.
+    let counted = alignments.accepted <= alignments.attempts
+        && alignments.resets <= alignments.attempts
+        && alignments.attempts <= corrected_poses;
+    counted.then_some(())?;
     Some(SessionWatchState {
         source: SourceWatchState {
             axes,
@@ -1302,6 +1327,15 @@ mod tests {
             }
         }
         assert!(Snapshot::decode(&nan.encode()).is_none());
+        // So is a session watch that counts more alignments accepted than tried, or more tried
+        // than poses.
+        for (accepted, attempts) in [(601, 600), (550, 1201)] {
+            let mut miscounted = snap.clone();
+            if let Some(watch) = &mut miscounted.watch {
+                (watch.alignments.accepted, watch.alignments.attempts) = (accepted, attempts);
+            }
+            assert!(Snapshot::decode(&miscounted.encode()).is_none());
+        }
         // So is a session watch with a position that is no number.
         let mut nan = snap.clone();
         if let Some(watch) = &mut nan.watch {

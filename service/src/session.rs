@@ -576,7 +576,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         for r in &records {
             if n >= first_segment {
                 if let Some(last) = last_seq {
-                    if r.input.seq != last + 1 {
+                    if last.checked_add(1) != Some(r.input.seq) {
                         return Err(RestoreError::Inconsistent(format!(
                             "segment {n}: seq {} after {last}",
                             r.input.seq
@@ -611,6 +611,11 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         }
         open = Some((n, records.len() as u64));
     }
+    // No pose is answered with the last number (it has no successor), so a journal that used
+    // it was not written by a daemon.
+    let expected_seq = last_seq
+        .map_or(Some(1), |s| s.checked_add(1))
+        .ok_or_else(|| RestoreError::Inconsistent("its sequence numbers are used up".into()))?;
     let segment = match open {
         Some((n, records)) if records < SEGMENT_RECORDS => SegmentWriter::reopen(dir, n, records)?,
         Some((n, _)) => SegmentWriter::create(dir, n + 1)?,
@@ -621,7 +626,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         id: header.session,
         created_unix_ns: header.created_unix_ns,
         corrector,
-        expected_seq: last_seq.map_or(1, |s| s + 1),
+        expected_seq,
         recent,
         grid: setup.grid.as_ref().map(|g| g.view(header.session)),
         journal: Some(Journal {

@@ -81,7 +81,7 @@ impl SessionWatch {
             .observe(input.stamp_s(), &Pose3::from_row_major(&input.pose));
         self.watched_seq = input.seq;
         self.alignments.add(status);
-        self.corrected_poses += 1;
+        self.corrected_poses = self.corrected_poses.saturating_add(1);
         news
     }
 

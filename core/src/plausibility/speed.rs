@@ -213,7 +213,7 @@ impl SpeedWatch {
         let (mut steepest, last_as_steep) = self.open.take()?;
         // Spans that see the same change from a few poses apart are as steep (a change within
         // a step, medians of the same speeds): it lies in their middle.
-        steepest.pose = (steepest.pose + last_as_steep) / 2;
+        steepest.pose = steepest.pose.midpoint(last_as_steep);
         Some(steepest)
     }
 
