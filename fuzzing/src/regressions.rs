@@ -5,14 +5,16 @@
 
 use std::path::Path;
 
+use lanealign_core::plausibility::SpeedChange;
 use lanealign_core::pose::Pose3;
 use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::osm::read_xml;
+use lanealign_service::journal::{self, Snapshot};
 use lanealign_wire::payload::OdomPose;
 
 use crate::seeds::{self, odom_pose_bytes};
-use crate::targets::Target;
+use crate::targets::{snapshot_setup, Target};
 
 /// One regression case.
 pub struct Case {
@@ -198,6 +200,42 @@ pub fn cases() -> Vec<Case> {
         target: Target::Wire,
         bytes: odom_pose_bytes(&last),
         refused_with: None,
+    });
+    // A journal's snapshot after the last sequence number, which no daemon answers: restored,
+    // the session's next number wrapped round to 0.
+    let mut used_up = seeds::snapshots(&snapshot_setup()).swap_remove(0);
+    put_u64(&mut used_up, 8, u64::MAX);
+    journal::seal(&mut used_up);
+    cases.push(Case {
+        name: "snapshot_last_sequence_number.bin",
+        target: Target::Snapshot,
+        bytes: used_up,
+        refused_with: Some("its sequence numbers are used up"),
+    });
+    // A snapshot whose session watch has a change of speed under way at a pose it never saw
+    // (found by the `snapshot` harness in a debug build: the pose's index overflowed when the
+    // change was told; a release build told it at a wrapped-round pose).
+    let stalled = seeds::snapshots(&snapshot_setup()).swap_remove(1);
+    let mut unseen = Snapshot::decode(&stalled).expect("the seed decodes");
+    let speed = unseen
+        .watch
+        .as_mut()
+        .and_then(|w| w.source.speed.as_mut())
+        .expect("the seed's speed is judged");
+    speed.1.open = Some((
+        SpeedChange {
+            pose: usize::MAX,
+            from_mps: 20.0,
+            to_mps: 0.1,
+            over_s: 0.5,
+        },
+        usize::MAX,
+    ));
+    cases.push(Case {
+        name: "snapshot_speed_change_at_a_pose_never_seen.bin",
+        target: Target::Snapshot,
+        bytes: unseen.encode(),
+        refused_with: Some("unreadable snapshot"),
     });
     cases
 }

@@ -10,6 +10,9 @@ use lanealign_core::lane_map::{Lane, LaneMap};
 use lanealign_core::pose::Pose3;
 use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Format, Trajectory};
+use lanealign_service::journal::Snapshot;
+use lanealign_service::metrics::Outcome;
+use lanealign_service::session::{Session, SessionSetup};
 use lanealign_wire::payload::{OdomPose, FLAG_END_SESSION, FLAG_FRESH_START};
 
 /// Raw OSM: two-way and one-way roads, tagged lane counts, a reversed one-way, a footway, a
@@ -216,4 +219,48 @@ pub fn wire_stream() -> Vec<u8> {
         }));
     }
     out
+}
+
+/// Snapshots of a session of `setup`'s source, as its journal holds them: after 40 poses of the
+/// drive (the first stamps still held for the rate), and after 90 whose last 30 stall (the
+/// rate told, a stall under way).
+pub fn snapshots(setup: &SessionSetup) -> Vec<Vec<u8>> {
+    let moving = drive(60);
+    let stalled: Vec<Pose3> = moving
+        .iter()
+        .copied()
+        .chain((0..30).map(|i| {
+            let mut p = moving[59];
+            p.translation[0] += 0.01 * i as f64;
+            p
+        }))
+        .collect();
+    [&moving[..40], &stalled[..]]
+        .into_iter()
+        .map(|poses| {
+            let (mut session, _) = Session::start(1, 1, setup);
+            for (i, pose) in poses.iter().enumerate() {
+                let input = OdomPose {
+                    session: 1,
+                    seq: i as u64 + 1,
+                    stamp_ns: i as i64 * 100_000_000,
+                    sent_mono_ns: 0,
+                    pose: pose.to_row_major(),
+                    flags: 0,
+                    reserved: 0,
+                };
+                let (handled, _) = session.handle(&input, 0, setup, || false);
+                if let Outcome::Corrected(status) = &handled.outcome {
+                    session.watch.observe(&input, status);
+                }
+            }
+            Snapshot {
+                last_seq: poses.len() as u64,
+                next_segment: 1,
+                state: session.state(),
+                watch: Some(session.watch.state()),
+            }
+            .encode()
+        })
+        .collect()
 }

@@ -24,6 +24,8 @@ use lanealign_map::osm::{read_xml, OsmData};
 use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
 use lanealign_map::pbf::read_pbf;
 use lanealign_service::config::Config;
+use lanealign_service::journal::{self, Header};
+use lanealign_service::metrics::Outcome as Answered;
 use lanealign_service::session::{self, Session, SessionSetup};
 use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START};
 
@@ -55,13 +57,16 @@ pub enum Target {
     DaemonToml,
     /// A stream of wire payloads ([`OdomPose`]) into one source's sessions.
     Wire,
+    /// A session's snapshot in the daemon's journal (its checksum recomputed), restored as a
+    /// restarted daemon restores it and then answering poses.
+    Snapshot,
 }
 
 type Outcome = Result<(), String>;
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 11] = [
+    pub const ALL: [Target; 12] = [
         Target::Tile,
         Target::GridCell,
         Target::OsmXml,
@@ -73,6 +78,7 @@ impl Target {
         Target::LaneCsv,
         Target::DaemonToml,
         Target::Wire,
+        Target::Snapshot,
     ];
 
     /// The target's name (as in `fuzz/fuzz_targets/`).
@@ -89,6 +95,7 @@ impl Target {
             Target::LaneCsv => "lane_csv",
             Target::DaemonToml => "daemon_toml",
             Target::Wire => "wire",
+            Target::Snapshot => "snapshot",
         }
     }
 
@@ -139,6 +146,7 @@ impl Target {
                 serve(bytes);
                 Ok(())
             }
+            Target::Snapshot => restored(bytes),
         }
     }
 
@@ -157,6 +165,7 @@ impl Target {
             Target::LaneCsv => vec![seeds::lane_csv()],
             Target::DaemonToml => vec![seeds::DAEMON_TOML.as_bytes().to_vec()],
             Target::Wire => vec![seeds::wire_stream()],
+            Target::Snapshot => seeds::snapshots(&snapshot_setup()),
         }
     }
 
@@ -207,15 +216,26 @@ impl Target {
                 b"}",
             ],
             Target::Kitti | Target::Tum | Target::LaneCsv => &NUMBERS,
-            Target::Tile | Target::GridCell | Target::Pbf | Target::PbfGrid | Target::Wire => &[],
+            Target::Tile
+            | Target::GridCell
+            | Target::Pbf
+            | Target::PbfGrid
+            | Target::Wire
+            | Target::Snapshot => &[],
         }
     }
 
-    /// Makes a mutant reach past the integrity check most of the time: a tile mutant gets its
-    /// checksum recomputed in 7 of 8 cases (else nearly every mutant stops at the checksum).
+    /// Makes a mutant reach past the integrity check most of the time: a tile's or a
+    /// snapshot's mutant gets its checksum recomputed in 7 of 8 cases (else nearly every mutant
+    /// stops at the checksum).
     pub fn prepare(self, mutant: &mut [u8], coin: u64) {
-        if matches!(self, Target::Tile | Target::GridCell) && !coin.is_multiple_of(8) {
-            tile::seal(mutant);
+        if coin.is_multiple_of(8) {
+            return;
+        }
+        match self {
+            Target::Tile | Target::GridCell => tile::seal(mutant),
+            Target::Snapshot => journal::seal(mutant),
+            _ => {}
         }
     }
 }
@@ -421,6 +441,66 @@ fn correct(poses: &[lanealign_core::pose::Pose3]) {
         run.iter().all(|c| c.pose.is_finite()),
         "a non-finite corrected pose from accepted input"
     );
+}
+
+/// The source a snapshot harness's session belongs to: the orb-slam3 preset, whose sessions
+/// estimate the odometry's scale and watch for stalls, so that every part of a snapshot is used.
+pub fn snapshot_setup() -> SessionSetup {
+    SessionSetup {
+        map: seed_map(),
+        grid: None,
+        params: Preset::OrbSlam3.params(),
+        mode: MatchMode::Fast,
+        placement: placement(),
+        journal_dir: None,
+        fingerprint: 7,
+        persistence: None,
+        daemon_epoch: 1,
+    }
+}
+
+/// Restores a session whose journal holds the snapshot `bytes` (and the session header a
+/// daemon writes), as a restarted daemon does; the restored session then answers the seed
+/// drive and ends. Refusing the journal is a correct answer; a panic is the finding, and so
+/// is an accepted answer that is not finite.
+fn restored(bytes: &[u8]) -> Outcome {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    // What the restore would refuse first, without the files (most mutants).
+    journal::Snapshot::decode(bytes).ok_or("unreadable snapshot")?;
+    let setup = snapshot_setup();
+    let dir = tempfile::tempdir().map_err(|e| err(&e))?;
+    let header = Header {
+        session: 1,
+        created_unix_ns: 1,
+        fingerprint: setup.fingerprint,
+    };
+    std::fs::write(dir.path().join("session"), header.encode()).map_err(|e| err(&e))?;
+    std::fs::write(dir.path().join("snapshot"), bytes).map_err(|e| err(&e))?;
+    let mut session = session::restore(dir.path(), &setup).map_err(|e| err(&e))?;
+    for (k, pose) in seeds::drive(20).iter().enumerate() {
+        let input = OdomPose {
+            session: 1,
+            seq: session.expected_seq(),
+            stamp_ns: 1_000_000_000 + k as i64 * 100_000_000,
+            sent_mono_ns: 0,
+            pose: pose.to_row_major(),
+            flags: 0,
+            reserved: 0,
+        };
+        let (handled, _) = session.handle(&input, 0, &setup, || false);
+        let a = handled.answer;
+        if a.status() == Some(StatusCode::Accepted) {
+            assert!(
+                a.pose.iter().chain(&a.map_from_odom).all(|v| v.is_finite()),
+                "an accepted answer is finite"
+            );
+        }
+        if let Answered::Corrected(status) = &handled.outcome {
+            session.watch.observe(&input, status);
+        }
+    }
+    session.watch.finish();
+    Ok(())
 }
 
 fn odom_pose(chunk: &[u8]) -> OdomPose {

@@ -147,3 +147,8 @@ fn daemon_toml() {
 fn wire() {
     fuzz(Target::Wire);
 }
+
+#[test]
+fn snapshot() {
+    fuzz(Target::Snapshot);
+}
