@@ -615,7 +615,7 @@ fn count(d: &mut Decoder<'_>) -> Option<u64> {
 }
 
 /// What [`encode_judged`] appended (`Some(None)`: not judged yet); `None` unless every part is
-/// there and every number is finite, the rate positive.
+/// there, every number is finite, the rate positive, and every pose it names one it has seen.
 fn decode_judged(d: &mut Decoder<'_>) -> Option<Option<(f64, SpeedHistory)>> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
