@@ -759,6 +759,11 @@ fn bad_input_is_flagged_and_changes_nothing() {
             let refused = raw.send(seq, nan);
             assert_eq!(refused.status(), Some(StatusCode::InvalidInput));
             assert_all_nan(&refused);
+            // Sent again (as a client does after a daemon restart), it is the same pose and
+            // gets its answer again, not `duplicate_seq`.
+            let again = raw.send(seq, nan);
+            assert_eq!(again.status(), Some(StatusCode::InvalidInput));
+            assert_eq!(again.seq, seq);
             let mut inf = p.to_row_major();
             inf[11] = f64::INFINITY;
             seq += 1;
@@ -809,7 +814,7 @@ fn bad_input_is_flagged_and_changes_nothing() {
         "e2e_p999_us",
         "daemon_p999_us",
         "gaps=1",
-        "resent=1",
+        "resent=2",
         "sessions=1",
     ] {
         assert!(log.contains(key), "{key} in {log}");

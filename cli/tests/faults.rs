@@ -21,6 +21,7 @@ use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
 use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::payload::StatusCode;
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -276,6 +277,50 @@ fn a_daemon_restarted_between_poses_is_seen_in_its_answers() {
             events.duplicate_answers
         ),
         (1, 0, 0),
+        "{events:?}"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
+/// Always runs: a session that was sent a pose of NaNs (answered `invalid_input`, journaled
+/// like every pose with a number) is restored after the daemon is killed, and goes on as
+/// offline correction of the same poses does.
+#[test]
+fn a_journal_with_a_flagged_pose_is_restored() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("flagged");
+    let setup = town_setup(&[&name]);
+    let mut daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let mut poses = odometry[..600].to_vec();
+    poses[150].translation[0] = f64::NAN;
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    let mut answers: Vec<_> = poses[..300]
+        .iter()
+        .map(|p| answer_of(&mut conn, p))
+        .collect();
+    assert_eq!(answers[150].status(), Some(StatusCode::InvalidInput));
+    daemon.kill().unwrap();
+    daemon = start(&setup);
+    let log = daemon.log();
+    assert!(
+        log.contains("session restored") && !log.contains("not restored"),
+        "{log}"
+    );
+    answers.extend(poses[300..].iter().map(|p| answer_of(&mut conn, p)));
+    let events = conn.events();
+    assert_eq!(events.fresh_starts, 0, "{events:?}");
+    let expected = offline(&setup, &name, &poses);
+    let same = |a: &Pose3, b: &Pose3| {
+        let (a, b) = (a.to_row_major(), b.to_row_major());
+        a.iter()
+            .zip(&b)
+            .all(|(x, y)| x == y || (x.is_nan() && y.is_nan()))
+    };
+    let got = poses_of(&answers);
+    assert!(
+        got.len() == expected.len() && got.iter().zip(&expected).all(|(a, b)| same(a, b)),
         "{events:?}"
     );
     assert!(daemon.stop().unwrap());

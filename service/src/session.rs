@@ -253,7 +253,7 @@ impl Session {
         if input.seq < self.expected_seq {
             let earlier = self.recent.iter().find(|r| r.input.seq == input.seq);
             return match earlier {
-                Some(r) if r.input.pose == input.pose => {
+                Some(r) if same_pose(&r.input.pose, &input.pose) => {
                     let mut again = r.answer;
                     again.daemon_epoch = epoch;
                     again.received_mono_ns = received_mono_ns;
@@ -404,6 +404,12 @@ impl Session {
     pub fn journal_dir(&self) -> Option<&Path> {
         self.journal.as_ref().map(|j| j.dir.as_path())
     }
+}
+
+/// Whether two row-major poses are the same bit for bit: a pose of NaNs sent or answered again
+/// is the same pose, though a NaN equals nothing, itself included.
+fn same_pose(a: &[f64; 12], b: &[f64; 12]) -> bool {
+    a.map(f64::to_bits) == b.map(f64::to_bits)
 }
 
 /// Nanoseconds since the Unix epoch (0 if the clock is before it).
@@ -590,7 +596,9 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
                 }
                 let (again, _) = corrector.correct_at(&pose, r.input.stamp_s());
                 let (status, _) = wire_status(&again.status);
-                if again.pose.to_row_major() != r.answer.pose || status as u32 != r.answer.status {
+                if !same_pose(&again.pose.to_row_major(), &r.answer.pose)
+                    || status as u32 != r.answer.status
+                {
                     return Err(RestoreError::Inconsistent(format!(
                         "segment {n}: the answer to seq {} does not replay",
                         r.input.seq
