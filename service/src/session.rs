@@ -149,10 +149,17 @@ fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> Correcte
     }
 }
 
-/// The first sequence number of a session that `input` starts: the input's own when the client
-/// starts the session afresh ([`FLAG_FRESH_START`]), else 1.
+/// Whether `input` starts its session afresh: it says so ([`FLAG_FRESH_START`]) and its number
+/// can be used. The last number cannot (it has no successor, and no pose is answered with it):
+/// a fresh start there starts nothing, and its session, if one runs, goes on.
+pub fn starts_afresh(input: &OdomPose) -> bool {
+    input.flags & FLAG_FRESH_START != 0 && input.seq != u64::MAX
+}
+
+/// The first sequence number of a session that `input` starts: the input's own when it starts
+/// the session afresh ([`starts_afresh`]), else 1.
 pub fn first_seq(input: &OdomPose) -> u64 {
-    if input.flags & FLAG_FRESH_START != 0 {
+    if starts_afresh(input) {
         input.seq
     } else {
         1

@@ -21,9 +21,7 @@ use lanealign_core::plausibility::{
 use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Counts;
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::payload::{
-    CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START,
-};
+use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION};
 use lanealign_wire::service::{
     daemon_node_name, Ipc, Namespace, NodeCreateError, PortCreateError, PoseServices,
     ServiceOpenError, SessionServices,
@@ -292,7 +290,7 @@ impl Worker {
     /// Makes sure the input's session is live: started when it is new (at its first pose, 1)
     /// or when the client starts it afresh. False when it cannot be answered at all.
     fn ensure_live(&mut self, input: &OdomPose) -> bool {
-        let fresh = input.flags & FLAG_FRESH_START != 0;
+        let fresh = session::starts_afresh(input);
         if self.sessions.contains_key(&input.session) && !fresh {
             return true;
         }
