@@ -201,6 +201,14 @@ pub fn cases() -> Vec<Case> {
         bytes: odom_pose_bytes(&last),
         refused_with: None,
     });
+    // The same into a journaled session (found by the `journal` harness): the daemon started a
+    // session at the last number, which can answer nothing; restored, it expected 1.
+    cases.push(Case {
+        name: "journal_fresh_start_at_the_last_number.bin",
+        target: Target::Journal,
+        bytes: odom_pose_bytes(&last),
+        refused_with: None,
+    });
     // A journal's snapshot after the last sequence number, which no daemon answers: restored,
     // the session's next number wrapped round to 0.
     let mut used_up = seeds::snapshots(&snapshot_setup()).swap_remove(0);

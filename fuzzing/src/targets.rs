@@ -27,7 +27,7 @@ use lanealign_service::config::Config;
 use lanealign_service::journal::{self, Header};
 use lanealign_service::metrics::Outcome as Answered;
 use lanealign_service::session::{self, Session, SessionSetup};
-use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START};
+use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_END_SESSION};
 
 use crate::seeds::{self, ODOM_POSE_BYTES};
 
@@ -60,13 +60,16 @@ pub enum Target {
     /// A session's snapshot in the daemon's journal (its checksum recomputed), restored as a
     /// restarted daemon restores it and then answering poses.
     Snapshot,
+    /// A stream of wire payloads into one journaled session, then the session restored from its
+    /// journal as a restarted daemon restores it: the two go on alike (differential).
+    Journal,
 }
 
 type Outcome = Result<(), String>;
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 12] = [
+    pub const ALL: [Target; 13] = [
         Target::Tile,
         Target::GridCell,
         Target::OsmXml,
@@ -79,6 +82,7 @@ impl Target {
         Target::DaemonToml,
         Target::Wire,
         Target::Snapshot,
+        Target::Journal,
     ];
 
     /// The target's name (as in `fuzz/fuzz_targets/`).
@@ -96,6 +100,7 @@ impl Target {
             Target::DaemonToml => "daemon_toml",
             Target::Wire => "wire",
             Target::Snapshot => "snapshot",
+            Target::Journal => "journal",
         }
     }
 
@@ -147,6 +152,7 @@ impl Target {
                 Ok(())
             }
             Target::Snapshot => restored(bytes),
+            Target::Journal => journaled(bytes),
         }
     }
 
@@ -164,7 +170,7 @@ impl Target {
             Target::Tum => vec![seeds::trajectory_text(Format::Tum)],
             Target::LaneCsv => vec![seeds::lane_csv()],
             Target::DaemonToml => vec![seeds::DAEMON_TOML.as_bytes().to_vec()],
-            Target::Wire => vec![seeds::wire_stream()],
+            Target::Wire | Target::Journal => vec![seeds::wire_stream()],
             Target::Snapshot => seeds::snapshots(&snapshot_setup()),
         }
     }
@@ -221,7 +227,8 @@ impl Target {
             | Target::Pbf
             | Target::PbfGrid
             | Target::Wire
-            | Target::Snapshot => &[],
+            | Target::Snapshot
+            | Target::Journal => &[],
         }
     }
 
@@ -503,6 +510,92 @@ fn restored(bytes: &[u8]) -> Outcome {
     Ok(())
 }
 
+/// Streams `bytes` (wire payloads, all taken as one session's) into a journaled session as the
+/// daemon's worker does (a fresh start begins a new session and journal, a goodbye is skipped),
+/// then restores the session from its journal and answers the seed drive with both. The restore
+/// must succeed (nothing but the daemon wrote the journal), and the restored session must be the
+/// one that wrote it: the same next number, state and watch, and the same answers bit for bit.
+fn journaled(bytes: &[u8]) -> Outcome {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    // In memory where there is a shared-memory file system: the journal syncs its header.
+    let root = tempfile::tempdir_in("/dev/shm")
+        .or_else(|_| tempfile::tempdir())
+        .map_err(|e| err(&e))?;
+    let setup = SessionSetup {
+        journal_dir: Some(root.path().to_path_buf()),
+        ..snapshot_setup()
+    };
+    let mut live: Option<Session> = None;
+    for chunk in bytes.chunks_exact(ODOM_POSE_BYTES) {
+        let input = OdomPose {
+            session: 1,
+            ..odom_pose(chunk)
+        };
+        if input.flags & FLAG_END_SESSION != 0 {
+            continue;
+        }
+        if live.is_none() || session::starts_afresh(&input) {
+            let (session, failure) = Session::start(1, session::first_seq(&input), &setup);
+            if let Some(session::JournalFailure(e)) = failure {
+                return Err(err(&e));
+            }
+            live = Some(session);
+        }
+        let Some(session) = live.as_mut() else {
+            continue;
+        };
+        let (handled, _) = session.handle(&input, 0, &setup, || false);
+        if let Answered::Corrected(status) = &handled.outcome {
+            session.watch.observe(&input, status);
+        }
+        session.prepare(&setup);
+    }
+    let Some(mut wrote) = live else {
+        return Err("no pose".into());
+    };
+    let dir = wrote.journal_dir().ok_or("no journal")?.to_path_buf();
+    let mut restored = session::restore(&dir, &setup)
+        .unwrap_or_else(|e| panic!("the daemon's own journal is not restored: {e}"));
+    assert_eq!(
+        restored.expected_seq(),
+        wrote.expected_seq(),
+        "the next number"
+    );
+    let state = |s: &Session| {
+        journal::Snapshot {
+            last_seq: 0,
+            next_segment: 0,
+            state: s.state(),
+            watch: Some(s.watch.state()),
+        }
+        .encode()
+    };
+    assert!(state(&restored) == state(&wrote), "the restored state");
+    for (k, pose) in seeds::drive(10).iter().enumerate() {
+        let input = OdomPose {
+            session: 1,
+            seq: wrote.expected_seq(),
+            stamp_ns: 10_000_000_000 + k as i64 * 100_000_000,
+            sent_mono_ns: 0,
+            pose: pose.to_row_major(),
+            flags: 0,
+            reserved: 0,
+        };
+        let (a, _) = wrote.handle(&input, 0, &setup, || false);
+        let (b, _) = restored.handle(&input, 0, &setup, || false);
+        let (a, b) = (a.answer, b.answer);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(
+            (a.status, a.expected_seq) == (b.status, b.expected_seq)
+                && bits(&a.pose) == bits(&b.pose)
+                && bits(&a.covariance) == bits(&b.covariance)
+                && bits(&a.map_from_odom) == bits(&b.map_from_odom),
+            "the restored session answers as the one that wrote its journal"
+        );
+    }
+    Ok(())
+}
+
 fn odom_pose(chunk: &[u8]) -> OdomPose {
     let u64_at = |k: usize| {
         let mut b = [0; 8];
@@ -546,7 +639,7 @@ fn serve(bytes: &[u8]) {
             sessions.remove(&input.session);
             continue;
         }
-        let fresh = input.flags & FLAG_FRESH_START != 0;
+        let fresh = session::starts_afresh(&input);
         if fresh || !sessions.contains_key(&input.session) {
             if sessions.len() >= 4 && !sessions.contains_key(&input.session) {
                 continue;

@@ -1,4 +1,5 @@
-//! Every harness on 10^5 mutants of its seeds (`pbf_grid`, which writes files, on 10^4;
+//! Every harness on 10^5 mutants of its seeds (`pbf_grid` and `journal`, which write files, on
+//! 10^4;
 //! `LANEALIGN_FUZZ_CASES` changes the count), from a
 //! fixed seed per target: reproducible, on stable Rust. A panic fails the test naming the case
 //! and writes the input to `target/fuzz-failures/` to reproduce it; a case slower than a second
@@ -45,8 +46,9 @@ fn fuzz(target: Target) {
     let mut rng = SmallRng::seed_from_u64(0x1a2e_a119 ^ target as u64);
     let (mut accepted, mut slowest) = (0usize, Duration::ZERO);
     let started = Instant::now();
-    // Each pbf_grid case writes two grids to disk (about 3 ms): a tenth of the cases.
-    let n = if target == Target::PbfGrid {
+    // Each pbf_grid case writes two grids to disk (about 3 ms), each journal case a session's
+    // journal: a tenth of the cases.
+    let n = if matches!(target, Target::PbfGrid | Target::Journal) {
         cases() / 10
     } else {
         cases()
@@ -85,9 +87,12 @@ fn fuzz(target: Target) {
         target.name(),
         started.elapsed().as_secs_f64()
     );
-    // The wire harness answers every stream (its findings are broken invariants); every reader
-    // must both accept and refuse some mutants, or the mutants do not reach its logic.
-    if target != Target::Wire && !(accepted > 0 && accepted < n) {
+    // The wire and journal harnesses answer every stream with a pose (their findings are broken
+    // invariants); every reader must both accept and refuse some mutants, or the mutants do not
+    // reach its logic.
+    let answers_all = matches!(target, Target::Wire | Target::Journal);
+    let reaches_both = accepted > 0 && accepted < n;
+    if !(answers_all || reaches_both) {
         eprintln!("{}: {accepted} of {n} mutants accepted", target.name());
         panic!("{}: mutants must reach both answers", target.name());
     }
@@ -151,4 +156,9 @@ fn wire() {
 #[test]
 fn snapshot() {
     fuzz(Target::Snapshot);
+}
+
+#[test]
+fn journal() {
+    fuzz(Target::Journal);
 }
