@@ -161,6 +161,19 @@ pub fn lane_csv() -> Vec<u8> {
     text.into_bytes()
 }
 
+/// The pose `pose` as session `session`'s number `seq`, stamped `stamp_ns`, without flags.
+pub fn odom_pose(session: u64, seq: u64, stamp_ns: i64, pose: &Pose3) -> OdomPose {
+    OdomPose {
+        session,
+        seq,
+        stamp_ns,
+        sent_mono_ns: 0,
+        pose: pose.to_row_major(),
+        flags: 0,
+        reserved: 0,
+    }
+}
+
 /// Size of one [`OdomPose`] on the wire harness's byte stream.
 pub const ODOM_POSE_BYTES: usize = 136;
 
@@ -240,15 +253,7 @@ pub fn snapshots(setup: &SessionSetup) -> Vec<Vec<u8>> {
         .map(|poses| {
             let (mut session, _) = Session::start(1, 1, setup);
             for (i, pose) in poses.iter().enumerate() {
-                let input = OdomPose {
-                    session: 1,
-                    seq: i as u64 + 1,
-                    stamp_ns: i as i64 * 100_000_000,
-                    sent_mono_ns: 0,
-                    pose: pose.to_row_major(),
-                    flags: 0,
-                    reserved: 0,
-                };
+                let input = odom_pose(1, i as u64 + 1, i as i64 * 100_000_000, pose);
                 let (handled, _) = session.handle(&input, 0, setup, || false);
                 if let Outcome::Corrected(status) = &handled.outcome {
                     session.watch.observe(&input, status);

@@ -485,15 +485,8 @@ fn restored(bytes: &[u8]) -> Outcome {
     std::fs::write(dir.path().join("snapshot"), bytes).map_err(|e| err(&e))?;
     let mut session = session::restore(dir.path(), &setup).map_err(|e| err(&e))?;
     for (k, pose) in seeds::drive(20).iter().enumerate() {
-        let input = OdomPose {
-            session: 1,
-            seq: session.expected_seq(),
-            stamp_ns: 1_000_000_000 + k as i64 * 100_000_000,
-            sent_mono_ns: 0,
-            pose: pose.to_row_major(),
-            flags: 0,
-            reserved: 0,
-        };
+        let stamp_ns = 1_000_000_000 + k as i64 * 100_000_000;
+        let input = seeds::odom_pose(1, session.expected_seq(), stamp_ns, pose);
         let (handled, _) = session.handle(&input, 0, &setup, || false);
         let a = handled.answer;
         if a.status() == Some(StatusCode::Accepted) {
@@ -572,15 +565,8 @@ fn journaled(bytes: &[u8]) -> Outcome {
     };
     assert!(state(&restored) == state(&wrote), "the restored state");
     for (k, pose) in seeds::drive(10).iter().enumerate() {
-        let input = OdomPose {
-            session: 1,
-            seq: wrote.expected_seq(),
-            stamp_ns: 10_000_000_000 + k as i64 * 100_000_000,
-            sent_mono_ns: 0,
-            pose: pose.to_row_major(),
-            flags: 0,
-            reserved: 0,
-        };
+        let stamp_ns = 10_000_000_000 + k as i64 * 100_000_000;
+        let input = seeds::odom_pose(1, wrote.expected_seq(), stamp_ns, pose);
         let (a, _) = wrote.handle(&input, 0, &setup, || false);
         let (b, _) = restored.handle(&input, 0, &setup, || false);
         let (a, b) = (a.answer, b.answer);
