@@ -234,6 +234,18 @@ pub fn wire_stream() -> Vec<u8> {
     out
 }
 
+/// One session streaming 600 poses of the drive: past the first full segment of its journal
+/// (512 records), so that its snapshot is written and replayed from.
+pub fn long_stream() -> Vec<u8> {
+    drive(600)
+        .iter()
+        .enumerate()
+        .flat_map(|(i, pose)| {
+            odom_pose_bytes(&odom_pose(1, i as u64 + 1, i as i64 * 100_000_000, pose))
+        })
+        .collect()
+}
+
 /// Snapshots of a session of `setup`'s source, as its journal holds them: after 40 poses of the
 /// drive (the first stamps still held for the rate), and after 90 whose last 30 stall (the
 /// rate told, a stall under way).

@@ -170,7 +170,8 @@ impl Target {
             Target::Tum => vec![seeds::trajectory_text(Format::Tum)],
             Target::LaneCsv => vec![seeds::lane_csv()],
             Target::DaemonToml => vec![seeds::DAEMON_TOML.as_bytes().to_vec()],
-            Target::Wire | Target::Journal => vec![seeds::wire_stream()],
+            Target::Wire => vec![seeds::wire_stream()],
+            Target::Journal => vec![seeds::wire_stream(), seeds::long_stream()],
             Target::Snapshot => seeds::snapshots(&snapshot_setup()),
         }
     }
@@ -514,8 +515,12 @@ fn journaled(bytes: &[u8]) -> Outcome {
     let root = tempfile::tempdir_in("/dev/shm")
         .or_else(|_| tempfile::tempdir())
         .map_err(|e| err(&e))?;
-    let setup = SessionSetup {
+    // The daemon's persistence thread writes the snapshot of each full segment and removes the
+    // segments before the last full one; it ends, its work done, when the stream has ended.
+    let (persistence, persisting) = lanealign_service::persistence::spawn().map_err(|e| err(&e))?;
+    let streaming = SessionSetup {
         journal_dir: Some(root.path().to_path_buf()),
+        persistence: Some(persistence),
         ..snapshot_setup()
     };
     let mut live: Option<Session> = None;
@@ -528,7 +533,7 @@ fn journaled(bytes: &[u8]) -> Outcome {
             continue;
         }
         if live.is_none() || session::starts_afresh(&input) {
-            let (session, failure) = Session::start(1, session::first_seq(&input), &setup);
+            let (session, failure) = Session::start(1, session::first_seq(&input), &streaming);
             if let Some(session::JournalFailure(e)) = failure {
                 return Err(err(&e));
             }
@@ -537,12 +542,18 @@ fn journaled(bytes: &[u8]) -> Outcome {
         let Some(session) = live.as_mut() else {
             continue;
         };
-        let (handled, _) = session.handle(&input, 0, &setup, || false);
+        let (handled, _) = session.handle(&input, 0, &streaming, || false);
         if let Answered::Corrected(status) = &handled.outcome {
             session.watch.observe(&input, status);
         }
-        session.prepare(&setup);
+        session.prepare(&streaming);
     }
+    // Dropping the sender ends the persistence thread once its queue is done.
+    let mut setup = streaming;
+    setup.persistence = None;
+    persisting
+        .join()
+        .map_err(|_| "the persistence thread panicked")?;
     let Some(mut wrote) = live else {
         return Err("no pose".into());
     };
