@@ -309,17 +309,6 @@ fn replayed_as_offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Connecti
     conn
 }
 
-/// Closes `conn` and waits until `daemon` has ended the session, the `before`-th its clients
-/// closed (0-based): what a session's end tells is logged before it is said to have ended.
-fn closed(conn: Connection, daemon: &DaemonProcess, before: usize) {
-    assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
-    let deadline = Instant::now() + Duration::from_secs(5);
-    while daemon.log().matches("closed by its client").count() <= before {
-        assert!(Instant::now() < deadline, "{}", daemon.log());
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 /// `poses` (in `setup`'s axis convention) moved in the plane by `by_m` (x, y in metres).
 fn moved(setup: &Setup, poses: &[Pose3], by_m: [f64; 2]) -> Vec<Pose3> {
     poses

@@ -410,21 +410,7 @@ fn a_restored_session_warns_as_if_its_daemon_had_run_on() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let t = town_driven(town_setup, stalled_town_drive()[..1300].to_vec());
     let stamp_ns = |i: usize| 1_700_000_000_000_000_000 + i as i64 * 50_000_000;
-    let answer = |conn: &mut Connection, i: usize| {
-        conn.publish(stamp_ns(i), &t.poses[i].to_row_major())
-            .unwrap();
-        conn.recv(Duration::from_secs(5))
-            .unwrap()
-            .expect("an answer within 5 s")
-    };
-    let close = |conn: Connection, daemon: &DaemonProcess, before: usize| {
-        assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
-        let until = Instant::now() + Duration::from_secs(5);
-        while daemon.log().matches("closed by its client").count() <= before {
-            assert!(Instant::now() < until, "{}", daemon.log());
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    };
+    let answer = |conn: &mut Connection, i: usize| answer_stamped(conn, stamp_ns(i), &t.poses[i]);
     // The warnings of session `id` in `log`, without their time and the session's id.
     let warnings = |log: &str, id: u64| -> Vec<String> {
         let id = format!("{id:016x}");
@@ -440,7 +426,7 @@ fn a_restored_session_warns_as_if_its_daemon_had_run_on() {
     for i in 0..t.poses.len() {
         answer(&mut conn, i);
     }
-    close(conn, &daemon, 0);
+    closed(conn, &daemon, 0);
     let expected = warnings(&daemon.log(), ran_on);
     let falls: Vec<u64> = expected
         .iter()
@@ -487,7 +473,7 @@ fn a_restored_session_warns_as_if_its_daemon_had_run_on() {
         answer(&mut conn, next);
         next += 1;
     }
-    close(conn, &daemon, 0);
+    closed(conn, &daemon, 0);
     logs.push(daemon.log());
     let got: Vec<String> = logs.iter().flat_map(|l| warnings(l, killed)).collect();
     assert_eq!(got, expected);

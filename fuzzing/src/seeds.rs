@@ -11,7 +11,6 @@ use lanealign_core::pose::Pose3;
 use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_service::journal::Snapshot;
-use lanealign_service::metrics::Outcome;
 use lanealign_service::session::{Session, SessionSetup};
 use lanealign_wire::payload::{OdomPose, FLAG_END_SESSION, FLAG_FRESH_START};
 
@@ -267,9 +266,7 @@ pub fn snapshots(setup: &SessionSetup) -> Vec<Vec<u8>> {
             for (i, pose) in poses.iter().enumerate() {
                 let input = odom_pose(1, i as u64 + 1, i as i64 * 100_000_000, pose);
                 let (handled, _) = session.handle(&input, 0, setup, || false);
-                if let Outcome::Corrected(status) = &handled.outcome {
-                    session.watch.observe(&input, status);
-                }
+                session.watch_answered(&input, &handled.outcome);
             }
             Snapshot {
                 last_seq: poses.len() as u64,

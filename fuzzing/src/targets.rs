@@ -25,7 +25,6 @@ use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
 use lanealign_map::pbf::read_pbf;
 use lanealign_service::config::Config;
 use lanealign_service::journal::{self, Header};
-use lanealign_service::metrics::Outcome as Answered;
 use lanealign_service::session::{self, Session, SessionSetup};
 use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_END_SESSION};
 
@@ -496,9 +495,7 @@ fn restored(bytes: &[u8]) -> Outcome {
                 "an accepted answer is finite"
             );
         }
-        if let Answered::Corrected(status) = &handled.outcome {
-            session.watch.observe(&input, status);
-        }
+        session.watch_answered(&input, &handled.outcome);
     }
     session.watch.finish();
     Ok(())
@@ -543,9 +540,7 @@ fn journaled(bytes: &[u8]) -> Outcome {
             continue;
         };
         let (handled, _) = session.handle(&input, 0, &streaming, || false);
-        if let Answered::Corrected(status) = &handled.outcome {
-            session.watch.observe(&input, status);
-        }
+        session.watch_answered(&input, &handled.outcome);
         session.prepare(&streaming);
     }
     // Dropping the sender ends the persistence thread once its queue is done.

@@ -24,7 +24,6 @@ use lanealign_core::source_corrector::Placement;
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_service::journal::{Record, SegmentWriter, Snapshot, SEGMENT_RECORDS};
-use lanealign_service::metrics::Outcome;
 use lanealign_service::session::{self, Session, SessionSetup};
 use lanealign_wire::payload::OdomPose;
 
@@ -127,9 +126,7 @@ fn main() -> anyhow::Result<()> {
         .map(|(i, p)| {
             let input = input(i as u64 + 1, p);
             let (handled, _) = session.handle(&input, 0, &record_setup, || false);
-            if let Outcome::Corrected(status) = &handled.outcome {
-                session.watch.observe(&input, status);
-            }
+            session.watch_answered(&input, &handled.outcome);
             Record {
                 input,
                 answer: handled.answer,
@@ -264,9 +261,7 @@ fn write_snapshot(dir: &Path, s: &SessionSetup, poses: &[Pose3]) -> anyhow::Resu
     for (i, p) in poses[..boundary].iter().enumerate() {
         let input = input(i as u64 + 1, p);
         let (handled, _) = replica.handle(&input, 0, &no_journal, || false);
-        if let Outcome::Corrected(status) = &handled.outcome {
-            replica.watch.observe(&input, status);
-        }
+        replica.watch_answered(&input, &handled.outcome);
     }
     let snapshot = Snapshot {
         last_seq: boundary as u64,

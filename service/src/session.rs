@@ -15,6 +15,7 @@ use lanealign_core::corrector::{MatchMode, Status, StepTiming};
 use lanealign_core::grid::GridMaps;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
+use lanealign_core::plausibility::SourceNews;
 use lanealign_core::pose::Pose3;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
 use lanealign_wire::payload::{
@@ -116,8 +117,8 @@ pub struct Session {
     recent: VecDeque<Record>,
     journal: Option<Journal>,
     grid: Option<GridView>,
-    /// What its corrected poses have told so far, for the daemon's warnings: the worker feeds
-    /// it each pose answered with a correction, after publishing the answer. Snapshots hold it.
+    /// What its corrected poses have told so far, for the daemon's warnings
+    /// ([`Session::watch_answered`] feeds it). Snapshots hold it.
     pub watch: SessionWatch,
 }
 
@@ -389,6 +390,16 @@ impl Session {
         }
         self.corrector.prepare();
         failure
+    }
+
+    /// Feeds the session's watch `input` if its answer was a correction (`outcome`, from
+    /// [`Session::handle`]); returns what the watch told with it. The worker calls it after
+    /// publishing the answer, off the latency path.
+    pub fn watch_answered(&mut self, input: &OdomPose, outcome: &Outcome) -> Option<SourceNews> {
+        match outcome {
+            Outcome::Corrected(status) => Some(self.watch.observe(input, status)),
+            _ => None,
+        }
     }
 
     /// Does the corrector's work that needs no pose, off the latency path: call it when no pose

@@ -384,12 +384,13 @@ impl Worker {
                 false
             }
         };
-        let watch = live.session.as_mut().map(|s| &mut s.watch);
-        if let (Outcome::Corrected(status), Some(watch)) = (&outcome, watch) {
-            let news = watch.observe(&input, status);
-            tell(&self.name, input.session, watch, news, &setup.params);
-            if watch.alignments().attempts == REFUSALS_TOLD {
-                tell_refusals(&self.name, input.session, watch);
+        if let Some(session) = live.session.as_mut() {
+            if let Some(news) = session.watch_answered(&input, &outcome) {
+                let watch = &session.watch;
+                tell(&self.name, input.session, watch, news, &setup.params);
+                if watch.alignments().attempts == REFUSALS_TOLD {
+                    tell_refusals(&self.name, input.session, watch);
+                }
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {

@@ -339,10 +339,26 @@ pub fn wait_for_daemon(conn: &mut Connection) {
 
 /// Publishes `pose` as the session's next and returns its answer, which must come within 5 s.
 pub fn answer_of(conn: &mut Connection, pose: &Pose3) -> CorrectedPose {
-    conn.publish(0, &pose.to_row_major()).unwrap();
+    answer_stamped(conn, 0, pose)
+}
+
+/// [`answer_of`] for a pose stamped `stamp_ns` (ns).
+pub fn answer_stamped(conn: &mut Connection, stamp_ns: i64, pose: &Pose3) -> CorrectedPose {
+    conn.publish(stamp_ns, &pose.to_row_major()).unwrap();
     conn.recv(Duration::from_secs(5))
         .unwrap()
         .expect("an answer within 5 s")
+}
+
+/// Closes `conn` and waits until `daemon` has ended the session, the `before`-th its clients
+/// closed (0-based): what a session's end tells is logged before it is said to have ended.
+pub fn closed(conn: Connection, daemon: &DaemonProcess, before: usize) {
+    assert!(conn.close(Duration::from_secs(5)).unwrap().daemon_told);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while daemon.log().matches("closed by its client").count() <= before {
+        assert!(Instant::now() < deadline, "{}", daemon.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// How many session journals the daemon of `setup` holds for `source`.
