@@ -180,7 +180,7 @@ fn keep_smallest(
     let ranked = &residuals[..from];
     // Residuals are never negative, and with a tolerance band most are zero (poses inside it):
     // the cut is looked for among the others only.
-    let zeros = ranked.iter().filter(|&&r| r == 0.0).count() + (n - from);
+    let zeros = count_where(ranked, |r| r == 0.0) + (n - from);
     let (cut, below) = if zeros >= k {
         (0.0, 0)
     } else {
@@ -218,13 +218,13 @@ fn select_cut(ranked: &[f64], m: usize, guess: f64, sorted: &mut Vec<u64>) -> (f
     if guess > 0.0 && guess.is_finite() {
         let (lo, hi) = (guess * (1.0 - CUT_BRACKET), guess * (1.0 + CUT_BRACKET));
         sorted.clear();
-        let mut under = 0;
-        for &r in ranked {
-            under += usize::from(r != 0.0 && r < lo);
-            if r >= lo && r <= hi {
-                sorted.push(r.to_bits());
-            }
-        }
+        let under = count_where(ranked, |r| r != 0.0 && r < lo);
+        sorted.extend(
+            ranked
+                .iter()
+                .filter(|&&r| r >= lo && r <= hi)
+                .map(|r| r.to_bits()),
+        );
         if under < m && m <= under + sorted.len() {
             return select_in(sorted, m - under - 1, under);
         }
@@ -238,8 +238,21 @@ fn select_cut(ranked: &[f64], m: usize, guess: f64, sorted: &mut Vec<u64>) -> (f
 /// are smaller, plus `under` (values known smaller that `bits` does not hold).
 fn select_in(bits: &mut [u64], nth: usize, under: usize) -> (f64, usize) {
     let (left, &mut cut, _) = bits.select_nth_unstable(nth);
-    let smaller = under + left.iter().filter(|&&r| r < cut).count();
+    // At most `under` plus the length of `left`: summed unchecked, as in `count_where`.
+    let smaller = left
+        .iter()
+        .fold(under, |n, &r| n.wrapping_add(usize::from(r < cut)));
     (f64::from_bits(cut), smaller)
+}
+
+/// How many of `values` pass `test`. The count is at most `values.len()`, so it is summed
+/// without overflow checks: the checked sum `Iterator::count` compiles to in a build that checks
+/// overflow (the release profile does) keeps the loop from being vectorised, and the trim runs
+/// it over every residual of the window at every ICP iteration.
+fn count_where(values: &[f64], test: impl Fn(f64) -> bool) -> usize {
+    values
+        .iter()
+        .fold(0, |n: usize, &v| n.wrapping_add(usize::from(test(v))))
 }
 
 /// Runs trimmed ICP on fixed pairs. Needs at least two pairs (the caller checks the match ratio

@@ -30,6 +30,19 @@ fn message(payload: &(dyn std::any::Any + Send)) -> String {
         .unwrap_or_default()
 }
 
+/// The harnesses run in the build that ships (CI tests in release), and an integer overflow they
+/// reach must fail them instead of wrapping round: the workspace's release profile checks
+/// overflow, as the dev profile does (Cargo.toml).
+#[test]
+fn integer_overflow_panics_in_this_build() {
+    let largest = std::hint::black_box(u64::MAX);
+    let sum = std::panic::catch_unwind(|| largest + 1);
+    assert!(
+        sum.is_err(),
+        "u64::MAX + 1 gave {sum:?}: this build wraps round on overflow (set overflow-checks)"
+    );
+}
+
 fn fuzz(target: Target) {
     // Panics are this test's findings, reported below (on standard error, which the harness
     // shows for a failed test) with their input: the default hook would also print every panic
