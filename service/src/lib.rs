@@ -6,6 +6,7 @@
 pub mod config;
 pub mod cpu_latency;
 pub mod daemon;
+pub mod fail_stop;
 pub mod grid_loader;
 pub mod journal;
 pub mod metrics;

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use lanealign_service::config::LogFormat;
-use lanealign_service::daemon;
+use lanealign_service::{daemon, fail_stop};
 use lanealign_wire::service::version_line;
 use tracing_subscriber::EnvFilter;
 
@@ -92,6 +92,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             );
         }
         None => {
+            fail_stop::abort_on_panic();
             let summaries = daemon::run(prepared, move || dropped.dropped_lines() as u64)?;
             for (name, s) in summaries {
                 tracing::info!(source = %name, received = s.received, published = s.published, "final");
