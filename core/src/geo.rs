@@ -145,13 +145,13 @@ impl MapPlane {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum GeoError {
     /// Latitude outside [-90, 90] degrees or not finite.
-    #[error("latitude {0} is outside [-90, 90] degrees")]
+    #[error("latitude {0:?} is outside [-90, 90] degrees")]
     Latitude(f64),
     /// Longitude outside [-180, 180] degrees or not finite.
-    #[error("longitude {0} is outside [-180, 180] degrees")]
+    #[error("longitude {0:?} is outside [-180, 180] degrees")]
     Longitude(f64),
     /// Yaw not finite.
-    #[error("yaw {0} is not a finite number of degrees")]
+    #[error("yaw {0:?} is not a finite number of degrees")]
     Yaw(f64),
     /// An offset that is not finite or beyond [`MAX_OFFSET_M`].
     #[error("offset {0:.3e} m is not finite or beyond 1e7 m")]
@@ -383,6 +383,17 @@ mod tests {
         // A configuration file goes through the same checks.
         let parsed: Result<Anchor, _> = toml::from_str("lat = 91.0\nlon = 8.0\nyaw_deg = 0.0");
         assert!(parsed.unwrap_err().to_string().contains("latitude 91"));
+        // A number is quoted as written, not in the 301 digits `Display` spells 1e300 with.
+        for (anchor, message) in [
+            ("1e300,8,0", "latitude 1e300 is outside [-90, 90] degrees"),
+            (
+                "49,-1e300,0",
+                "longitude -1e300 is outside [-180, 180] degrees",
+            ),
+        ] {
+            let refused = anchor.parse::<Anchor>().map(|_| ()).unwrap_err();
+            assert_eq!(refused.to_string(), message);
+        }
         let ok: Anchor = toml::from_str("lat = 48.98\nlon = 8.39\nyaw_deg = 59.5").unwrap();
         assert_eq!(ok, "48.98,8.39,59.5".parse().unwrap());
     }

@@ -57,7 +57,7 @@ pub enum LaneMapError {
     #[error("the lane map is empty: no lane has any point")]
     Empty,
     /// A lane point is NaN or infinite.
-    #[error("lane {lane_id} has a non-finite point ({x}, {y})")]
+    #[error("lane {lane_id} has a non-finite point ({x:?}, {y:?})")]
     NonFinite {
         /// The lane's identifier.
         lane_id: u64,

@@ -376,10 +376,15 @@ pub enum ParamsError {
 impl Params {
     /// Checks that the parameters make sense together; names the first one that does not.
     pub fn validate(&self) -> Result<(), ParamsError> {
-        fn invalid(key: &'static str, value: impl ToString, reason: &'static str) -> ParamsError {
+        // Debug spells a number as it is written (`1e300`, where Display writes 301 digits).
+        fn invalid(
+            key: &'static str,
+            value: impl std::fmt::Debug,
+            reason: &'static str,
+        ) -> ParamsError {
             ParamsError::Invalid {
                 key,
-                value: value.to_string(),
+                value: format!("{value:?}"),
                 reason,
             }
         }
@@ -823,6 +828,18 @@ mod tests {
         assert_eq!(at(2.0), (30, 200, 200, 1));
         // Never below two poses, so that a window has a direction.
         assert_eq!(at(0.01), (2, 2, 2, 1));
+    }
+
+    /// A refused value is quoted as it is written: `1e300`, not the 301 digits `Display` spells
+    /// it with.
+    #[test]
+    fn a_refused_value_is_quoted_as_it_is_written() {
+        let mut p = Preset::KissIcp.robust_params();
+        p.odometry_rate_hz = 1e300;
+        assert_eq!(
+            p.validate().map_err(|e| e.to_string()),
+            Err("odometry_rate_hz = 1e300: must be positive and at most 100000".to_string())
+        );
     }
 
     #[test]

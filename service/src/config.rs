@@ -283,7 +283,7 @@ impl Config {
             return Err(value(
                 "metrics_interval_s".into(),
                 format!(
-                    "{}: must be between 0.1 and 3600 seconds",
+                    "{:?}: must be between 0.1 and 3600 seconds",
                     self.metrics_interval_s
                 ),
             ));
@@ -294,7 +294,7 @@ impl Config {
             return Err(value(
                 "session_timeout_s".into(),
                 format!(
-                    "{}: must be between 1 and 604800 seconds",
+                    "{:?}: must be between 1 and 604800 seconds",
                     self.session_timeout_s
                 ),
             ));
@@ -500,6 +500,9 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
         let c = Config::parse(&with("[grid]\nradius_m = -1.0\nahead_m = 0.0"), p).unwrap();
         let e = c.resolve(p).unwrap_err().to_string();
         assert!(e.contains("radius_m"), "{e}");
+        let c = Config::parse(&with("[grid]\nradius_m = 1e300\nahead_m = 0.0"), p).unwrap();
+        let e = c.resolve(p).unwrap_err().to_string();
+        assert!(e.contains("radius_m = 1e300: must be 0 to"), "{e}");
         assert!(Config::parse(&with("[grid]\nradius = 4.0"), p).is_err());
         assert_eq!(Config::parse(GOOD, p).unwrap().grid, LoadPolicy::default());
     }
@@ -534,7 +537,11 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
             (GOOD.replace("lat = 48.98", "lat = 91.0"), "latitude 91"),
             (
                 format!("metrics_interval_s = 1e300\n{GOOD}"),
-                "metrics_interval_s",
+                "metrics_interval_s: 1e300: must be between 0.1 and 3600 seconds",
+            ),
+            (
+                GOOD.replace("lat = 48.98", "lat = -1e300"),
+                "latitude -1e300 is outside",
             ),
             (GOOD.replace("\"lidar\"", &format!("\"{}\"", "x".repeat(300))), "longer than 64"),
             (format!("namespace = \"a b\"\n{GOOD}"), "namespace"),

@@ -45,7 +45,7 @@ impl LoadPolicy {
     pub fn validate(&self) -> Result<(), String> {
         for (key, v) in [("radius_m", self.radius_m), ("ahead_m", self.ahead_m)] {
             if !(0.0..=MAX_REACH_M).contains(&v) {
-                return Err(format!("{key} = {v}: must be 0 to {MAX_REACH_M} metres"));
+                return Err(format!("{key} = {v:?}: must be 0 to {MAX_REACH_M} metres"));
             }
         }
         Ok(())
