@@ -571,3 +571,46 @@ fn the_version_lines_name_the_wire() {
         );
     }
 }
+
+/// `soak` checks its arguments before it starts a daemon: a rate of 1e300 asked for an
+/// allocation of 8e17 bytes (SIGABRT), 2^64 - 1 sources panicked on a capacity overflow, 10^5
+/// sources started a daemon that never got ready, and a rate that made no pose printed NaN.
+#[test]
+fn soak_refuses_what_it_cannot_run_before_starting_anything() {
+    for (args, says) in [
+        (
+            &["--sources", "0"][..],
+            "--sources 0: must be between 1 and 256",
+        ),
+        (
+            &["--sources", "100000"],
+            "--sources 100000: must be between 1",
+        ),
+        (
+            &["--sources", "18446744073709551615"],
+            "--sources 18446744073709551615",
+        ),
+        (
+            &["--rate", "1e300"],
+            "--rate 1e300: must be positive and at most 100000 Hz",
+        ),
+        (&["--rate", "NaN"], "--rate NaN: must be positive"),
+        (
+            &["--rate", "1e-300"],
+            "makes 0.0 poses per source: must be between 1 and 1e7",
+        ),
+        (&["--duration", "1e300"], "makes 1e302 poses per source"),
+        (
+            &["--duration", "inf"],
+            "--duration inf: must be a positive number of seconds",
+        ),
+    ] {
+        let started = std::time::Instant::now();
+        assert_refused(&[&["soak"][..], args].concat(), says);
+        assert!(
+            started.elapsed().as_secs() < 5,
+            "{args:?} took {:?}",
+            started.elapsed()
+        );
+    }
+}

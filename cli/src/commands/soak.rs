@@ -197,13 +197,45 @@ fn run_phase(
     })
 }
 
-/// Runs the soak and prints the table.
-pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
+/// Sources a soak runs at most: each is a worker thread of the daemon and a client thread.
+const MAX_SOURCES: usize = 256;
+/// The fastest rate a soak sends at (Hz): the corrector's `odometry_rate_hz` bound.
+const MAX_RATE_HZ: f64 = 100_000.0;
+/// Poses a source sends in a phase at most (rate x duration: about 28 hours at 100 Hz). The
+/// drive is made before the phase starts and every round trip is kept, so this bounds memory.
+const MAX_POSES_PER_SOURCE: f64 = 1e7;
+
+/// Checks the soak's arguments before anything starts, naming the one out of range (a rate of
+/// 1e300 asked for an allocation of 8e17 bytes, and 10^5 sources started a daemon that never got
+/// ready).
+fn check(args: &SoakArgs) -> anyhow::Result<()> {
     let (sources, rate, duration) = (args.sources, args.rate, args.duration);
     anyhow::ensure!(
-        sources > 0 && rate > 0.0 && duration > 0.0 && !args.waits.is_empty(),
-        "sources, rate, duration and wait strategies must be positive"
+        (1..=MAX_SOURCES).contains(&sources),
+        "--sources {sources}: must be between 1 and {MAX_SOURCES}"
     );
+    anyhow::ensure!(
+        rate > 0.0 && rate <= MAX_RATE_HZ,
+        "--rate {rate:?}: must be positive and at most {MAX_RATE_HZ} Hz"
+    );
+    anyhow::ensure!(
+        duration > 0.0 && duration.is_finite(),
+        "--duration {duration:?}: must be a positive number of seconds"
+    );
+    let poses = (rate * duration).round();
+    anyhow::ensure!(
+        (1.0..=MAX_POSES_PER_SOURCE).contains(&poses),
+        "--rate {rate:?} x --duration {duration:?} makes {poses:?} poses per source: must be \
+         between 1 and {MAX_POSES_PER_SOURCE:e}"
+    );
+    anyhow::ensure!(!args.waits.is_empty(), "--waits: name at least one");
+    Ok(())
+}
+
+/// Runs the soak and prints the table.
+pub fn run(args: &SoakArgs) -> anyhow::Result<()> {
+    check(args)?;
+    let (sources, rate, duration) = (args.sources, args.rate, args.duration);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let dir = tempfile::tempdir().context("creating a temporary folder")?;
     let tile_path = dir.path().join("town.tile");
