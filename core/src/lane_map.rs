@@ -142,7 +142,10 @@ pub fn resample(points: &[[f64; 2]], spacing_m: f64) -> Vec<[f64; 2]> {
 
 /// The length of a polyline (metres, in the units of its points).
 pub fn polyline_length_m(points: &[[f64; 2]]) -> f64 {
-    points.windows(2).map(|w| distance(w[0], w[1])).sum()
+    // From +0.0: `sum` starts at -0.0, and a lane of one point was printed "-0.0 lane-km".
+    points
+        .windows(2)
+        .fold(0.0, |length, w| length + distance(w[0], w[1]))
 }
 
 /// The segment each point of a lane owns: `(start index, unit direction)`, relative to the
@@ -505,6 +508,15 @@ impl LaneMap {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// A lane of one point (what a coarse `--spacing` leaves) has length +0, which prints as
+    /// "0.0"; `Iterator::sum` of no lengths is -0.0, which printed "-0.0 lane-km".
+    #[test]
+    fn a_lane_of_one_point_has_length_plus_zero() {
+        assert!(polyline_length_m(&[[3.0, 4.0]]).is_sign_positive());
+        let map = LaneMap::new(&[Lane::new(1, vec![[3.0, 4.0]])]).unwrap();
+        assert_eq!(format!("{:.1}", map.lane_length_m() / 1000.0), "0.0");
+    }
 
     fn brute_force(points: &[[f64; 2]], p: [f64; 2], n: usize) -> Vec<Candidate> {
         let mut all: Vec<Candidate> = points

@@ -83,7 +83,7 @@ pub enum GridError {
         message: String,
     },
     /// The grid's cell size or margin cannot be used.
-    #[error("grid cell size {cell_size_m} m and margin {margin_m} m: the size must be 1 to {MAX_CELL_SIZE_M} m, the margin 0 to 4 cell sizes")]
+    #[error("grid cell size {cell_size_m:?} m and margin {margin_m:?} m: the size must be 1 to {MAX_CELL_SIZE_M} m, the margin 0 to 4 cell sizes")]
     BadSpec {
         /// Cell size (metres).
         cell_size_m: f64,
@@ -516,6 +516,19 @@ mod tests {
     use super::*;
     use crate::lane_geometry::LaneInfo;
     use crate::lane_map::{Lane, LaneMap};
+
+    /// A cell size or margin out of range is quoted as written (`1e300`, not in 301 digits).
+    #[test]
+    fn a_bad_cell_size_is_quoted_as_written() {
+        let refused = check_spec(1e300, 50.0).map_err(|e| e.to_string());
+        assert_eq!(
+            refused,
+            Err(format!(
+                "grid cell size 1e300 m and margin 50.0 m: the size must be 1 to \
+                 {MAX_CELL_SIZE_M} m, the margin 0 to 4 cell sizes"
+            ))
+        );
+    }
 
     #[test]
     fn pieces_keep_the_segment_neighbours() {
