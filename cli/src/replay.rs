@@ -11,10 +11,18 @@ use lanealign_wire::payload::CorrectedPose;
 /// How fast to publish.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Rate {
-    /// Poses per second.
+    /// Poses per second ([`Rate::SLOWEST_HZ`] to [`Rate::FASTEST_HZ`] when read from text).
     Hz(f64),
     /// As fast as the daemon answers, with at most this many poses in flight.
     Max(usize),
+}
+
+impl Rate {
+    /// The slowest rate a replay is asked for in text (Hz): a pose every 1000 s. Slower, the
+    /// time a pose is due overflowed (a rate of 1e-300 Hz panicked at the second pose).
+    pub const SLOWEST_HZ: f64 = 1e-3;
+    /// The fastest (Hz): the corrector's `odometry_rate_hz` bound; beyond it, use `max`.
+    pub const FASTEST_HZ: f64 = 100_000.0;
 }
 
 impl std::str::FromStr for Rate {
@@ -25,9 +33,12 @@ impl std::str::FromStr for Rate {
             return Ok(Rate::Max(64));
         }
         match s.parse::<f64>() {
-            Ok(hz) if hz.is_finite() && hz > 0.0 => Ok(Rate::Hz(hz)),
+            Ok(hz) if (Rate::SLOWEST_HZ..=Rate::FASTEST_HZ).contains(&hz) => Ok(Rate::Hz(hz)),
             _ => Err(format!(
-                "rate '{s}': expected a positive number of Hz or 'max'"
+                "rate '{}': expected {} to {} Hz, or 'max'",
+                lanealign_core::input::quote(s),
+                Rate::SLOWEST_HZ,
+                Rate::FASTEST_HZ
             )),
         }
     }

@@ -614,3 +614,31 @@ fn soak_refuses_what_it_cannot_run_before_starting_anything() {
         );
     }
 }
+
+/// `replay --rate` takes 0.001 to 100000 Hz or `max`: at 1e-300 Hz the time the second pose was
+/// due overflowed and the replay panicked once a daemon answered the first.
+#[test]
+fn replay_refuses_a_rate_it_cannot_keep() {
+    let dir = tempfile::tempdir().unwrap();
+    let output = dir.path().join("out.txt");
+    for rate in ["1e-300", "0.0009", "1e300", "NaN", "inf"] {
+        let out = lanealign(&[
+            "replay",
+            "--source",
+            "lidar",
+            "--rate",
+            rate,
+            "poses.txt",
+            "-o",
+            s(&output),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{rate}: {err}");
+        assert!(
+            err.contains(&format!(
+                "rate '{rate}': expected 0.001 to 100000 Hz, or 'max'"
+            )),
+            "{rate}: {err}"
+        );
+    }
+}
