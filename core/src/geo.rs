@@ -150,8 +150,8 @@ pub enum GeoError {
     /// Longitude outside [-180, 180] degrees or not finite.
     #[error("longitude {0:?} is outside [-180, 180] degrees")]
     Longitude(f64),
-    /// Yaw not finite.
-    #[error("yaw {0:?} is not a finite number of degrees")]
+    /// Yaw not finite, or beyond a turn either way.
+    #[error("yaw {0:?} is not a number of degrees in [-360, 360]")]
     Yaw(f64),
     /// An offset that is not finite or beyond [`MAX_OFFSET_M`].
     #[error("offset {0:.3e} m is not finite or beyond 1e7 m")]
@@ -225,7 +225,8 @@ impl Anchor {
         north_m: f64,
     ) -> Result<Anchor, GeoError> {
         check_lat_lon(lat, lon)?;
-        if !yaw_deg.is_finite() {
+        // A yaw beyond a turn is a mistake (1e300 degrees was taken, as whatever its sine is).
+        if !(-360.0..=360.0).contains(&yaw_deg) {
             return Err(GeoError::Yaw(yaw_deg));
         }
         for offset in [east_m, north_m] {
@@ -389,6 +390,15 @@ mod tests {
             (
                 "49,-1e300,0",
                 "longitude -1e300 is outside [-180, 180] degrees",
+            ),
+            // A yaw beyond a turn either way is a mistake, not an angle.
+            (
+                "49,8,1e300",
+                "yaw 1e300 is not a number of degrees in [-360, 360]",
+            ),
+            (
+                "49,8,-360.5",
+                "yaw -360.5 is not a number of degrees in [-360, 360]",
             ),
         ] {
             let refused = anchor.parse::<Anchor>().map(|_| ()).unwrap_err();
