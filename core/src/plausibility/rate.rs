@@ -10,6 +10,11 @@ pub const MAX_RATE_RATIO: f64 = 1.5;
 /// Stamps closer than this (seconds) are no sensor's: counters or a fixed value, not time.
 const MIN_PLAUSIBLE_INTERVAL_S: f64 = 1e-5;
 
+/// Below this rate (Hz: poses more than 10 s apart) a source's stamps are more likely in another
+/// unit than seconds (milliseconds make 10 Hz read as 0.01 Hz) than an odometry's: the warning
+/// asks, instead of naming a setting.
+const SLOWEST_PLAUSIBLE_HZ: f64 = 0.1;
+
 /// The rate (Hz) consecutive stamps (seconds, in arrival order) say the source runs at: the
 /// median interval's; `None` unless at least two intervals, and half of them, are plausible
 /// (at least 10 us; a source whose stamps are counters or constant says nothing).
@@ -39,6 +44,19 @@ pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
     } else {
         return None;
     };
+    if rate_hz < SLOWEST_PLAUSIBLE_HZ {
+        let apart_s = 1.0 / rate_hz;
+        let apart = if apart_s < 1e6 {
+            format!("{apart_s:.0}")
+        } else {
+            format!("{apart_s:.1e}")
+        };
+        return Some(format!(
+            "the poses' stamps are {apart} s apart (the median), which is no odometry's rate: are \
+             they in seconds? (Milliseconds make a 10 Hz source read as 0.01 Hz.) If they are, \
+             set odometry_rate_hz to the rate they give",
+        ));
+    }
     // Whole hertz above 10 Hz; below, a tenth matters (2.5 Hz is not 2 or 3).
     let rate = if rate_hz >= 10.0 {
         format!("{rate_hz:.0}")
@@ -81,6 +99,17 @@ mod tests {
         let mut set = params;
         set.odometry_rate_hz = 100.0;
         assert!(rate_warning(rate, &set).is_none());
+        // Stamps far apart are asked about, not turned into a setting: 1e300 s apart printed
+        // "set odometry_rate_hz = 0.0", which the corrector refuses.
+        for (apart_s, says) in [(100.0, "are 100 s apart"), (1e300, "are 1.0e300 s apart")] {
+            let slow: Vec<f64> = (0..100).map(|i| i as f64 * apart_s).collect();
+            let w = rate_warning(rate_from_stamps(&slow).unwrap(), &params).unwrap();
+            assert!(
+                w.contains(says) && w.contains("are they in seconds?"),
+                "{w}"
+            );
+            assert!(!w.contains("= 0"), "{w}");
+        }
         // Counters, a constant or stamps out of order tell no rate.
         let counters: Vec<f64> = (0..100).map(|i| i as f64 * 1e-9).collect();
         assert_eq!(rate_from_stamps(&counters), None);
