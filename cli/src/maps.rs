@@ -94,13 +94,17 @@ impl LoadedMap {
         let counts = counts(run);
         [
             plausibility::axis_convention_warning(poses, convention),
-            poses.first().and_then(|first| {
-                plausibility::anchor_warning(
-                    &self.map,
-                    &self.anchored_from_odom,
-                    &convention.to_planar(first),
-                )
-            }),
+            // The first pose that is one: a pose of NaNs (answered `invalid_input`) is nowhere.
+            poses
+                .iter()
+                .find(|p| p.problem().is_none())
+                .and_then(|first| {
+                    plausibility::anchor_warning(
+                        &self.map,
+                        &self.anchored_from_odom,
+                        &convention.to_planar(first),
+                    )
+                }),
             plausibility::no_correction_warning(
                 run.len(),
                 counts.attempts,

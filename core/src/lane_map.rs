@@ -459,11 +459,17 @@ impl LaneMap {
     ///
     /// The KD-tree breaks ties arbitrarily, so when the `n`-th distance is shared by points the
     /// tree left out, the whole tie group at that distance is fetched and cut by index.
+    ///
+    /// A point that is not finite is near nothing: `out` stays empty (the tree found no point for
+    /// a NaN, and the tie search then underflowed).
     pub fn nearest(&self, p: [f64; 2], n: usize, out: &mut Vec<Candidate>) {
         out.clear();
         let Some(n) = NonZeroUsize::new(n.min(self.len())) else {
             return;
         };
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            return;
+        }
         let tree = self.kd_tree();
         let found = tree
             .query(&p)
@@ -508,6 +514,26 @@ impl LaneMap {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// A query that is not finite finds nothing, and the map's other queries still answer (a
+    /// NaN panicked in the tie search: the Python package's `correct` on a pose of NaNs).
+    #[test]
+    fn a_point_that_is_not_finite_is_near_nothing() {
+        let map = LaneMap::new(&[Lane::new(1, vec![[0.0, 0.0], [3.0, 0.0], [6.0, 0.0]])]).unwrap();
+        let mut out = vec![(1.0, 7)];
+        for p in [
+            [f64::NAN, 0.0],
+            [0.0, f64::INFINITY],
+            [f64::NEG_INFINITY, f64::NAN],
+        ] {
+            for n in [1, 2, 3, 10] {
+                map.nearest(p, n, &mut out);
+                assert!(out.is_empty(), "{p:?}, {n}: {out:?}");
+            }
+        }
+        map.nearest([2.0, 1.0], 2, &mut out);
+        assert_eq!(out, vec![(2.0, 1), (5.0, 0)]);
+    }
 
     /// A lane of one point (what a coarse `--spacing` leaves) has length +0, which prints as
     /// "0.0"; `Iterator::sum` of no lengths is -0.0, which printed "-0.0 lane-km".

@@ -201,6 +201,28 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     assert osm.read_text() == text
 
 
+def test_poses_of_nans_are_flagged_and_the_others_corrected(tmp_path):
+    # A pose of NaNs first, and one in the middle: each is answered invalid_input with its NaNs
+    # echoed, as the daemon answers one, and the others are what they are without it. The first
+    # used to panic (the anchor check asked the lanes what was near a NaN).
+    lanes, poses = straight_lane_and_drift(tmp_path)
+    clean = lanealign.correct(poses[1:], lanes=str(lanes), preset="kiss-icp")
+    broken = poses.copy()
+    broken[0] = np.nan
+    broken[120] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = lanealign.correct(broken, lanes=str(lanes), preset="kiss-icp")
+    names = [lanealign.STATUS_NAMES[s] for s in got.status]
+    assert [i for i, n in enumerate(names) if n == "invalid_input"] == [0, 120]
+    assert np.isnan(got.poses[[0, 120]]).all() and np.isnan(got.covariance[[0, 120]]).all()
+    assert np.array_equal(got.poses[1:120], clean.poses[:119])
+    assert np.isfinite(got.poses[121:]).all()
+    everything = np.full((5, 3, 4), np.nan)
+    every = lanealign.correct(everything, lanes=str(lanes), preset="kiss-icp")
+    assert [lanealign.STATUS_NAMES[s] for s in every.status] == ["invalid_input"] * 5
+
+
 def test_synthetic_town_equals_the_command_line_bit_for_bit(tmp_path):
     town = tmp_path / "town.tile"
     truth, odometry = lanealign.synthetic_town(town)
