@@ -245,6 +245,19 @@ pub fn cases() -> Vec<Case> {
         bytes: unseen.encode(),
         refused_with: Some("unreadable snapshot"),
     });
+    // A pose of NaNs first in the Python package's `correct` (found by reading a panic, then by
+    // the `pose_array` harness): the anchor check asked the lane map what is near it, and the
+    // map's tie search underflowed on the empty answer.
+    let mut nan_first = seeds::pose_arrays().swap_remove(0);
+    for v in nan_first[1 + 8..1 + 13 * 8].chunks_exact_mut(8) {
+        v.copy_from_slice(&f64::NAN.to_le_bytes());
+    }
+    cases.push(Case {
+        name: "pose_array_nan_first.bin",
+        target: Target::PoseArray,
+        bytes: nan_first,
+        refused_with: None,
+    });
     cases
 }
 

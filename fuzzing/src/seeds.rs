@@ -132,6 +132,22 @@ pub fn drive(n: usize) -> Vec<Pose3> {
         .collect()
 }
 
+/// [`crate::targets::Target::PoseArray`]'s bytes of the drive (40 poses at 10 Hz), with each
+/// option set: stamps, the paper's method, the orb-slam3 preset, KITTI camera axes.
+pub fn pose_arrays() -> Vec<Vec<u8>> {
+    let mut numbers = Vec::new();
+    for (i, pose) in drive(40).iter().enumerate() {
+        numbers.extend_from_slice(&(100.0 + i as f64 * 0.1).to_le_bytes());
+        for v in pose.to_row_major() {
+            numbers.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    [0b0001u8, 0b0011, 0b0101, 0b1001]
+        .into_iter()
+        .map(|options| [&[options][..], &numbers].concat())
+        .collect()
+}
+
 /// KITTI and TUM text of the drive.
 pub fn trajectory_text(format: Format) -> Vec<u8> {
     let poses = drive(40);

@@ -7,12 +7,13 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
+use lanealign_cli::maps::LoadedMap;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{MapPlane, Projection};
 use lanealign_core::grid::{self, EncodedGrid, Grid, GridCell, GridSpec};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::params::Preset;
-use lanealign_core::pose::AxisConvention;
+use lanealign_core::params::{CorrectorConfig, Method, Preset};
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{correct_trajectory, Placement, SourceCorrector};
 use lanealign_core::trajectory::{self, Format};
@@ -62,13 +63,17 @@ pub enum Target {
     /// A stream of wire payloads into one journaled session, then the session restored from its
     /// journal as a restarted daemon restores it: the two go on alike (differential).
     Journal,
+    /// Poses and stamps as bare numbers, the way the Python package's `correct` takes them from
+    /// arrays (no reader refuses NaN, infinities, 1e300, degenerate rotations or stamps out of
+    /// order first), corrected and warned about as `lanealign correct` does.
+    PoseArray,
 }
 
 type Outcome = Result<(), String>;
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 13] = [
+    pub const ALL: [Target; 14] = [
         Target::Tile,
         Target::GridCell,
         Target::OsmXml,
@@ -82,6 +87,7 @@ impl Target {
         Target::Wire,
         Target::Snapshot,
         Target::Journal,
+        Target::PoseArray,
     ];
 
     /// The target's name (as in `fuzz/fuzz_targets/`).
@@ -100,6 +106,7 @@ impl Target {
             Target::Wire => "wire",
             Target::Snapshot => "snapshot",
             Target::Journal => "journal",
+            Target::PoseArray => "pose_array",
         }
     }
 
@@ -152,6 +159,7 @@ impl Target {
             }
             Target::Snapshot => restored(bytes),
             Target::Journal => journaled(bytes),
+            Target::PoseArray => pose_array(bytes),
         }
     }
 
@@ -172,6 +180,7 @@ impl Target {
             Target::Wire => vec![seeds::wire_stream()],
             Target::Journal => vec![seeds::wire_stream(), seeds::long_stream()],
             Target::Snapshot => seeds::snapshots(&snapshot_setup()),
+            Target::PoseArray => seeds::pose_arrays(),
         }
     }
 
@@ -229,6 +238,16 @@ impl Target {
             | Target::Wire
             | Target::Snapshot
             | Target::Journal => &[],
+            // Little-endian f64: NaN, inf, -inf, 1e300, -0, the smallest subnormal, 1e7 + 1.
+            Target::PoseArray => &[
+                &[0, 0, 0, 0, 0, 0, 248, 127],
+                &[0, 0, 0, 0, 0, 0, 240, 127],
+                &[0, 0, 0, 0, 0, 0, 240, 255],
+                &[156, 117, 0, 136, 60, 228, 55, 126],
+                &[0, 0, 0, 0, 0, 0, 0, 128],
+                &[1, 0, 0, 0, 0, 0, 0, 0],
+                &[0, 0, 0, 32, 208, 18, 99, 65],
+            ],
         }
     }
 
@@ -429,6 +448,67 @@ fn placement() -> Placement {
         anchored_from_odom: Se2::IDENTITY,
         smoothing: None,
     }
+}
+
+/// [`Target::PoseArray`]: a byte of options, then per pose 13 little-endian `f64`: its stamp
+/// (seconds) and its 3x4 pose (row-major). Options: bit 0, the stamps are given; bit 1, the
+/// paper's method; bit 2, the orb-slam3 preset (scale and stalls); bit 3, KITTI camera axes.
+/// Every pose gets an answer, finite unless the pose is no pose, and the warnings are made.
+fn pose_array(bytes: &[u8]) -> Outcome {
+    let (&options, numbers) = bytes.split_first().ok_or("no options byte")?;
+    let values: Vec<f64> = numbers
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(std::array::from_fn(|k| b[k])))
+        .collect();
+    let rows: Vec<&[f64]> = values.chunks_exact(13).collect();
+    let stamps: Vec<f64> = rows.iter().map(|row| row[0]).collect();
+    let poses: Vec<Pose3> = rows
+        .iter()
+        .map(|row| Pose3::from_row_major(&std::array::from_fn(|k| row[1 + k])))
+        .collect();
+    let config = CorrectorConfig::new(
+        if options & 4 != 0 {
+            Preset::OrbSlam3
+        } else {
+            Preset::KissIcp
+        },
+        if options & 2 != 0 {
+            Method::Paper
+        } else {
+            Method::Robust
+        },
+    );
+    let params = config.params().map_err(|e| e.to_string())?;
+    let convention = if options & 8 != 0 {
+        AxisConvention::KittiCamera
+    } else {
+        AxisConvention::Flu
+    };
+    let stamps = (options & 1 != 0).then_some(stamps.as_slice());
+    let loaded = LoadedMap {
+        map: seed_map(),
+        anchored_from_odom: Se2::IDENTITY,
+        plane: None,
+        geometry: None,
+        report: None,
+        grid: None,
+    };
+    let placement = Placement {
+        convention,
+        ..placement()
+    };
+    let (run, _) = loaded
+        .correct(params, MatchMode::Fast, placement, &poses, stamps)
+        .map_err(|e| e.to_string())?;
+    let _ = loaded.warnings(&poses, stamps, convention, &run, &params);
+    assert_eq!(run.len(), poses.len(), "a pose without an answer");
+    for (corrected, pose) in run.iter().zip(&poses) {
+        assert!(
+            pose.problem().is_some() || corrected.pose.is_finite(),
+            "a pose that is one was answered with a pose that is not finite"
+        );
+    }
+    Ok(())
 }
 
 /// Corrects poses that passed a reader's checks: every output must be finite.

@@ -176,3 +176,8 @@ fn snapshot() {
 fn journal() {
     fuzz(Target::Journal);
 }
+
+#[test]
+fn pose_array() {
+    fuzz(Target::PoseArray);
+}
