@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use lanealign_core::geo::{MapPlane, Projection};
+use lanealign_core::geo::{check_lat_lon, GeoError, MapPlane, Projection};
 use lanealign_core::grid::{self, GridError, GridSpec, Manifest};
 use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses};
 use lanealign_core::lane_map::{Lane, LaneMap, LaneMapError};
@@ -54,6 +54,9 @@ pub enum CompileError {
     /// No input had a node to place the map at.
     #[error("the inputs contain no nodes")]
     NoNodes,
+    /// The map plane's origin given is no place on Earth.
+    #[error("origin: {0}")]
+    Origin(#[from] GeoError),
     /// The lanes do not make a map.
     #[error(transparent)]
     Map(#[from] LaneMapError),
@@ -202,6 +205,21 @@ impl Compiled {
     }
 }
 
+/// The map plane's origin `(lat, lon)` (degrees): `given`, checked (a NaN origin compiled a map
+/// with no lane), else `centre`, the data's.
+pub(crate) fn plane_origin(
+    given: Option<(f64, f64)>,
+    centre: Option<(f64, f64)>,
+) -> Result<(f64, f64), CompileError> {
+    match given {
+        Some((lat, lon)) => {
+            check_lat_lon(lat, lon)?;
+            Ok((lat, lon))
+        }
+        None => centre.ok_or(CompileError::NoNodes),
+    }
+}
+
 /// Reads every input and derives its lanes into one map, in input order.
 pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled, CompileError> {
     let mut data = Vec::with_capacity(inputs.len());
@@ -212,10 +230,7 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         bar.finish_and_clear();
         data.push(read?);
     }
-    let (lat, lon) = match options.origin {
-        Some(origin) => origin,
-        None => centre(&data).ok_or(CompileError::NoNodes)?,
-    };
+    let (lat, lon) = plane_origin(options.origin, centre(&data))?;
     let plane = MapPlane::new(options.projection, lat, lon);
     let mut lanes: Vec<Lane> = Vec::new();
     let mut reports = Vec::with_capacity(data.len());
@@ -247,4 +262,30 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         geometry,
         reports,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An origin given is checked as an anchor's is (a NaN one compiled a map with no lane, and
+    /// `compile` said only that the map was empty); without one, the data's centre is the origin.
+    #[test]
+    fn an_origin_given_must_be_a_place_on_earth() {
+        let refused = |origin| plane_origin(Some(origin), None).map_err(|e| e.to_string());
+        assert_eq!(
+            refused((f64::NAN, 8.0)),
+            Err("origin: latitude NaN is outside [-90, 90] degrees".to_string())
+        );
+        assert_eq!(
+            refused((49.0, 1e300)),
+            Err("origin: longitude 1e300 is outside [-180, 180] degrees".to_string())
+        );
+        assert_eq!(refused((49.0, 8.4)), Ok((49.0, 8.4)));
+        assert_eq!(plane_origin(None, Some((1.0, 2.0))).ok(), Some((1.0, 2.0)));
+        assert!(matches!(
+            plane_origin(None, None),
+            Err(CompileError::NoNodes)
+        ));
+    }
 }

@@ -494,6 +494,12 @@ fn synthetic_town<'py>(
     laps: usize,
     seed: u64,
 ) -> PyResult<TruthAndOdometry<'py>> {
+    if !(1..=synthetic::MAX_LAPS).contains(&laps) {
+        return Err(PyValueError::new_err(format!(
+            "laps: {laps}, expected 1 to {}",
+            synthetic::MAX_LAPS
+        )));
+    }
     synthetic::write_town_tile(&tile).map_err(error)?;
     let (truth, odometry) = synthetic::drive(laps, seed);
     let shape = |n: usize| [n, 3, 4];

@@ -199,6 +199,13 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     with pytest.raises(ValueError, match="is the input"):
         lanealign.compile_map(osm, osm)
     assert osm.read_text() == text
+    # A NaN origin compiled a map of no lane ("the lane map is empty"); no laps, or 2^62 of them,
+    # panicked (an index out of bounds, a capacity overflow).
+    with pytest.raises(ValueError, match=r"origin: latitude NaN is outside \[-90, 90\] degrees"):
+        lanealign.compile_map(osm, tmp_path / "road.tile", origin=(math.nan, 8.0))
+    for laps in (0, 2**62):
+        with pytest.raises(ValueError, match=f"laps: {laps}, expected 1 to 4000"):
+            lanealign.synthetic_town(tmp_path / "town.tile", laps=laps)
 
 
 def test_poses_of_nans_are_flagged_and_the_others_corrected(tmp_path):
