@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use lanealign_client::connection::ConnectionEvents;
 use lanealign_client::{Connection, PublishError, ReceiveError};
 use lanealign_core::pose::Pose3;
-use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::clock::{deadline_after, monotonic_ns, time_left};
 use lanealign_wire::payload::CorrectedPose;
 
 /// How fast to publish.
@@ -122,9 +122,9 @@ pub fn replay(
     wait_for_daemon: Duration,
     stall: Duration,
 ) -> Result<Replay, ReplayError> {
-    let until = Instant::now() + wait_for_daemon;
+    let until = deadline_after(wait_for_daemon);
     while !conn.daemon_connected() {
-        if Instant::now() > until {
+        if time_left(until).is_zero() {
             return Err(ReplayError::NoDaemon(source.to_string(), wait_for_daemon));
         }
         std::thread::sleep(Duration::from_millis(10));

@@ -555,6 +555,48 @@ fn answers_that_flow_need_no_looking_for_the_daemon() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: a wait longer than any instant (`Duration::MAX`, `--wait-for-daemon 1e19`) is a
+/// wait without end, not a panic: `Instant::now() + timeout` overflowed in the client's `recv`
+/// and `close`, the Python package's `recv` and `replay`'s wait for its daemon.
+#[test]
+fn a_wait_without_end_returns_what_arrives() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("forever");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let mut conn = connect(&setup, &name);
+    wait_for_daemon(&mut conn);
+    let seq = conn.publish(0, &odometry[0].to_row_major()).unwrap();
+    let answer = conn.recv(Duration::MAX).unwrap().expect("an answer");
+    assert_eq!(answer.seq, seq);
+    conn.publish(1, &odometry[1].to_row_major()).unwrap();
+    let closed = conn.close(Duration::MAX).unwrap();
+    assert_eq!(closed.answers.len(), 1);
+    assert!(closed.unanswered.is_empty() && closed.daemon_told);
+    let dir = tempfile::tempdir().unwrap();
+    let (input, output) = (dir.path().join("in.txt"), dir.path().join("out.txt"));
+    write_kitti(&input, &odometry[..20]);
+    let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+        .args(["replay", "--source", &name, "--namespace", &setup.namespace])
+        .args(["--wait-for-daemon", "1e19"])
+        .arg(&input)
+        .arg("-o")
+        .arg(&output)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        std::fs::read_to_string(&output).unwrap().lines().count(),
+        20
+    );
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 /// Always runs: one connection, made on this thread and shared behind a lock by two others:
 /// one publishes a synthetic-town drive, a pose every 2 ms, the other takes answers under the
 /// lock and waits for them outside it ([`Connection::waiter`]). Every pose is answered once,

@@ -22,7 +22,7 @@ use iceoryx2::port::notifier::{Notifier, NotifierNotifyError};
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{ReceiveError as PortReceiveError, SendError};
-use lanealign_wire::clock::monotonic_ns;
+use lanealign_wire::clock::{deadline_after, monotonic_ns, time_left};
 use lanealign_wire::payload::{
     CorrectedPose, OdomPose, StatusCode, FLAG_END_SESSION, FLAG_FRESH_START, MAX_IN_FLIGHT,
 };
@@ -616,12 +616,12 @@ impl Connection {
     /// While waiting it checks the daemon's liveness and sends unanswered poses again when a
     /// daemon comes back.
     pub fn recv(&mut self, timeout: Duration) -> Result<Option<CorrectedPose>, ReceiveError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = deadline_after(timeout);
         loop {
             if let Some(answer) = self.poll()? {
                 return Ok(Some(answer));
             }
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = time_left(deadline);
             if left < MIN_WAIT {
                 return self.try_recv();
             }
@@ -657,11 +657,11 @@ impl Connection {
     /// dropped without closing leaves its session to be resumed ([`Connection::resume`]) until
     /// then.
     pub fn close(mut self, timeout: Duration) -> Result<Closed, CloseError> {
-        let deadline = Instant::now() + timeout;
+        let deadline = deadline_after(timeout);
         let mut answers = Vec::new();
         while !self.pending.is_empty() {
             // `recv` comes back empty only at its deadline.
-            match self.recv(deadline.saturating_duration_since(Instant::now())) {
+            match self.recv(time_left(deadline)) {
                 Ok(Some(answer)) => answers.push(answer),
                 Ok(None) => break,
                 Err(source) => {

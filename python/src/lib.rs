@@ -4,7 +4,7 @@
 use std::ffi::CString;
 use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::synthetic;
@@ -23,6 +23,7 @@ use lanealign_core::trajectory::Trajectory;
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
+use lanealign_wire::clock::{deadline_after, time_left};
 use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
@@ -601,14 +602,14 @@ impl Client {
     /// `odometry_scale` and `odometry_scale_sd`. While it waits, other Python threads run, and a
     /// signal (Ctrl-C) is acted on within 0.1 s.
     fn recv<'py>(&self, py: Python<'py>, timeout_s: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
-        let deadline = Instant::now() + seconds("timeout_s", timeout_s)?;
+        let deadline = deadline_after(seconds("timeout_s", timeout_s)?);
         loop {
             let (answer, waiter) = self.with_open(|c| (c.poll(), c.waiter()))?;
             let answer = answer.map_err(error)?;
             if let Some(answer) = answer {
                 return Ok(Some(answer_dict(py, &answer)?));
             }
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = time_left(deadline);
             if left.is_zero() {
                 return Ok(None);
             }
