@@ -574,7 +574,8 @@ fn the_version_lines_name_the_wire() {
 
 /// `soak` checks its arguments before it starts a daemon: a rate of 1e300 asked for an
 /// allocation of 8e17 bytes (SIGABRT), 2^64 - 1 sources panicked on a capacity overflow, 10^5
-/// sources started a daemon that never got ready, and a rate that made no pose printed NaN.
+/// sources started a daemon that never got ready, a rate that made no pose printed NaN, and a
+/// rate of 1e-300 Hz for 1e300 s overflowed the times of the phase's quarters.
 #[test]
 fn soak_refuses_what_it_cannot_run_before_starting_anything() {
     for (args, says) in [
@@ -592,11 +593,20 @@ fn soak_refuses_what_it_cannot_run_before_starting_anything() {
         ),
         (
             &["--rate", "1e300"],
-            "--rate 1e300: must be positive and at most 100000 Hz",
+            "--rate 1e300: must be 0.001 to 100000 Hz",
         ),
-        (&["--rate", "NaN"], "--rate NaN: must be positive"),
+        (&["--rate", "NaN"], "--rate NaN: must be 0.001 to 100000 Hz"),
         (
             &["--rate", "1e-300"],
+            "--rate 1e-300: must be 0.001 to 100000 Hz",
+        ),
+        // A duration that still gives a pose overflowed the times of the phase's quarters.
+        (
+            &["--rate", "1e-300", "--duration", "1e300"],
+            "--rate 1e-300",
+        ),
+        (
+            &["--rate", "0.001", "--duration", "1"],
             "makes 0.0 poses per source: must be between 1 and 1e7",
         ),
         (&["--duration", "1e300"], "makes 1e302 poses per source"),

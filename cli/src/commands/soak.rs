@@ -199,8 +199,6 @@ fn run_phase(
 
 /// Sources a soak runs at most: each is a worker thread of the daemon and a client thread.
 const MAX_SOURCES: usize = 256;
-/// The fastest rate a soak sends at (Hz): the corrector's `odometry_rate_hz` bound.
-const MAX_RATE_HZ: f64 = 100_000.0;
 /// Poses a source sends in a phase at most (rate x duration: about 28 hours at 100 Hz). The
 /// drive is made before the phase starts and every round trip is kept, so this bounds memory.
 const MAX_POSES_PER_SOURCE: f64 = 1e7;
@@ -214,9 +212,13 @@ fn check(args: &SoakArgs) -> anyhow::Result<()> {
         (1..=MAX_SOURCES).contains(&sources),
         "--sources {sources}: must be between 1 and {MAX_SOURCES}"
     );
+    // A replay's rates (a slower one, with a duration that still gives a pose, overflowed the
+    // times of the phase's quarters).
     anyhow::ensure!(
-        rate > 0.0 && rate <= MAX_RATE_HZ,
-        "--rate {rate:?}: must be positive and at most {MAX_RATE_HZ} Hz"
+        (Rate::SLOWEST_HZ..=Rate::FASTEST_HZ).contains(&rate),
+        "--rate {rate:?}: must be {} to {} Hz",
+        Rate::SLOWEST_HZ,
+        Rate::FASTEST_HZ
     );
     anyhow::ensure!(
         duration > 0.0 && duration.is_finite(),
