@@ -110,8 +110,12 @@ fn parsed<T: std::str::FromStr>(what: &str, text: &str) -> PyResult<T>
 where
     T::Err: std::fmt::Display,
 {
-    text.parse()
-        .map_err(|e| PyValueError::new_err(format!("{what} {text:?}: {e}")))
+    text.parse().map_err(|e| {
+        PyValueError::new_err(format!(
+            "{what} \"{}\": {e}",
+            lanealign_core::input::quote(text)
+        ))
+    })
 }
 
 /// An anchor from (lat, lon, yaw_deg) or (lat, lon, yaw_deg, east_m, north_m), as the command

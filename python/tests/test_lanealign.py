@@ -175,6 +175,10 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     lanes, poses = straight_lane_and_drift(tmp_path)
     with pytest.raises(ValueError, match="preset"):
         lanealign.correct(poses, lanes=str(lanes), preset="nope")
+    # A name is quoted to 80 characters (a source of 1000 was quoted whole: 1132 characters).
+    with pytest.raises(ValueError, match=r'source "x{80}\.\.\.": ') as refused:
+        lanealign.Client("x" * 1000)
+    assert len(str(refused.value)) < 300, str(refused.value)
     with pytest.raises(ValueError, match="exactly one"):
         lanealign.correct(poses, preset="kiss-icp")
     with pytest.raises(ValueError, match="shape"):
