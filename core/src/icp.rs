@@ -238,10 +238,7 @@ fn select_cut(ranked: &[f64], m: usize, guess: f64, sorted: &mut Vec<u64>) -> (f
 /// are smaller, plus `under` (values known smaller that `bits` does not hold).
 fn select_in(bits: &mut [u64], nth: usize, under: usize) -> (f64, usize) {
     let (left, &mut cut, _) = bits.select_nth_unstable(nth);
-    // At most `under` plus the length of `left`: summed unchecked, as in `count_where`.
-    let smaller = left
-        .iter()
-        .fold(under, |n, &r| n.wrapping_add(usize::from(r < cut)));
+    let smaller = under + count_where(left, |r| r < cut);
     (f64::from_bits(cut), smaller)
 }
 
@@ -249,7 +246,7 @@ fn select_in(bits: &mut [u64], nth: usize, under: usize) -> (f64, usize) {
 /// without overflow checks: the checked sum `Iterator::count` compiles to in a build that checks
 /// overflow (the release profile does) keeps the loop from being vectorised, and the trim runs
 /// it over every residual of the window at every ICP iteration.
-fn count_where(values: &[f64], test: impl Fn(f64) -> bool) -> usize {
+fn count_where<T: Copy>(values: &[T], test: impl Fn(T) -> bool) -> usize {
     values
         .iter()
         .fold(0, |n: usize, &v| n.wrapping_add(usize::from(test(v))))

@@ -12,10 +12,10 @@ use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{MapPlane, Projection};
 use lanealign_core::grid::{self, EncodedGrid, Grid, GridCell, GridSpec};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::params::{CorrectorConfig, Method, Preset};
+use lanealign_core::params::{CorrectorConfig, Method, Params, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
-use lanealign_core::source_corrector::{correct_trajectory, Placement, SourceCorrector};
+use lanealign_core::source_corrector::{CorrectedPose, Placement, SourceCorrector};
 use lanealign_core::trajectory::{self, Format};
 use lanealign_core::{lane_csv, plausibility, tile};
 use lanealign_map::compile::{compile, CompileError, CompileOptions};
@@ -137,8 +137,7 @@ impl Target {
                 };
                 let traj =
                     trajectory::parse(bytes, Path::new("fuzz.txt"), format).map_err(|e| err(&e))?;
-                correct(&traj.poses);
-                Ok(())
+                correct(&traj.poses, traj.stamps.as_deref())
             }
             Target::LaneCsv => {
                 let lanes = lane_csv::parse(bytes, Path::new("fuzz.csv")).map_err(|e| err(&e))?;
@@ -485,6 +484,26 @@ fn pose_array(bytes: &[u8]) -> Outcome {
         AxisConvention::Flu
     };
     let stamps = (options & 1 != 0).then_some(stamps.as_slice());
+    let run = correct_as_the_command_does(&poses, stamps, params, convention)?;
+    assert_eq!(run.len(), poses.len(), "a pose without an answer");
+    for (corrected, pose) in run.iter().zip(&poses) {
+        assert!(
+            pose.problem().is_some() || corrected.pose.is_finite(),
+            "a pose that is one was answered with a pose that is not finite"
+        );
+    }
+    Ok(())
+}
+
+/// Corrects `poses` (stamped `stamps_s`, seconds, when given) on the seed lanes under `params`
+/// and makes its warnings, as `lanealign correct` and the Python package's `correct` do
+/// ([`LoadedMap`]).
+fn correct_as_the_command_does(
+    poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
+    params: Params,
+    convention: AxisConvention,
+) -> Result<Vec<CorrectedPose>, String> {
     let loaded = LoadedMap {
         map: seed_map(),
         anchored_from_odom: Se2::IDENTITY,
@@ -498,36 +517,30 @@ fn pose_array(bytes: &[u8]) -> Outcome {
         ..placement()
     };
     let (run, _) = loaded
-        .correct(params, MatchMode::Fast, placement, &poses, stamps)
+        .correct(params, MatchMode::Fast, placement, poses, stamps_s)
         .map_err(|e| e.to_string())?;
-    let _ = loaded.warnings(&poses, stamps, convention, &run, &params);
-    assert_eq!(run.len(), poses.len(), "a pose without an answer");
-    for (corrected, pose) in run.iter().zip(&poses) {
-        assert!(
-            pose.problem().is_some() || corrected.pose.is_finite(),
-            "a pose that is one was answered with a pose that is not finite"
-        );
-    }
-    Ok(())
+    let _ = loaded.warnings(poses, stamps_s, convention, &run, &params);
+    Ok(run)
 }
 
-/// Corrects poses that passed a reader's checks: every output must be finite.
-fn correct(poses: &[lanealign_core::pose::Pose3]) {
-    let _ = plausibility::axis_convention_warning(poses, AxisConvention::Flu);
-    for rate_hz in [2.0, 10.0, 100.0] {
+/// Corrects poses that passed a reader's checks (their stamps, if the format has them) as the
+/// command does: every output must be finite. The speed watch is also judged at rates other
+/// than the preset's.
+fn correct(poses: &[Pose3], stamps_s: Option<&[f64]>) -> Outcome {
+    for rate_hz in [2.0, 100.0] {
         let _ = plausibility::speed_change_warning(poses, AxisConvention::Flu, rate_hz);
     }
-    let run = correct_trajectory(
-        seed_map(),
-        Preset::KissIcp.params(),
-        MatchMode::Fast,
-        placement(),
+    let run = correct_as_the_command_does(
         poses,
-    );
+        stamps_s,
+        Preset::KissIcp.params(),
+        AxisConvention::Flu,
+    )?;
     assert!(
         run.iter().all(|c| c.pose.is_finite()),
         "a non-finite corrected pose from accepted input"
     );
+    Ok(())
 }
 
 /// The source a snapshot harness's session belongs to: the orb-slam3 preset, whose sessions

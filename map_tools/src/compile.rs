@@ -206,17 +206,17 @@ impl Compiled {
 }
 
 /// The map plane's origin `(lat, lon)` (degrees): `given`, checked (a NaN origin compiled a map
-/// with no lane), else `centre`, the data's.
+/// with no lane), else the data's `centre` (found only then: it walks every node).
 pub(crate) fn plane_origin(
     given: Option<(f64, f64)>,
-    centre: Option<(f64, f64)>,
+    centre: impl FnOnce() -> Option<(f64, f64)>,
 ) -> Result<(f64, f64), CompileError> {
     match given {
         Some((lat, lon)) => {
             check_lat_lon(lat, lon)?;
             Ok((lat, lon))
         }
-        None => centre.ok_or(CompileError::NoNodes),
+        None => centre().ok_or(CompileError::NoNodes),
     }
 }
 
@@ -230,7 +230,7 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         bar.finish_and_clear();
         data.push(read?);
     }
-    let (lat, lon) = plane_origin(options.origin, centre(&data))?;
+    let (lat, lon) = plane_origin(options.origin, || centre(&data))?;
     let plane = MapPlane::new(options.projection, lat, lon);
     let mut lanes: Vec<Lane> = Vec::new();
     let mut reports = Vec::with_capacity(data.len());
@@ -272,7 +272,7 @@ mod tests {
     /// `compile` said only that the map was empty); without one, the data's centre is the origin.
     #[test]
     fn an_origin_given_must_be_a_place_on_earth() {
-        let refused = |origin| plane_origin(Some(origin), None).map_err(|e| e.to_string());
+        let refused = |origin| plane_origin(Some(origin), || None).map_err(|e| e.to_string());
         assert_eq!(
             refused((f64::NAN, 8.0)),
             Err("origin: latitude NaN is outside [-90, 90] degrees".to_string())
@@ -282,9 +282,12 @@ mod tests {
             Err("origin: longitude 1e300 is outside [-180, 180] degrees".to_string())
         );
         assert_eq!(refused((49.0, 8.4)), Ok((49.0, 8.4)));
-        assert_eq!(plane_origin(None, Some((1.0, 2.0))).ok(), Some((1.0, 2.0)));
+        assert_eq!(
+            plane_origin(None, || Some((1.0, 2.0))).ok(),
+            Some((1.0, 2.0))
+        );
         assert!(matches!(
-            plane_origin(None, None),
+            plane_origin(None, || None),
             Err(CompileError::NoNodes)
         ));
     }

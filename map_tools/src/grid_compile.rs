@@ -136,7 +136,7 @@ fn stream(
         bounds.join(stored.bounds);
         stores.push(stored);
     }
-    let (lat, lon) = crate::compile::plane_origin(options.origin, bounds.centre())?;
+    let (lat, lon) = crate::compile::plane_origin(options.origin, || bounds.centre())?;
     let plane = MapPlane::new(options.projection, lat, lon);
     let block_cells = (BLOCK_M / grid.cell_size_m).round().clamp(1.0, 64.0) as i32;
     let mut spill = LaneSpill::new_in(output, grid.cell_size_m, grid.margin_m, block_cells);
