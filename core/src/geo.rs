@@ -139,7 +139,22 @@ impl MapPlane {
             }
         }
     }
+
+    /// The WGS84 point `(lat, lon)` in degrees of a plane point, or `None` where the plane does
+    /// not map back to the Earth: beyond the latitudes and longitudes that exist, or (the tangent
+    /// plane) where [`Self::unproject`] finds no point that projects to within
+    /// [`ROUND_TRIP_M`] of it. What a reader of untrusted plane points (a tile) must use.
+    pub fn lat_lon_of(&self, en: [f64; 2]) -> Option<(f64, f64)> {
+        let (lat, lon) = self.unproject(en);
+        check_lat_lon(lat, lon).ok()?;
+        let back = self.project(lat, lon);
+        ((back[0] - en[0]).hypot(back[1] - en[1]) <= ROUND_TRIP_M).then_some((lat, lon))
+    }
 }
+
+/// How far (metres) a plane point may lie from the projection of the latitude and longitude
+/// [`MapPlane::lat_lon_of`] finds for it.
+pub const ROUND_TRIP_M: f64 = 1e-3;
 
 /// A geographic value out of range.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -311,6 +326,21 @@ impl FromStr for Anchor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    #[test]
+    fn only_points_the_plane_maps_back_have_a_latitude_and_longitude() {
+        for projection in Projection::ALL {
+            let plane = MapPlane::new(projection, 49.0, 8.4);
+            for en in [[0.0, 0.0], [1e5, -3e4], [-2e6, 1e6]] {
+                let (lat, lon) = plane.lat_lon_of(en).unwrap();
+                let back = plane.project(lat, lon);
+                assert!((back[0] - en[0]).hypot(back[1] - en[1]) < 1e-6, "{en:?}");
+            }
+            // Beyond the pole, and (tangent) where Newton's iterations find no point.
+            for en in [[0.0, 5e6], [3e7, 0.0], [1e9, 0.0], [-1e9, 1e9]] {
+                assert_eq!(plane.lat_lon_of(en), None, "{} {en:?}", projection.name());
+            }
+        }
+    }
 
     #[test]
     fn tangent_plane_has_true_scale() {

@@ -328,8 +328,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             lanealign_core::input::check_outputs_apart(&[geojson.as_deref()], &[Some(&path)])?;
             let (map, info) = tile::load(&path)?;
             let p = info.plane;
-            let (lat0, lon0) = p.unproject([info.bounds[0], info.bounds[1]]);
-            let (lat1, lon1) = p.unproject([info.bounds[2], info.bounds[3]]);
             println!("tile        {}", path.display());
             println!(
                 "format      version {}, little-endian, {} bytes",
@@ -351,7 +349,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 "bounds      x {:.1}..{:.1} m, y {:.1}..{:.1} m",
                 info.bounds[0], info.bounds[2], info.bounds[1], info.bounds[3]
             );
-            println!("lat/lon     {lat0:.7},{lon0:.7} .. {lat1:.7},{lon1:.7}");
+            match (
+                p.lat_lon_of([info.bounds[0], info.bounds[1]]),
+                p.lat_lon_of([info.bounds[2], info.bounds[3]]),
+            ) {
+                (Some((lat0, lon0)), Some((lat1, lon1))) => {
+                    println!("lat/lon     {lat0:.7},{lon0:.7} .. {lat1:.7},{lon1:.7}")
+                }
+                _ => println!("lat/lon     beyond where the plane maps back to the Earth"),
+            }
             println!(
                 "checksum    {:016x} ok; every field and array valid",
                 info.checksum
@@ -361,23 +367,31 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 None => println!("signed      no"),
             }
             if let Some(out) = geojson {
-                let features: Vec<serde_json::Value> = map
+                let features = map
                     .lanes()
                     .map(|(id, lane_info, pts)| {
-                        let coords: Vec<[f64; 2]> = pts
+                        let coords = pts
                             .iter()
-                            .map(|&q| {
-                                let (lat, lon) = p.unproject(q);
-                                [lon, lat]
+                            .enumerate()
+                            .map(|(k, &q)| match p.lat_lon_of(q) {
+                                Some((lat, lon)) => Ok([lon, lat]),
+                                None => bail!(
+                                    "lane {id} point {k} at ({:.1}, {:.1}) m does not map back to a latitude and longitude in the tile's {} plane about {:.7},{:.7}: no GeoJSON written",
+                                    q[0],
+                                    q[1],
+                                    p.projection.name(),
+                                    p.origin_lat,
+                                    p.origin_lon
+                                ),
                             })
-                            .collect();
-                        serde_json::json!({
+                            .collect::<anyhow::Result<Vec<[f64; 2]>>>()?;
+                        Ok(serde_json::json!({
                             "type": "Feature",
                             "properties": lane_properties(id, lane_info, pts.len()),
                             "geometry": { "type": "LineString", "coordinates": coords },
-                        })
+                        }))
                     })
-                    .collect();
+                    .collect::<anyhow::Result<Vec<serde_json::Value>>>()?;
                 let doc = serde_json::json!({
                     "type": "FeatureCollection",
                     "attribution": "Lane centerlines derived from OpenStreetMap data, (c) OpenStreetMap contributors, ODbL 1.0 (https://www.openstreetmap.org/copyright)",

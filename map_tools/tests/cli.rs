@@ -213,3 +213,39 @@ fn a_thousand_resealed_bit_flips_never_crash_inspect() {
     assert_eq!(refused + loaded, 1000);
     assert!(refused > 0);
 }
+
+/// A tile whose points lie beyond where its plane maps back to the Earth (resealed, so that only
+/// validation can tell): `inspect` says so instead of printing NaN degrees, and `--geojson`
+/// refuses to write coordinates that are no latitude and longitude (it wrote `null`).
+#[test]
+fn inspect_refuses_points_its_plane_cannot_map_back() {
+    use lanealign_core::geo::{MapPlane, Projection};
+    use lanealign_core::lane_map::{Lane, LaneMap};
+    let dir = tempfile::tempdir().unwrap();
+    for projection in Projection::ALL {
+        let map = LaneMap::new(&[Lane::new(7, vec![[0.0, 0.0], [3.0, 0.0], [1e9, 0.0]])]).unwrap();
+        let plane = MapPlane::new(projection, 49.0, 8.4);
+        let tile = dir.path().join(format!("far_{}.tile", projection.name()));
+        let geometry = lanealign_core::lane_geometry::LaneGeometry::default();
+        lanealign_core::tile::write(&tile, &map, &plane, 3.0, &geometry).unwrap();
+        let geojson = dir.path().join("far.geojson");
+        let out = lanealign_map(&[
+            "inspect",
+            tile.to_str().unwrap(),
+            "--geojson",
+            geojson.to_str().unwrap(),
+        ]);
+        let (stdout, err) = (String::from_utf8_lossy(&out.stdout), stderr(&out));
+        assert_eq!(out.status.code(), Some(1), "{stdout}{err}");
+        assert!(!stdout.contains("NaN"), "{stdout}");
+        assert!(
+            stdout.contains("lat/lon     beyond where the plane maps back to the Earth"),
+            "{stdout}"
+        );
+        assert!(
+            err.contains("lane 7 point 2 at (1000000000.0, 0.0) m does not map back to a latitude and longitude"),
+            "{err}"
+        );
+        assert!(!geojson.exists());
+    }
+}
