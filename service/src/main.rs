@@ -52,7 +52,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     // Records go to stderr from a thread of their own: a log nobody reads (a full pipe, a
     // stalled journald, a paused terminal) must never hold up a worker. When LOG_LINES_BUFFERED
     // wait, newer ones are dropped and counted; the guard flushes at exit, waiting 1.1 s at most.
-    let (writer, _flushed_at_exit) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+    let (writer, flushed_at_exit) = tracing_appender::non_blocking::NonBlockingBuilder::default()
         .lossy(true)
         .buffered_lines_limit(LOG_LINES_BUFFERED)
         .thread_name("log")
@@ -68,6 +68,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
     match cli.command {
         Some(Command::Check) => {
+            let _flushed_at_exit = flushed_at_exit;
             let latency = prepared
                 .config
                 .cpu_dma_latency_us
@@ -92,7 +93,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             );
         }
         None => {
-            fail_stop::abort_on_panic();
+            let _flushed_at_exit = fail_stop::abort_on_panic(flushed_at_exit);
             let summaries = daemon::run(prepared, move || dropped.dropped_lines() as u64)?;
             for (name, s) in summaries {
                 tracing::info!(source = %name, received = s.received, published = s.published, "final");
