@@ -276,6 +276,39 @@ fn bad_osm_is_a_clear_error_and_missing_nodes_are_counted() {
         "{err}"
     );
 
+    // Lanes derived at a spacing of 1e300 m were one point each, and the run went uncorrected
+    // with only a warning.
+    let road = dir.path().join("road.osm");
+    std::fs::write(
+        &road,
+        r#"<osm><node id="1" lat="49.0" lon="8.4"/><node id="2" lat="49.0" lon="8.401"/>
+        <way id="3"><nd ref="1"/><nd ref="2"/><tag k="highway" v="primary"/></way></osm>"#,
+    )
+    .unwrap();
+    for spacing in ["0", "NaN", "10.5", "1e300"] {
+        let out = lanealign(&[
+            "correct",
+            "--osm",
+            s(&road),
+            "--anchor",
+            anchor,
+            "--preset",
+            "kiss-icp",
+            &format!("--spacing={spacing}"),
+            s(&poses),
+            "-o",
+            s(&output),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{spacing}: {err}");
+        assert!(
+            err.contains("--spacing: the lane point spacing")
+                && err.contains("m is outside (0, 10] m"),
+            "{spacing}: {err}"
+        );
+        assert!(!output.exists());
+    }
+
     let missing = dir.path().join("missing.osm");
     std::fs::write(
         &missing,

@@ -75,6 +75,28 @@ pub enum LaneMapError {
     /// The arrays are inconsistent with each other.
     #[error("invalid lane map: {0}")]
     Invalid(String),
+    /// A lane point spacing that is not a number of metres in `(0, MAX_SPACING_M]`.
+    #[error(
+        "the lane point spacing {0:?} m is outside (0, {max}] m (beyond {max} m lanes lose the \
+         curves that fix the position along the road)",
+        max = MAX_SPACING_M
+    )]
+    Spacing(f64),
+}
+
+/// The largest spacing (metres) lane points may be derived with. The spacing drops a road's
+/// nodes closer than it ([`resample`]), and with them the shape of its curves: on KITTI 00
+/// (LiDAR, kiss-icp preset) the mean APE-2D is 1.026 m at 3 m, 1.022 m at 10 m, 1.245 m at 20 m
+/// and 4.99 m at 100 m, worse than the raw 4.01 m. At 10^300 m every lane was one point.
+pub const MAX_SPACING_M: f64 = 10.0;
+
+/// Checks a lane point spacing (metres) given to derive a map: in `(0, MAX_SPACING_M]`.
+pub fn check_spacing(spacing_m: f64) -> Result<(), LaneMapError> {
+    if spacing_m > 0.0 && spacing_m <= MAX_SPACING_M {
+        Ok(())
+    } else {
+        Err(LaneMapError::Spacing(spacing_m))
+    }
 }
 
 /// One KD-tree candidate: squared distance (m^2) and point index.
@@ -513,6 +535,24 @@ impl LaneMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_spacing_is_a_number_of_metres_up_to_ten() {
+        for ok in [1e-300, 0.5, 3.0, MAX_SPACING_M] {
+            assert!(check_spacing(ok).is_ok(), "{ok}");
+        }
+        for bad in [0.0, -3.0, f64::NAN, 10.000_001, f64::INFINITY, 1e300] {
+            assert!(
+                matches!(check_spacing(bad), Err(LaneMapError::Spacing(v)) if v.to_bits() == bad.to_bits()),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            check_spacing(1e300).unwrap_err().to_string(),
+            "the lane point spacing 1e300 m is outside (0, 10] m (beyond 10 m lanes lose the \
+             curves that fix the position along the road)"
+        );
+    }
     use proptest::prelude::*;
 
     /// A query that is not finite finds nothing, and the map's other queries still answer (a

@@ -5,7 +5,7 @@ use std::os::unix::fs::OpenOptionsExt;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::{anyhow, bail, Context};
 use clap::{Parser, Subcommand};
 use lanealign_core::geo::{check_lat_lon, Projection};
 use lanealign_core::grid;
@@ -229,9 +229,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 .collect();
             lanealign_core::input::check_outputs_apart(&[Some(&output)], &given)?;
             let key = sign.as_deref().map(read_secret_key).transpose()?;
-            if !(spacing.is_finite() && spacing > 0.0) {
-                bail!("--spacing must be a positive number of metres");
-            }
+            lanealign_core::lane_map::check_spacing(spacing)
+                .map_err(|e| anyhow!("--spacing: {e}"))?;
             if !(0.0..=2.0).contains(&unmarked_offset_scale) {
                 bail!("--unmarked-offset-scale must be between 0 and 2");
             }

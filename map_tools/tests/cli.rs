@@ -64,6 +64,42 @@ fn compile_says_what_it_read_and_skipped() {
 
 /// An output that names an input (itself, or through a link) is refused before anything is
 /// read, and the input is left as it was: the output replaces its file whole.
+/// A spacing of 1e300 m made a tile of one point a lane ("0.0 lane-km"), which no pose can
+/// match; 100 m one that corrects KITTI 00 worse than its raw odometry.
+#[test]
+fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
+    let dir = tempfile::tempdir().unwrap();
+    let osm = write(dir.path(), "small.osm", SMALL_OSM);
+    let tile = dir.path().join("small.tile");
+    for spacing in ["0", "NaN", "inf", "10.5", "100", "1e300"] {
+        let out = lanealign_map(&[
+            "compile",
+            &osm,
+            "-o",
+            tile.to_str().unwrap(),
+            &format!("--spacing={spacing}"),
+        ]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{spacing}: {err}");
+        assert!(
+            err.contains("error: --spacing: the lane point spacing")
+                && err.contains(" m is outside (0, 10] m"),
+            "{spacing}: {err}"
+        );
+        assert!(!tile.exists());
+    }
+    for spacing in ["0.5", "10"] {
+        let out = lanealign_map(&[
+            "compile",
+            &osm,
+            "-o",
+            tile.to_str().unwrap(),
+            &format!("--spacing={spacing}"),
+        ]);
+        assert!(out.status.success(), "{spacing}: {}", stderr(&out));
+    }
+}
+
 #[test]
 fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     let dir = tempfile::tempdir().unwrap();

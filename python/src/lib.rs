@@ -420,11 +420,8 @@ fn compile_map<'py>(
     grid: Option<f64>,
     margin: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
-    if !(spacing.is_finite() && spacing > 0.0) {
-        return Err(PyValueError::new_err(
-            "spacing must be a positive number of metres",
-        ));
-    }
+    lanealign_core::lane_map::check_spacing(spacing)
+        .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
     if !(0.0..=2.0).contains(&unmarked_offset_scale) {
         return Err(PyValueError::new_err(
             "unmarked_offset_scale must be between 0 and 2",

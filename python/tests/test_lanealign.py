@@ -210,6 +210,11 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     for laps in (0, 2**62):
         with pytest.raises(ValueError, match=f"laps: {laps}, expected 1 to 4000"):
             lanealign.synthetic_town(tmp_path / "town.tile", laps=laps)
+    # A spacing of 1e300 m compiled a map of one point a lane, which no pose can match.
+    for spacing in (0.0, -1.0, math.nan, 10.5, 1e300):
+        with pytest.raises(ValueError, match=r"spacing: the lane point spacing .* m is outside"):
+            lanealign.compile_map(osm, tmp_path / "road.tile", spacing=spacing)
+    assert not (tmp_path / "road.tile").exists()
 
 
 def test_poses_of_nans_are_flagged_and_the_others_corrected(tmp_path):

@@ -129,9 +129,8 @@ impl MapArgs {
         let Some(path) = &self.osm else {
             bail!("give --osm, --map or --lanes")
         };
-        if !(self.spacing.is_finite() && self.spacing > 0.0) {
-            bail!("--spacing must be a positive number of metres");
-        }
+        lanealign_core::lane_map::check_spacing(self.spacing)
+            .map_err(|e| anyhow!("--spacing: {e}"))?;
         Ok(MapSource::Osm {
             path: path.clone(),
             anchor,
