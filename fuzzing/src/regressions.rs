@@ -130,7 +130,7 @@ pub fn cases() -> Vec<Case> {
         name: "pbf_grid_without_lanes.osm.pbf",
         target: Target::PbfGrid,
         bytes: crate::pbf_writer::write(&seed),
-        refused_with: Some("the lane map is empty"),
+        refused_with: Some("no input gave a lane"),
     });
     let mut seed = read_xml(seeds::OSM_XML.as_bytes(), Path::new("seed.osm")).expect("seed reads");
     if let Some(member) = seed

@@ -39,9 +39,46 @@ pub enum InputReport {
     Lanelet2(LaneletReport),
 }
 
+impl std::fmt::Display for InputReport {
+    /// What the input contributed, in a sentence (`compile` prints one per input).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            InputReport::Osm(r) => write!(
+                f,
+                "OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without \
+                 geometry (fewer than 2 known nodes, nodes over 5 km apart, or over 300 km from \
+                 the map's origin); {} missing node references",
+                r.ways_read(),
+                r.ways_used,
+                r.lanes,
+                r.ways_not_drivable,
+                r.ways_without_geometry,
+                r.missing_node_refs
+            ),
+            InputReport::Lanelet2(r) => write!(
+                f,
+                "Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
+                r.lanelets_used, r.lanelets_not_drivable, r.lanelets_broken
+            ),
+        }
+    }
+}
+
+/// The inputs' reports, one `path: report` after another.
+fn each_input(reports: &[(PathBuf, InputReport)]) -> String {
+    reports
+        .iter()
+        .map(|(path, report)| format!("{}: {report}", path.display()))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
 /// A compile that failed.
 #[derive(Debug, thiserror::Error)]
 pub enum CompileError {
+    /// No input gave a lane; what each contributed.
+    #[error("no input gave a lane: {}", each_input(.0))]
+    NoLanes(Vec<(PathBuf, InputReport)>),
     /// An XML input could not be read.
     #[error(transparent)]
     Osm(#[from] OsmError),
@@ -256,6 +293,11 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
             unmarked_offset_scale: None,
         }
     };
+    if lanes.iter().all(|l| l.points.is_empty()) {
+        return Err(CompileError::NoLanes(
+            inputs.iter().cloned().zip(reports).collect(),
+        ));
+    }
     Ok(Compiled {
         map: LaneMap::new(&lanes)?,
         plane,

@@ -20,7 +20,7 @@ use lanealign_core::grid::{
     self, partition_lanes, CellEntry, CellKey, GridSpec, Manifest, OrderedLane,
 };
 use lanealign_core::lane_geometry::LaneGeometry;
-use lanealign_core::lane_map::{Lane, LaneMapError};
+use lanealign_core::lane_map::Lane;
 use lanealign_core::tile::SigningKey;
 use osmpbf::Element;
 
@@ -151,7 +151,9 @@ fn stream(
     drop(stores);
     let mut spilled = spill.finish().map_err(lane_error(output))?;
     if spilled.summary.lanes == 0 {
-        return Err(LaneMapError::Empty.into());
+        return Err(CompileError::NoLanes(
+            inputs.iter().cloned().zip(reports).collect(),
+        ));
     }
     let geometry = options.lanes.geometry();
     let spec = GridSpec {

@@ -52,7 +52,7 @@ fn way_line(osm: &OsmData, way_id: i64, plane: &MapPlane) -> Option<Vec<[f64; 2]
         .filter_map(|&n| osm.position(n))
         .map(|(lat, lon)| plane.project(lat, lon))
         .collect();
-    (line.len() >= 2 && crate::osm_lanes::has_plausible_steps(&line)).then_some(line)
+    (line.len() >= 2 && crate::osm_lanes::is_plausible_line(&line)).then_some(line)
 }
 
 fn member_line(

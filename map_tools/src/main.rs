@@ -107,16 +107,7 @@ fn read_secret_key(path: &std::path::Path) -> anyhow::Result<tile::SigningKey> {
 /// What each input contributed, one line per input on standard error.
 fn print_reports(inputs: &[PathBuf], reports: &[InputReport]) {
     for (path, report) in inputs.iter().zip(reports) {
-        match report {
-            InputReport::Osm(r) => eprintln!(
-                "{}: OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without geometry (fewer than 2 known nodes, or nodes over 5 km apart); {} missing node references",
-                path.display(), r.ways_read(), r.ways_used, r.lanes, r.ways_not_drivable, r.ways_without_geometry, r.missing_node_refs
-            ),
-            InputReport::Lanelet2(r) => eprintln!(
-                "{}: Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
-                path.display(), r.lanelets_used, r.lanelets_not_drivable, r.lanelets_broken
-            ),
-        }
+        eprintln!("{}: {report}", path.display());
     }
 }
 

@@ -55,15 +55,46 @@ fn compile_says_what_it_read_and_skipped() {
     let err = stderr(&out);
     assert!(out.status.success(), "{err}");
     assert!(
-        err.contains("4 ways read: 1 drivable -> 2 lanes; skipped 2 not drivable, 1 without geometry (fewer than 2 known nodes, or nodes over 5 km apart); 1 missing node references"),
+        err.contains("4 ways read: 1 drivable -> 2 lanes; skipped 2 not drivable, 1 without geometry (fewer than 2 known nodes, nodes over 5 km apart, or over 300 km from the map's origin); 1 missing node references"),
         "{err}"
     );
     let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
     assert!(out.status.success(), "{}", stderr(&out));
 }
 
-/// An output that names an input (itself, or through a link) is refused before anything is
-/// read, and the input is left as it was: the output replaces its file whole.
+/// A map plane serves a region of a few hundred kilometres: roads more than 300 km from its
+/// origin are skipped and counted (an origin of `0,0` compiled Karlsruhe's roads 20 % short, and
+/// so does a latitude and longitude given the wrong way round), and a map of none is refused.
+#[test]
+fn compile_skips_roads_too_far_from_the_planes_origin() {
+    let dir = tempfile::tempdir().unwrap();
+    let osm = write(dir.path(), "small.osm", SMALL_OSM);
+    let tile = dir.path().join("small.tile");
+    let compile = |origin: &str| {
+        lanealign_map(&[
+            "compile",
+            &osm,
+            "-o",
+            tile.to_str().unwrap(),
+            "--origin",
+            origin,
+        ])
+    };
+    // The road runs from 49.000 to 49.002 degrees north: 289 and 311 km from these origins.
+    let out = compile("46.4,8.4");
+    assert!(out.status.success(), "{}", stderr(&out));
+    for origin in ["46.2,8.4", "0,0", "8.4,49"] {
+        let out = compile(origin);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{origin}: {err}");
+        assert!(
+            err.contains("0 drivable -> 0 lanes; skipped 2 not drivable, 2 without geometry (fewer than 2 known nodes, nodes over 5 km apart, or over 300 km from the map's origin)")
+                && err.contains("error: no input gave a lane: "),
+            "{origin}: {err}"
+        );
+    }
+}
+
 /// A spacing of 1e300 m made a tile of one point a lane ("0.0 lane-km"), which no pose can
 /// match; 100 m one that corrects KITTI 00 worse than its raw odometry.
 #[test]
@@ -100,6 +131,8 @@ fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
     }
 }
 
+/// An output that names an input (itself, or through a link) is refused before anything is
+/// read, and the input is left as it was: the output replaces its file whole.
 #[test]
 fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     let dir = tempfile::tempdir().unwrap();
