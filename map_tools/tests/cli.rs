@@ -62,29 +62,25 @@ fn compile_says_what_it_read_and_skipped() {
     assert!(out.status.success(), "{}", stderr(&out));
 }
 
+/// `SMALL_OSM` compiled in `dir` into `small.tile` with `options`.
+fn compile_small(dir: &Path, options: &[&str]) -> Output {
+    let osm = write(dir, "small.osm", SMALL_OSM);
+    let tile = dir.join("small.tile");
+    let args = ["compile", &osm, "-o", tile.to_str().unwrap()];
+    lanealign_map(&[&args[..], options].concat())
+}
+
 /// A map plane serves a region of a few hundred kilometres: roads more than 300 km from its
 /// origin are skipped and counted (an origin of `0,0` compiled Karlsruhe's roads 20 % short, and
 /// so does a latitude and longitude given the wrong way round), and a map of none is refused.
 #[test]
 fn compile_skips_roads_too_far_from_the_planes_origin() {
     let dir = tempfile::tempdir().unwrap();
-    let osm = write(dir.path(), "small.osm", SMALL_OSM);
-    let tile = dir.path().join("small.tile");
-    let compile = |origin: &str| {
-        lanealign_map(&[
-            "compile",
-            &osm,
-            "-o",
-            tile.to_str().unwrap(),
-            "--origin",
-            origin,
-        ])
-    };
     // The road runs from 49.000 to 49.002 degrees north: 289 and 311 km from these origins.
-    let out = compile("46.4,8.4");
+    let out = compile_small(dir.path(), &["--origin", "46.4,8.4"]);
     assert!(out.status.success(), "{}", stderr(&out));
     for origin in ["46.2,8.4", "0,0", "8.4,49"] {
-        let out = compile(origin);
+        let out = compile_small(dir.path(), &["--origin", origin]);
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(1), "{origin}: {err}");
         assert!(
@@ -100,16 +96,8 @@ fn compile_skips_roads_too_far_from_the_planes_origin() {
 #[test]
 fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
     let dir = tempfile::tempdir().unwrap();
-    let osm = write(dir.path(), "small.osm", SMALL_OSM);
-    let tile = dir.path().join("small.tile");
     for spacing in ["0", "NaN", "inf", "10.5", "100", "1e300"] {
-        let out = lanealign_map(&[
-            "compile",
-            &osm,
-            "-o",
-            tile.to_str().unwrap(),
-            &format!("--spacing={spacing}"),
-        ]);
+        let out = compile_small(dir.path(), &[&format!("--spacing={spacing}")]);
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(1), "{spacing}: {err}");
         assert!(
@@ -117,16 +105,10 @@ fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
                 && err.contains(" m is outside (0, 10] m"),
             "{spacing}: {err}"
         );
-        assert!(!tile.exists());
+        assert!(!dir.path().join("small.tile").exists());
     }
     for spacing in ["0.5", "10"] {
-        let out = lanealign_map(&[
-            "compile",
-            &osm,
-            "-o",
-            tile.to_str().unwrap(),
-            &format!("--spacing={spacing}"),
-        ]);
+        let out = compile_small(dir.path(), &[&format!("--spacing={spacing}")]);
         assert!(out.status.success(), "{spacing}: {}", stderr(&out));
     }
 }
