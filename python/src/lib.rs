@@ -385,9 +385,11 @@ fn position_covariances(
             array.shape()
         )));
     }
-    if !anchor_yaw.is_finite() {
+    // The anchor's yaw lies within a turn either way (`geo::Anchor`): 1e300 was taken, as
+    // whatever its sine is.
+    if !(-std::f64::consts::TAU..=std::f64::consts::TAU).contains(&anchor_yaw) {
         return Err(PyValueError::new_err(format!(
-            "anchor_yaw: {anchor_yaw} is not a finite angle"
+            "anchor_yaw: {anchor_yaw:?} is not an angle in [-2 pi, 2 pi] radians"
         )));
     }
     Ok((0..poses)
@@ -420,6 +422,11 @@ fn compile_map<'py>(
     grid: Option<f64>,
     margin: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
+    if inputs.is_empty() {
+        return Err(PyValueError::new_err(
+            "inputs: none given (a list of .osm, .osm.pbf or Lanelet2 files)",
+        ));
+    }
     lanealign_core::lane_map::check_spacing(spacing)
         .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
     if !(0.0..=2.0).contains(&unmarked_offset_scale) {

@@ -202,6 +202,8 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     text = osm.read_text()
     with pytest.raises(ValueError, match="is the input"):
         lanealign.compile_map(osm, osm)
+    with pytest.raises(ValueError, match=r"inputs: none given"):
+        lanealign.compile_map([], tmp_path / "road.tile")
     assert osm.read_text() == text
     # A NaN origin compiled a map of no lane ("the lane map is empty"); no laps, or 2^62 of them,
     # panicked (an index out of bounds, a capacity overflow).
@@ -400,6 +402,9 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
         lanealign.eval(got.poses, got.poses, covariance=got.covariance)
     with pytest.raises(ValueError, match=r"expected \(\d+, 3, 3\)"):
         lanealign.eval(got.poses, got.poses, covariance=got.covariance[1:], anchor_yaw=0.0)
+    for yaw in (math.nan, 7.0, 1e300):
+        with pytest.raises(ValueError, match=r"anchor_yaw: .* is not an angle in \[-2 pi, 2 pi\]"):
+            lanealign.eval(got.poses, got.poses, covariance=got.covariance, anchor_yaw=yaw)
     print(f"KITTI 07: lanealign correct {cli_s * 1e3:.1f} ms (whole process), "
           f"lanealign.correct {py_s * 1e3:.1f} ms (call, file read by numpy not included)")
 
