@@ -179,3 +179,34 @@ fn trusted_keys_admit_only_tiles_their_holders_signed() {
         stderr(&out)
     );
 }
+
+/// A daemon serves 1 to 256 sources: with 3000 it had started 464 workers after 90 s, not ready
+/// and deaf to SIGTERM until it would be.
+#[test]
+fn a_daemon_serves_one_to_256_sources() {
+    let dir = tempfile::tempdir().unwrap();
+    write_tile(&dir.path().join("t.tile"), 0.5);
+    let config = dir.path().join("d.toml");
+    let (head, source) = CONFIG.split_at(CONFIG.find("[[source]]").unwrap());
+    let with = |n: usize| {
+        let sources: String = match n {
+            0 => "source = []\n".into(),
+            _ => (0..n)
+                .map(|k| source.replace("name = \"wheel\"", &format!("name = \"s{k}\"")))
+                .collect(),
+        };
+        std::fs::write(&config, format!("{head}{sources}")).unwrap();
+        check(&config)
+    };
+    let out = with(256);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("ok: 256 sources"));
+    for (n, says) in [
+        (0, "0 [[source]] tables: 1 to 256 are served"),
+        (257, "257 [[source]] tables: 1 to 256 are served"),
+    ] {
+        let out = with(n);
+        assert!(!out.status.success(), "{n} sources passed");
+        assert!(stderr(&out).contains(says), "{n}: {}", stderr(&out));
+    }
+}

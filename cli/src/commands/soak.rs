@@ -197,8 +197,9 @@ fn run_phase(
     })
 }
 
-/// Sources a soak runs at most: each is a worker thread of the daemon and a client thread.
-const MAX_SOURCES: usize = 256;
+/// Sources a soak runs at most: as many as a daemon serves (each a worker thread of the daemon
+/// and a client thread).
+const MAX_SOURCES: usize = lanealign_service::config::MAX_SOURCES;
 /// Poses a source sends in a phase at most (rate x duration: about 28 hours at 100 Hz). The
 /// drive is made before the phase starts and every round trip is kept, so this bounds memory.
 const MAX_POSES_PER_SOURCE: f64 = 1e7;
