@@ -506,6 +506,29 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
         "{err}"
     );
     assert!(!stray.exists());
+    // A ground truth that does not pair with the run (TUM stamps none of which match) is refused
+    // before anything is written: it left a run folder without metrics, `latest` pointing at it.
+    let elsewhere = dir.path().join("elsewhere.tum");
+    let later: String = (0..200)
+        .map(|i| {
+            format!(
+                "{} {} 0 0 0 0 0 1\n",
+                1000.0 + i as f64 * 0.1,
+                i as f64 * 1.2
+            )
+        })
+        .collect();
+    std::fs::write(&elsewhere, later).unwrap();
+    let mut args = vec!["correct", "--lanes", s(&lanes), "--format", "tum"];
+    args.extend(flags);
+    args.extend([s(&input), "--results", s(&results), "--gt", s(&elsewhere)]);
+    let refused = lanealign(&args);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--gt ") && err.contains("no pose pairs to compare"),
+        "{err}"
+    );
     let runs = std::fs::read_dir(&results).unwrap().count();
     assert_eq!(runs, 3, "two run folders and latest");
     let latest = results.join("latest");

@@ -250,6 +250,20 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     if input.poses.is_empty() {
         bail!("{}: no poses", args.input.display());
     }
+    // Checked before anything is corrected or written: a ground truth that does not pair with
+    // the run made a results folder without metrics, `latest` pointing at it, and exit 1.
+    let gt = match &args.gt {
+        Some(path) => {
+            let gt = trajectory::read(path, args.format)?;
+            let paired =
+                evaluation::pair(&gt, &input, args.frame).and_then(|p| ape_2d(&p.gt, &p.est));
+            paired.with_context(|| {
+                format!("--gt {} against {}", path.display(), args.input.display())
+            })?;
+            Some(gt)
+        }
+        None => None,
+    };
     let source = args.map.source(&config)?;
     let loaded = source.load_for(&config)?;
     if let Some(InputReport::Osm(r)) = &loaded.report {
@@ -331,8 +345,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
         let path = dir.join("params.toml");
         std::fs::write(&path, toml::to_string(&params_file)?)
             .with_context(|| format!("writing {}", path.display()))?;
-        if let Some(gt_path) = &args.gt {
-            let gt = trajectory::read(gt_path, args.format)?;
+        if let Some(gt) = &gt {
             // On a grid, the lanes along the whole corrected drive.
             let lanes = match &loaded.grid {
                 Some(grid) => Arc::new(lanes_along(grid, &run, &input.poses, args.frame)?),
@@ -340,7 +353,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             };
             write_comparison(
                 &dir,
-                &gt,
+                gt,
                 &input,
                 &output,
                 &run,
