@@ -326,6 +326,7 @@ impl FromStr for Anchor {
 #[cfg(test)]
 mod tests {
     use super::*;
+
     #[test]
     fn only_points_the_plane_maps_back_have_a_latitude_and_longitude() {
         for projection in Projection::ALL {

@@ -15,7 +15,9 @@ use crate::lane_spill::SpillError;
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
 use crate::node_store::NodeStoreError;
 use crate::osm::{read_xml_file, OsmData, OsmError};
-use crate::osm_lanes::{derive_lanes, DeriveReport, LaneOptions};
+use crate::osm_lanes::{
+    derive_lanes, DeriveReport, LaneOptions, MAX_NODE_GAP_M, MAX_PLANE_RADIUS_M,
+};
 use crate::pbf::{read_pbf_file, PbfError};
 
 /// What compiling needs besides the inputs.
@@ -46,13 +48,15 @@ impl std::fmt::Display for InputReport {
             InputReport::Osm(r) => write!(
                 f,
                 "OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without \
-                 geometry (fewer than 2 known nodes, nodes over 5 km apart, or over 300 km from \
+                 geometry (fewer than 2 known nodes, nodes over {} km apart, or over {} km from \
                  the map's origin); {} missing node references",
                 r.ways_read(),
                 r.ways_used,
                 r.lanes,
                 r.ways_not_drivable,
                 r.ways_without_geometry,
+                MAX_NODE_GAP_M / 1000.0,
+                MAX_PLANE_RADIUS_M / 1000.0,
                 r.missing_node_refs
             ),
             InputReport::Lanelet2(r) => write!(

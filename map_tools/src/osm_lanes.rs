@@ -234,9 +234,9 @@ pub fn offset_polyline(points: &[[f64; 2]], offset_m: f64) -> Vec<[f64; 2]> {
 pub const MAX_NODE_GAP_M: f64 = 5000.0;
 
 /// How far from its map plane's origin a road may lie (metres). A tangent plane's scale along
-/// the radius is `cos(d / R)`: off by 0.11 % (1.1 m per km driven) at 300 km, and by 20 % at the
-/// 5400 km from an origin of `0,0` to Karlsruhe, which compiled a map of shrunken roads without
-/// a word. One plane serves a region of a few hundred kilometres (docs/fleet.md).
+/// the radius is `cos(d / R)`: off by 0.11 % (1.1 m per km driven) at 300 km. With an origin of
+/// `0,0`, 5400 km away, KITTI 04's roads compiled without a word into 21 % fewer lane-km (40.9
+/// against 51.9). One plane serves a region of a few hundred kilometres (docs/fleet.md).
 pub const MAX_PLANE_RADIUS_M: f64 = 300_000.0;
 
 /// True when no two consecutive points of `line` are more than [`MAX_NODE_GAP_M`] apart and
