@@ -66,6 +66,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         LogFormat::Json => builder.json().init(),
         LogFormat::Text => builder.init(),
     }
+    for warning in prepared.anchor_warnings() {
+        tracing::warn!("{warning}");
+    }
     match cli.command {
         Some(Command::Check) => {
             let _flushed_at_exit = flushed_at_exit;

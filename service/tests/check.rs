@@ -55,6 +55,7 @@ fn a_good_config_and_tile_pass() {
     let out = check(&config);
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(String::from_utf8_lossy(&out.stdout).contains("ok: 1 sources"));
+    assert!(!stderr(&out).contains("WARN"), "{}", stderr(&out));
     // The paper's method, smoothed, on a tile of the paper's lane geometry.
     let paper = CONFIG.replace("t.tile", "paper.tile").replace(
         "preset = \"orb-slam3\"",
@@ -209,4 +210,40 @@ fn a_daemon_serves_one_to_256_sources() {
         assert!(!out.status.success(), "{n} sources passed");
         assert!(stderr(&out).contains(says), "{n}: {}", stderr(&out));
     }
+}
+
+/// A source anchored where no lane of the tile is near (Berlin, for a tile at Karlsruhe; or
+/// latitude and longitude swapped) is told at `check` and at start, as `correct` tells a run's
+/// first pose: `check` said ok and the daemon answered every pose uncorrected without a word
+/// until a session ended.
+#[test]
+fn a_source_anchored_far_from_every_lane_is_told() {
+    let dir = tempfile::tempdir().unwrap();
+    write_tile(&dir.path().join("t.tile"), 0.5);
+    let config = dir.path().join("d.toml");
+    for (anchor, km) in [
+        ("lat = 52.52, lon = 13.40", "526"),
+        ("lat = 49.01, lon = 8.4", "1.1"),
+    ] {
+        std::fs::write(&config, CONFIG.replace("lat = 49.0, lon = 8.4", anchor)).unwrap();
+        let out = check(&config);
+        let err = stderr(&out);
+        assert!(out.status.success(), "{err}");
+        assert!(
+            err.contains("WARN")
+                && err.contains(&format!(
+                    "source wheel: its anchor places the odometry frame's origin {km}"
+                ))
+                && err.contains("km from the nearest lane: check its anchor"),
+            "{anchor}: {err}"
+        );
+    }
+    // 900 m away: near enough.
+    std::fs::write(
+        &config,
+        CONFIG.replace("lat = 49.0, lon = 8.4", "lat = 49.0081, lon = 8.4"),
+    )
+    .unwrap();
+    let out = check(&config);
+    assert!(!stderr(&out).contains("WARN"), "{}", stderr(&out));
 }
