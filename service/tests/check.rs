@@ -214,8 +214,8 @@ fn a_daemon_serves_one_to_256_sources() {
 
 /// A source anchored where no lane of the tile is near (Berlin, for a tile at Karlsruhe; or
 /// latitude and longitude swapped) is told at `check` and at start, as `correct` tells a run's
-/// first pose: `check` said ok and the daemon answered every pose uncorrected without a word
-/// until a session ended.
+/// first pose: `check` said ok, and the worker told it only once a session's first 100
+/// alignments had been refused.
 #[test]
 fn a_source_anchored_far_from_every_lane_is_told() {
     let dir = tempfile::tempdir().unwrap();
