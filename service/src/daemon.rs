@@ -18,7 +18,7 @@ use iceoryx2::prelude::*;
 use lanealign_core::grid::{self, Grid};
 use lanealign_core::input::InputError;
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::plausibility::{distance_to_lanes, MAX_START_TO_LANE_M};
+use lanealign_core::plausibility::too_far_from_lanes;
 use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
@@ -124,10 +124,10 @@ pub struct Prepared {
 
 impl Prepared {
     /// A warning for each source whose anchor places its odometry frame's origin more than
-    /// [`MAX_START_TO_LANE_M`] from every lane it starts with (the tile's, or the grid's cells
-    /// around the anchor), as `lanealign correct` warns of a run's first pose: such a source's
-    /// poses most likely lie where no lane can correct them (a latitude and longitude of
-    /// another city, swapped, or a tile of another region).
+    /// 1 km from every lane it starts with (the tile's, or the grid's cells around the anchor;
+    /// [`too_far_from_lanes`]), as `lanealign correct` warns of a run's first pose: such a
+    /// source's poses most likely lie where no lane can correct them (a latitude and longitude
+    /// of another city, swapped, or a tile of another region).
     pub fn anchor_warnings(&self) -> Vec<String> {
         self.sources
             .iter()
@@ -141,14 +141,12 @@ impl Prepared {
                     .anchor
                     .anchored_from_odom(&self.tile.plane)
                     .apply([0.0, 0.0]);
-                let distance = distance_to_lanes(map, origin);
-                (distance > MAX_START_TO_LANE_M).then(|| {
+                too_far_from_lanes(map, origin).map(|distance| {
                     format!(
-                        "source {}: its anchor places the odometry frame's origin {:.1} km from \
+                        "source {}: its anchor places the odometry frame's origin {distance} from \
                          the nearest lane: check its anchor (lat, lon in degrees; yaw_deg from \
                          East, counter-clockwise) and that {} covers where the vehicle drives",
                         source.name,
-                        distance / 1000.0,
                         self.config.tile.display()
                     )
                 })

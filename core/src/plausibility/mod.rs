@@ -19,7 +19,7 @@ pub use axes::{axis_convention_warning, AxisMotion, MAX_VERTICAL_SHARE};
 pub use rate::{rate_from_stamps, rate_warning, MAX_RATE_RATIO};
 pub use setup::{
     anchor_warning, distance_to_lanes, no_correction_warning, odometry_jump_warning,
-    CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M,
+    too_far_from_lanes, CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M,
 };
 pub use source_watch::{
     SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,

@@ -20,21 +20,29 @@ pub fn distance_to_lanes(map: &LaneMap, position_in_map: [f64; 2]) -> f64 {
     nearest.first().map_or(f64::INFINITY, |c| c.0.sqrt())
 }
 
+/// How far `position_in_map` lies from the nearest lane of `map`, spelt in kilometres ("536.2
+/// km", or "arbitrarily far"), when that is more than [`MAX_START_TO_LANE_M`]: an anchor that
+/// places a run's start (or a source's odometry origin) there is suspect.
+pub fn too_far_from_lanes(map: &LaneMap, position_in_map: [f64; 2]) -> Option<String> {
+    let distance = distance_to_lanes(map, position_in_map);
+    (distance > MAX_START_TO_LANE_M).then(|| {
+        if distance.is_finite() {
+            format!("{:.1} km", distance / 1000.0)
+        } else {
+            "arbitrarily far".to_string()
+        }
+    })
+}
+
 /// A warning when the anchor places the start of the run, `first` (planar `flu`), more than
 /// [`MAX_START_TO_LANE_M`] from every lane.
 pub fn anchor_warning(map: &LaneMap, anchored_from_odom: &Se2, first: &Pose3) -> Option<String> {
     let start = anchored_from_odom.apply(first.planar_position());
-    let distance = distance_to_lanes(map, start);
-    (distance > MAX_START_TO_LANE_M).then(|| {
+    too_far_from_lanes(map, start).map(|distance| {
         format!(
-            "the anchor places the first pose {} from the nearest lane: check --anchor (LAT,LON \
-             in degrees, YAW_DEG from East counter-clockwise) and that the map covers the drive \
-             (`lanealign-map inspect TILE --geojson lanes.geojson`)",
-            if distance.is_finite() {
-                format!("{:.1} km", distance / 1000.0)
-            } else {
-                "arbitrarily far".to_string()
-            }
+            "the anchor places the first pose {distance} from the nearest lane: check --anchor \
+             (LAT,LON in degrees, YAW_DEG from East counter-clockwise) and that the map covers \
+             the drive (`lanealign-map inspect TILE --geojson lanes.geojson`)"
         )
     })
 }
