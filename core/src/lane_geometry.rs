@@ -204,10 +204,30 @@ impl RoadClasses {
             .filter(move |&c| self.contains(c))
     }
 
-    /// Parses a comma-separated list of class names (`motorway,primary,service`).
+    /// Parses a comma-separated list of the OSM `highway` values lanes can be derived from
+    /// (`motorway,primary,service`); an empty name, `lanelet` or `unknown` (classes no OSM way
+    /// has) is refused with the names that are expected.
     pub fn parse_list(list: &str) -> Result<RoadClasses, crate::names::NameError> {
         list.split(',')
-            .map(|s| s.trim().parse::<RoadClass>())
+            .map(|name| {
+                let name = name.trim();
+                RoadClass::from_osm(name).ok_or_else(|| {
+                    let expected: Vec<String> = RoadClass::ALL
+                        .into_iter()
+                        .filter_map(|c| RoadClass::from_osm(c.name()))
+                        .map(|c| format!("`{}`", c.name()))
+                        .collect();
+                    let what = if name.is_empty() {
+                        "an empty class name".to_string()
+                    } else {
+                        format!("unknown class `{}`", crate::input::quote(name))
+                    };
+                    crate::names::NameError::new(format!(
+                        "{what} in a comma-separated list, expected OSM highway values: {}",
+                        expected.join(", ")
+                    ))
+                })
+            })
             .try_fold(RoadClasses::EMPTY, |set, c| Ok(set.with(c?)))
     }
 }
@@ -321,5 +341,25 @@ mod tests {
         assert_eq!(set.to_string(), "motorway,service");
         assert_eq!(RoadClasses::DEFAULT.iter().count(), 13);
         assert!(RoadClasses::parse_list("motorway,footway").is_err());
+    }
+
+    #[test]
+    fn class_lists_take_only_osm_highway_values() {
+        for (list, said) in [
+            ("lanelet", "unknown class `lanelet`"),
+            ("primary,unknown", "unknown class `unknown`"),
+            (",", "an empty class name"),
+            ("primary,,secondary", "an empty class name"),
+        ] {
+            let message = RoadClasses::parse_list(list).unwrap_err().to_string();
+            assert!(message.starts_with(said), "{list}: {message}");
+            let (_, expected) = message.split_once("expected").unwrap();
+            assert!(
+                expected.contains("`motorway`")
+                    && !expected.contains("`lanelet`")
+                    && !expected.contains("`unknown`"),
+                "{list}: {message}"
+            );
+        }
     }
 }

@@ -10,6 +10,13 @@ use serde::de::{DeserializeOwned, IntoDeserializer};
 #[error("{0}")]
 pub struct NameError(String);
 
+impl NameError {
+    /// A name refused for what `message` says.
+    pub(crate) fn new(message: String) -> Self {
+        NameError(message)
+    }
+}
+
 /// Parses a choice by its name, the way configuration files spell it: for example
 /// `parse_name::<Preset>("kiss-icp")`. Unknown names give serde's message, which lists the
 /// expected ones.
