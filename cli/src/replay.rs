@@ -18,11 +18,12 @@ pub enum Rate {
 }
 
 impl Rate {
-    /// The slowest rate a replay is asked for in text (Hz): a pose every 1000 s. Slower, the
-    /// time a pose is due overflowed (a rate of 1e-300 Hz panicked at the second pose).
-    pub const SLOWEST_HZ: f64 = 1e-3;
+    /// The slowest rate a replay is asked for in text (Hz): a pose every 1000 s, the slowest
+    /// `odometry_rate_hz` a corrector takes. Slower, the time a pose is due overflowed (a rate
+    /// of 1e-300 Hz panicked at the second pose).
+    pub const SLOWEST_HZ: f64 = lanealign_core::params::MIN_ODOMETRY_RATE_HZ;
     /// The fastest (Hz): the corrector's `odometry_rate_hz` bound; beyond it, use `max`.
-    pub const FASTEST_HZ: f64 = 100_000.0;
+    pub const FASTEST_HZ: f64 = lanealign_core::params::MAX_ODOMETRY_RATE_HZ;
 }
 
 impl std::str::FromStr for Rate {

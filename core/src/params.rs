@@ -125,6 +125,14 @@ pub struct Params {
 /// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
 pub const PRESET_RATE_HZ: f64 = 10.0;
 
+/// The slowest odometry a corrector is set for (Hz, [`Params::odometry_rate_hz`]): a pose every
+/// 1000 s. Slower, a pose moving at walking pace counted as standing still (at 1e-300 Hz every
+/// pose did, and no alignment was ever tried); `replay` publishes no slower either.
+pub const MIN_ODOMETRY_RATE_HZ: f64 = 1e-3;
+
+/// The fastest odometry a corrector is set for (Hz, [`Params::odometry_rate_hz`]).
+pub const MAX_ODOMETRY_RATE_HZ: f64 = 100_000.0;
+
 /// The unmarked-street offset scale of lanealign's lane geometry (see
 /// [`crate::lane_geometry::LaneGeometry`] and docs/method.md).
 pub const UNMARKED_OFFSET_SCALE: f64 = 0.5;
@@ -472,14 +480,11 @@ impl Params {
                 return Err(invalid(key, v, "must be positive and below 1e6"));
             }
         }
-        if !(self.odometry_rate_hz.is_finite()
-            && self.odometry_rate_hz > 0.0
-            && self.odometry_rate_hz <= 100_000.0)
-        {
+        if !(MIN_ODOMETRY_RATE_HZ..=MAX_ODOMETRY_RATE_HZ).contains(&self.odometry_rate_hz) {
             return Err(invalid(
                 "odometry_rate_hz",
                 self.odometry_rate_hz,
-                "must be positive and at most 100000",
+                "must be 0.001 to 100000 (Hz)",
             ));
         }
         if !(self.scale_sigma.is_finite() && (0.0..=0.5).contains(&self.scale_sigma)) {
@@ -838,8 +843,31 @@ mod tests {
         p.odometry_rate_hz = 1e300;
         assert_eq!(
             p.validate().map_err(|e| e.to_string()),
-            Err("odometry_rate_hz = 1e300: must be positive and at most 100000".to_string())
+            Err("odometry_rate_hz = 1e300: must be 0.001 to 100000 (Hz)".to_string())
         );
+    }
+
+    /// Below a pose every 1000 s every pose would count as standing still: refused, as `replay`
+    /// refuses to publish so slowly.
+    #[test]
+    fn an_odometry_rate_slower_than_a_pose_every_1000_s_is_refused() {
+        let mut p = Preset::KissIcp.robust_params();
+        for hz in [
+            1e-300,
+            9.99e-4,
+            0.0,
+            -10.0,
+            f64::NAN,
+            f64::INFINITY,
+            100_001.0,
+        ] {
+            p.odometry_rate_hz = hz;
+            assert!(p.validate().is_err(), "{hz} Hz accepted");
+        }
+        for hz in [MIN_ODOMETRY_RATE_HZ, 0.1, 10.0, MAX_ODOMETRY_RATE_HZ] {
+            p.odometry_rate_hz = hz;
+            assert!(p.validate().is_ok(), "{hz} Hz refused");
+        }
     }
 
     #[test]
