@@ -4,9 +4,10 @@ use std::time::{Duration, Instant};
 
 use lanealign_client::connection::ConnectionEvents;
 use lanealign_client::{Connection, PublishError, ReceiveError};
+use lanealign_core::plausibility::plural;
 use lanealign_core::pose::Pose3;
 use lanealign_wire::clock::{deadline_after, monotonic_ns, time_left};
-use lanealign_wire::payload::CorrectedPose;
+use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode};
 
 /// How fast to publish.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,6 +97,29 @@ fn summarize(seqs: &[u64]) -> String {
     } else {
         shown.join(", ")
     }
+}
+
+/// A warning when some of `answers` came back uncorrected because their session waited for a
+/// place among the source's `max_sessions` (`pass_through`, reason `sessions_full`): another
+/// client of the source held every place while they were sent.
+pub fn waited_for_place_warning(answers: &[CorrectedPose]) -> Option<String> {
+    let waited: Vec<u64> = answers
+        .iter()
+        .filter(|a| {
+            a.status() == Some(StatusCode::PassThrough)
+                && a.reason == ReasonCode::SessionsFull as u32
+        })
+        .map(|a| a.seq)
+        .collect();
+    let (first, last) = (waited.first()?, waited.last()?);
+    Some(format!(
+        "{} pose{} (sequence numbers {first} to {last}) came back uncorrected: the source's \
+         sessions were all in use by other clients streaming at the same time, and this one \
+         waited for a place (status pass_through, reason sessions_full); raise max_sessions in \
+         lanealignd's configuration, or stop the other clients",
+        waited.len(),
+        plural(waited.len()),
+    ))
 }
 
 /// Every answer, in sequence order (`answers[i]` has `seq = i + 1`), and how the connection

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use common::*;
 use lanealign_cli::daemon_process::{daemon_binary, DaemonProcess};
-use lanealign_cli::replay::{replay, Rate};
+use lanealign_cli::replay::{replay, waited_for_place_warning, Rate};
 use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
@@ -25,7 +25,7 @@ use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_service::cpu_latency;
 use lanealign_tests::shared_data;
-use lanealign_wire::payload::{CorrectedPose, StatusCode};
+use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode};
 use lanealign_wire::service::{Ipc, DAEMON_NODE, WIRE_VERSION};
 use rustix::process::Signal;
 
@@ -1799,6 +1799,82 @@ fn a_log_nobody_reads_holds_up_no_answer() {
             "'{record}' in the log once read:\n{log}"
         );
     }
+}
+
+/// Always runs: two clients stream to a source set for one session (`max_sessions = 1`), pose by
+/// pose in turn. The first keeps its corrector, answered as offline; the second waits for a
+/// place, told once in the log: its poses come back as they went (`pass_through`, reason
+/// `sessions_full`) until the first closes, and from its next pose on it is corrected as a
+/// session that begins there. Before, each client's pose ended the other's session: both were
+/// answered `gap` and started afresh pose after pose, and neither was ever corrected (600 poses
+/// each at 100 Hz: 0 accepted, 362 and 387 fresh starts, an INFO line for each end).
+#[test]
+fn a_session_beyond_max_sessions_waits_while_the_others_stream() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("full");
+    let setup = town_setup(&[&name]);
+    let text = std::fs::read_to_string(&setup.config).unwrap();
+    assert!(text.contains("max_sessions = 16"), "{text}");
+    std::fs::write(
+        &setup.config,
+        text.replace("max_sessions = 16", "max_sessions = 1"),
+    )
+    .unwrap();
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let (both, alone) = odometry[..400].split_at(300);
+    let mut first = connect(&setup, &name);
+    let mut second = connect(&setup, &name);
+    wait_for_daemon(&mut first);
+    wait_for_daemon(&mut second);
+    let mut answers = (Vec::new(), Vec::new());
+    for pose in both {
+        answers.0.push(answer_of(&mut first, pose));
+        answers.1.push(answer_of(&mut second, pose));
+    }
+    assert!(
+        poses_of(&answers.0) == offline(&setup, &name, both),
+        "the first session keeps its corrector"
+    );
+    for (answer, pose) in answers.1.iter().zip(both) {
+        assert_eq!(
+            (answer.status, answer.reason, answer.pose),
+            (
+                StatusCode::PassThrough as u32,
+                ReasonCode::SessionsFull as u32,
+                pose.to_row_major()
+            ),
+            "seq {}",
+            answer.seq
+        );
+    }
+    closed(first, &daemon, 0);
+    let later: Vec<CorrectedPose> = alone.iter().map(|p| answer_of(&mut second, p)).collect();
+    assert!(
+        poses_of(&later) == offline(&setup, &name, alone),
+        "the second session is corrected from the pose that found the place"
+    );
+    // What `lanealign replay` tells of the second session's answers.
+    let all: Vec<CorrectedPose> = answers.1.iter().chain(&later).copied().collect();
+    let told = waited_for_place_warning(&all).expect("the wait is told");
+    assert!(
+        told.starts_with("300 poses (sequence numbers 1 to 300) came back uncorrected"),
+        "{told}"
+    );
+    assert_eq!(waited_for_place_warning(&answers.0), None);
+    let log = daemon.log();
+    assert_eq!(
+        log.matches("a new session waits for a place").count(),
+        1,
+        "{log}"
+    );
+    assert_eq!(
+        log.matches("a session that waited has a place").count(),
+        1,
+        "{log}"
+    );
+    closed(second, &daemon, 1);
+    assert!(daemon.stop().unwrap(), "clean exit");
 }
 
 /// Always runs: a source takes at most `MAX_POSE_PUBLISHERS` clients at once (iceoryx2 fixes its

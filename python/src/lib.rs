@@ -24,7 +24,7 @@ use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_wire::clock::{deadline_after, time_left};
-use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, StatusCode};
+use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
@@ -542,6 +542,10 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
     d.set_item(
         "status",
         StatusCode::from_code(answer.status).map_or("unknown", StatusCode::name),
+    )?;
+    d.set_item(
+        "reason",
+        ReasonCode::from_code(answer.reason).map_or("unknown", ReasonCode::name),
     )?;
     d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
     let covariance = numpy::ndarray::arr2(&from_upper_triangle(&answer.covariance));

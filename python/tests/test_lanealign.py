@@ -511,6 +511,7 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
                                 projection="kitti", preset="kiss-icp", frame="kitti-camera")
     assert np.array_equal(np.stack([a["pose"] for a in answers]), offline.poses)
     assert [a["status"] for a in answers] == [lanealign.STATUS_NAMES[c] for c in offline.status]
+    assert {a["reason"] for a in answers if a["status"] not in ("rejected", "reset")} == {""}
     assert answers[-1]["covariance"].shape == (3, 3)
     # The tile's origin is the anchor's, so the map plane is the anchor's East-North plane.
     yaw = math.radians(ANCHOR_00[2])

@@ -35,6 +35,9 @@ pub struct SourceMetrics {
     /// Poses not answered in this interval because their session's ports could not be made
     /// (no room in shared memory, too few file descriptors).
     pub unserved: u64,
+    /// Poses answered uncorrected in this interval because their session waited for a place
+    /// among the source's `max_sessions` (`pass_through`, reason `sessions_full`).
+    pub waiting: u64,
     /// Live sessions at the report.
     pub sessions: u64,
     /// Journal writes that failed in this interval.
@@ -90,6 +93,7 @@ impl Default for SourceMetrics {
             new_sessions: 0,
             closed_sessions: 0,
             unserved: 0,
+            waiting: 0,
             sessions: 0,
             journal_failures: 0,
             uncovered_queries: 0,
@@ -180,6 +184,7 @@ impl SourceMetrics {
             new_sessions = self.new_sessions,
             closed_sessions = self.closed_sessions,
             unserved = self.unserved,
+            waiting_for_place = self.waiting,
             journal_failures = self.journal_failures,
             uncovered_queries = self.uncovered_queries,
             map_swaps = self.map_swaps,
@@ -219,6 +224,7 @@ impl SourceMetrics {
         self.new_sessions = 0;
         self.closed_sessions = 0;
         self.unserved = 0;
+        self.waiting = 0;
         self.journal_failures = 0;
         self.uncovered_queries = 0;
         self.map_swaps = 0;

@@ -153,7 +153,8 @@ pub struct WorkerSetup {
     pub metrics_interval: Duration,
     /// A session with no pose for this long ends.
     pub session_timeout: Duration,
-    /// Sessions at most; a new one beyond ends the least recently active.
+    /// Sessions with a corrector at most; a new one beyond ends the least recently active, if
+    /// it has gone quiet ([`quiet_after`]), or else waits for a place.
     pub max_sessions: usize,
     /// Set to stop.
     pub shutdown: Arc<AtomicBool>,
@@ -163,14 +164,26 @@ pub struct WorkerSetup {
     pub reloads: Receiver<Reload>,
 }
 
-/// A live session and its answer ports. Pass-through sources keep no corrector.
+/// A live session and its answer ports. Pass-through sources keep no corrector, nor does a
+/// session waiting for a place.
 struct Live {
     session: Option<Session>,
+    /// Whether it waits for a place among the source's `max_sessions`: its poses are answered
+    /// `pass_through` with the reason `sessions_full` until it gets one.
+    waiting: bool,
     // Ports before the services they belong to.
     publisher: Publisher<Ipc, CorrectedPose, ()>,
     notifier: Notifier<Ipc>,
     _services: SessionServices<Ipc>,
     last_active: Instant,
+}
+
+/// How long a session has had no pose before a new session may take its place among the
+/// source's `max_sessions`: three of the source's periods (`odometry_rate_hz`), at least a
+/// second. Sessions that still stream keep their places; otherwise two clients of a source set
+/// for one session ended each other's session with every pose, and neither was ever corrected.
+pub fn quiet_after(params: &Params) -> Duration {
+    Duration::from_secs_f64((3.0 / params.odometry_rate_hz).max(1.0))
 }
 
 /// How many alignments a session tries, all refused, before the daemon warns that none was
@@ -199,6 +212,7 @@ impl Worker {
         shm::reserve(&self.setup.namespace).map_err(|e| error_line(&e))?;
         Ok(Live {
             session,
+            waiting: false,
             publisher,
             notifier,
             _services: services,
@@ -288,24 +302,26 @@ impl Worker {
     }
 
     /// Makes sure the input's session is live: started when it is new (at its first pose, 1)
-    /// or when the client starts it afresh. False when it cannot be answered at all.
+    /// or when the client starts it afresh, given a corrector once a place frees when it waits
+    /// for one (from the pose that finds the place). False when it cannot be answered at all.
     fn ensure_live(&mut self, input: &OdomPose) -> bool {
         let fresh = session::starts_afresh(input);
-        if self.sessions.contains_key(&input.session) && !fresh {
-            return true;
-        }
         if fresh {
             self.end_session(input.session, "the client started it afresh");
         }
-        if self.sessions.len() >= self.setup.max_sessions {
-            if let Some(oldest) = self
-                .sessions
-                .iter()
-                .min_by_key(|(_, l)| l.last_active)
-                .map(|(&id, _)| id)
-            {
-                self.end_session(oldest, "more sessions than max_sessions");
+        if let Some(waiting) = self.sessions.get(&input.session).map(|l| l.waiting) {
+            if waiting && self.make_place() {
+                let session = self.start_session(input.session, input.seq);
+                if let Some(live) = self.sessions.get_mut(&input.session) {
+                    (live.session, live.waiting) = (session, false);
+                }
+                tracing::info!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, "a session that waited has a place: corrected from this pose on");
             }
+            return true;
+        }
+        let placed = self.make_place();
+        if !placed {
+            self.end_quiet_waiting();
         }
         // The ports first: a session that cannot be answered starts no corrector or journal.
         let live = match self.open_session(input.session, None) {
@@ -318,18 +334,66 @@ impl Worker {
                 return false;
             }
         };
-        let session = if self.setup.source.pass_through {
-            None
+        let live = if placed {
+            let session = self.start_session(input.session, session::first_seq(input));
+            Live { session, ..live }
         } else {
-            let first = session::first_seq(input);
-            let (session, failure) = Session::start(input.session, first, &self.setup.sessions);
-            self.journal_failed(failure);
-            Some(session)
+            tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), max_sessions = self.setup.max_sessions, "a new session waits for a place: the source's max_sessions sessions all had a pose lately; its poses are answered uncorrected (pass_through, reason sessions_full) until one ends or goes quiet");
+            Live {
+                waiting: true,
+                ..live
+            }
         };
-        self.metrics.new_sessions += 1;
-        self.sessions
-            .insert(input.session, Live { session, ..live });
+        self.sessions.insert(input.session, live);
         true
+    }
+
+    /// Whether a session may start a corrector: fewer than `max_sessions` have one, or the
+    /// least recently active of those has gone quiet ([`quiet_after`]), and then it ends.
+    fn make_place(&mut self) -> bool {
+        let placed = self.sessions.iter().filter(|(_, l)| !l.waiting);
+        if placed.clone().count() < self.setup.max_sessions {
+            return true;
+        }
+        let Some((oldest, since)) = placed
+            .map(|(&id, l)| (id, l.last_active))
+            .min_by_key(|&(_, last_active)| last_active)
+        else {
+            return true;
+        };
+        if since.elapsed() < quiet_after(&self.setup.sessions.params) {
+            return false;
+        }
+        self.end_session(oldest, "more sessions than max_sessions");
+        true
+    }
+
+    /// Ends the sessions waiting for a place that have gone quiet ([`quiet_after`]): their
+    /// clients left, and their ports are not kept for the session timeout (at most as many
+    /// waiting sessions as clients connected, 16, stay).
+    fn end_quiet_waiting(&mut self) {
+        let quiet = quiet_after(&self.setup.sessions.params);
+        let gone: Vec<u64> = self
+            .sessions
+            .iter()
+            .filter(|(_, l)| l.waiting && l.last_active.elapsed() >= quiet)
+            .map(|(&id, _)| id)
+            .collect();
+        for id in gone {
+            self.end_session(id, "waited for a place and went quiet");
+        }
+    }
+
+    /// The corrector (and journal) of a session that begins at `first_seq`; none for a
+    /// pass-through source.
+    fn start_session(&mut self, id: u64, first_seq: u64) -> Option<Session> {
+        self.metrics.new_sessions += 1;
+        if self.setup.source.pass_through {
+            return None;
+        }
+        let (session, failure) = Session::start(id, first_seq, &self.setup.sessions);
+        self.journal_failed(failure);
+        Some(session)
     }
 
     /// Answers one pose (a goodbye, [`FLAG_END_SESSION`], ends its session instead); then
@@ -354,12 +418,14 @@ impl Worker {
         };
         live.last_active = Instant::now();
         let (mut answer, outcome, timing, failure) = match &mut live.session {
-            None => (
-                session::pass_through(&input, received, setup.daemon_epoch),
-                Outcome::PassThrough,
-                Default::default(),
-                None,
-            ),
+            None => {
+                let mut answer = session::pass_through(&input, received, setup.daemon_epoch);
+                if live.waiting {
+                    answer.reason = ReasonCode::SessionsFull as u32;
+                    self.metrics.waiting += 1;
+                }
+                (answer, Outcome::PassThrough, Default::default(), None)
+            }
             Some(session) => {
                 let (handled, failure) = session.handle(&input, received, setup, &queued);
                 self.metrics.uncovered_queries += handled.uncovered_queries;

@@ -133,7 +133,8 @@ impl StatusCode {
     }
 }
 
-/// Why a matching attempt failed (rejected and reset steps).
+/// Why a matching attempt failed (rejected and reset steps), or why a source that corrects
+/// answered a pose uncorrected (`pass_through`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(u32)]
 pub enum ReasonCode {
@@ -143,6 +144,10 @@ pub enum ReasonCode {
     TooFewMatches = 1,
     /// The ICP residual was too large.
     ResidualTooLarge = 2,
+    /// With `pass_through`: the source's `max_sessions` sessions were all in use (each had a
+    /// pose lately), so this session has no corrector yet; its poses come back uncorrected until
+    /// one of them ends or goes quiet.
+    SessionsFull = 3,
 }
 
 impl ReasonCode {
@@ -152,6 +157,7 @@ impl ReasonCode {
             ReasonCode::None,
             ReasonCode::TooFewMatches,
             ReasonCode::ResidualTooLarge,
+            ReasonCode::SessionsFull,
         ]
         .get(code as usize)
         .copied()
@@ -163,6 +169,7 @@ impl ReasonCode {
             ReasonCode::None => "",
             ReasonCode::TooFewMatches => "too_few_matches",
             ReasonCode::ResidualTooLarge => "residual_too_large",
+            ReasonCode::SessionsFull => "sessions_full",
         }
     }
 }
@@ -266,8 +273,8 @@ mod tests {
     fn layout_is_the_documented_contract() {
         assert_eq!(
             crate::service::WIRE_VERSION,
-            2,
-            "the version of this layout"
+            3,
+            "the version of this layout and meaning"
         );
         assert_eq!((size_of::<OdomPose>(), align_of::<OdomPose>()), (136, 8));
         assert_eq!(offset_of!(OdomPose, seq), 8);
@@ -301,7 +308,8 @@ mod tests {
         }
         assert_eq!(StatusCode::from_code(11), None);
         assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
-        assert_eq!(ReasonCode::from_code(3), None);
+        assert_eq!(ReasonCode::from_code(3), Some(ReasonCode::SessionsFull));
+        assert_eq!(ReasonCode::from_code(4), None);
     }
 
     /// The order docs/wire.md documents, and back to the same symmetric matrix.

@@ -476,9 +476,10 @@ pub const DAEMON_NODE: &str = "lanealignd";
 /// The version of this build's wire: the layout and meaning of the payloads on a source's and a
 /// session's services (docs/wire.md). It grows by one with every change to either; a client and
 /// a daemon exchange poses only when theirs are equal. 2: the answer of 288 bytes, with the
-/// odometry's scale (2026-11-27). A daemon carries it in its nodes' names ([`daemon_node_name`]),
-/// so a client knows the daemon's before it sends a pose.
-pub const WIRE_VERSION: u32 = 2;
+/// odometry's scale (2026-11-27). 3: a `pass_through` answer's reason may be `sessions_full`
+/// (2026-11-29). A daemon carries it in its nodes' names ([`daemon_node_name`]), so a client
+/// knows the daemon's before it sends a pose.
+pub const WIRE_VERSION: u32 = 3;
 
 /// The name of this build's daemon nodes: [`DAEMON_NODE`], then ` wire `, then
 /// [`WIRE_VERSION`].

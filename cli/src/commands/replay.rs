@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
-use lanealign_cli::replay::{replay, Rate};
+use lanealign_cli::replay::{replay, waited_for_place_warning, Rate};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::input;
@@ -94,7 +94,11 @@ fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
             first_few(jumps.iter().map(u64::to_string), jumps.len()),
         )
     });
-    no_correction.into_iter().chain(jumped).collect()
+    waited_for_place_warning(answers)
+        .into_iter()
+        .chain(no_correction)
+        .chain(jumped)
+        .collect()
 }
 
 /// Runs `lanealign replay`.
