@@ -126,8 +126,8 @@ pub struct Params {
 pub const PRESET_RATE_HZ: f64 = 10.0;
 
 /// The slowest odometry a corrector is set for (Hz, [`Params::odometry_rate_hz`]): a pose every
-/// 1000 s. Slower, a pose moving at walking pace counted as standing still (at 1e-300 Hz every
-/// pose did, and no alignment was ever tried); `replay` publishes no slower either.
+/// 1000 s, the slowest `replay` publishes at. At 1e-300 Hz every pose counted as standing still
+/// ([`Params::standstill_distance_m`] was 1e300 m) and no alignment was ever tried.
 pub const MIN_ODOMETRY_RATE_HZ: f64 = 1e-3;
 
 /// The fastest odometry a corrector is set for (Hz, [`Params::odometry_rate_hz`]).
