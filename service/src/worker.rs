@@ -320,9 +320,6 @@ impl Worker {
             return true;
         }
         let placed = self.make_place();
-        if !placed {
-            self.end_quiet_waiting();
-        }
         // The ports first: a session that cannot be answered starts no corrector or journal.
         let live = match self.open_session(input.session, None) {
             Ok(live) => live,
@@ -366,22 +363,6 @@ impl Worker {
         }
         self.end_session(oldest, "more sessions than max_sessions");
         true
-    }
-
-    /// Ends the sessions waiting for a place that have gone quiet ([`quiet_after`]): their
-    /// clients left, and their ports are not kept for the session timeout (at most as many
-    /// waiting sessions as clients connected, 16, stay).
-    fn end_quiet_waiting(&mut self) {
-        let quiet = quiet_after(&self.setup.sessions.params);
-        let gone: Vec<u64> = self
-            .sessions
-            .iter()
-            .filter(|(_, l)| l.waiting && l.last_active.elapsed() >= quiet)
-            .map(|(&id, _)| id)
-            .collect();
-        for id in gone {
-            self.end_session(id, "waited for a place and went quiet");
-        }
     }
 
     /// The corrector (and journal) of a session that begins at `first_seq`; none for a
@@ -487,16 +468,28 @@ impl Worker {
         );
     }
 
+    /// Ends the sessions without a pose for the session timeout, and those waiting for a place
+    /// that have gone quiet ([`quiet_after`]): their clients left, and a waiting session, which
+    /// holds no corrector or journal to resume, keeps its ports no longer than that.
     fn end_idle_sessions(&mut self) {
         let timeout = self.setup.session_timeout;
-        let idle: Vec<u64> = self
+        let quiet = quiet_after(&self.setup.sessions.params);
+        let idle: Vec<(u64, &str)> = self
             .sessions
             .iter()
-            .filter(|(_, l)| l.last_active.elapsed() > timeout)
-            .map(|(&id, _)| id)
+            .filter_map(|(&id, l)| {
+                let since = l.last_active.elapsed();
+                if since > timeout {
+                    Some((id, "idle"))
+                } else if l.waiting && since >= quiet {
+                    Some((id, "waited for a place and went quiet"))
+                } else {
+                    None
+                }
+            })
             .collect();
-        for id in idle {
-            self.end_session(id, "idle");
+        for (id, why) in idle {
+            self.end_session(id, why);
         }
     }
 }
