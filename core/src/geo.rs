@@ -176,6 +176,10 @@ pub enum GeoError {
     AnchorSyntax(String),
 }
 
+/// The largest yaw an anchor may turn an odometry frame by, either way (degrees): a turn. Beyond
+/// it a yaw is a mistake (1e300 degrees was taken, as whatever its sine is).
+pub const MAX_YAW_DEG: f64 = 360.0;
+
 /// The largest offset an anchor may place an odometry origin at (metres): beyond it a local
 /// plane is meaningless (Earth's circumference is 4e7 m).
 pub const MAX_OFFSET_M: f64 = 1e7;
@@ -240,8 +244,7 @@ impl Anchor {
         north_m: f64,
     ) -> Result<Anchor, GeoError> {
         check_lat_lon(lat, lon)?;
-        // A yaw beyond a turn is a mistake (1e300 degrees was taken, as whatever its sine is).
-        if !(-360.0..=360.0).contains(&yaw_deg) {
+        if !(-MAX_YAW_DEG..=MAX_YAW_DEG).contains(&yaw_deg) {
             return Err(GeoError::Yaw(yaw_deg));
         }
         for offset in [east_m, north_m] {

@@ -117,12 +117,16 @@ impl RoadClass {
         }
     }
 
-    /// The class of an OSM `highway` value lanes can be derived from.
-    pub fn from_osm(highway: &str) -> Option<RoadClass> {
+    /// The classes of OSM `highway` values lanes can be derived from, in code order.
+    pub fn osm() -> impl Iterator<Item = RoadClass> {
         RoadClass::ALL
             .into_iter()
             .filter(|c| !matches!(c, RoadClass::Unknown | RoadClass::Lanelet))
-            .find(|c| c.name() == highway)
+    }
+
+    /// The class of an OSM `highway` value lanes can be derived from.
+    pub fn from_osm(highway: &str) -> Option<RoadClass> {
+        RoadClass::osm().find(|c| c.name() == highway)
     }
 
     /// The class stored under `code`, if any.
@@ -212,9 +216,7 @@ impl RoadClasses {
             .map(|name| {
                 let name = name.trim();
                 RoadClass::from_osm(name).ok_or_else(|| {
-                    let expected: Vec<String> = RoadClass::ALL
-                        .into_iter()
-                        .filter_map(|c| RoadClass::from_osm(c.name()))
+                    let expected: Vec<String> = RoadClass::osm()
                         .map(|c| format!("`{}`", c.name()))
                         .collect();
                     let what = if name.is_empty() {

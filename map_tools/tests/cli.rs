@@ -71,7 +71,7 @@ fn compile_small(dir: &Path, options: &[&str]) -> Output {
 }
 
 /// A map plane serves a region of a few hundred kilometres: roads more than 300 km from its
-/// origin are skipped and counted (an origin of `0,0` compiled Karlsruhe's roads 20 % short, and
+/// origin are skipped and counted (an origin of `0,0` compiled Karlsruhe's roads 21 % short, and
 /// so does a latitude and longitude given the wrong way round), and a map of none is refused.
 #[test]
 fn compile_skips_roads_too_far_from_the_planes_origin() {

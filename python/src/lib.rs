@@ -385,9 +385,9 @@ fn position_covariances(
             array.shape()
         )));
     }
-    // The anchor's yaw lies within a turn either way (`geo::Anchor`): 1e300 was taken, as
-    // whatever its sine is.
-    if !(-std::f64::consts::TAU..=std::f64::consts::TAU).contains(&anchor_yaw) {
+    // The anchor's yaw rule (`geo::MAX_YAW_DEG`), in the radians `eval` takes.
+    let max_yaw = lanealign_core::geo::MAX_YAW_DEG.to_radians();
+    if !(-max_yaw..=max_yaw).contains(&anchor_yaw) {
         return Err(PyValueError::new_err(format!(
             "anchor_yaw: {anchor_yaw:?} is not an angle in [-2 pi, 2 pi] radians"
         )));
