@@ -1686,6 +1686,53 @@ fn systemd_hears_ready_watchdog_and_stopping() {
     assert!(daemon.wait().unwrap().success());
 }
 
+/// Always runs: a request to stop is heard while the workers start. 256 sources take about two
+/// seconds to start here; SIGTERM sent as the tile is loaded stops the daemon without its ever
+/// saying it is ready (neither in its log nor to systemd), where it used to be deaf until every
+/// worker had started, tell systemd `READY=1` after the request, and only then stop.
+#[test]
+fn a_stop_request_while_the_workers_start_is_heard() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let names: Vec<String> = (0..256).map(|i| unique(&format!("early{i}"))).collect();
+    let setup = town_setup(&names.iter().map(String::as_str).collect::<Vec<_>>());
+    let socket_path = setup.dir.path().join("notify.sock");
+    let socket = std::os::unix::net::UnixDatagram::bind(&socket_path).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_secs(30)))
+        .unwrap();
+    let log = setup.dir.path().join("early.log");
+    let mut daemon = KillOnDrop(
+        Command::new(daemon_binary().unwrap())
+            .arg("--config")
+            .arg(&setup.config)
+            .env("NOTIFY_SOCKET", &socket_path)
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap(),
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !std::fs::read_to_string(&log).is_ok_and(|text| text.contains("tile loaded")) {
+        assert!(Instant::now() < deadline, "no tile loaded within 30 s");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    signal(daemon.0.id(), Signal::TERM);
+    let mut heard = Vec::new();
+    let mut buf = [0u8; 512];
+    while !heard.iter().any(|m: &String| m.contains("STOPPING=1")) {
+        let n = socket.recv(&mut buf).expect("STOPPING=1 within 30 s");
+        heard.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+    }
+    let status = daemon.0.wait().unwrap();
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(status.success(), "{status}\n{text}");
+    assert!(!heard.iter().any(|m| m.contains("READY=1")), "{heard:?}");
+    assert!(
+        text.contains("asked to stop while the sources' workers started")
+            && !text.contains(" ready "),
+        "{text}"
+    );
+}
+
 /// Always runs: a request to stop is not lost to the signal after it. systemd stops a service
 /// with SIGTERM and at once SIGCONT (so that a stopped process can act on it), and a shell's
 /// `kill -INT` then `fg` does the same. iceoryx2 kept one "last signal" for both: when the

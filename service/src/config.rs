@@ -84,7 +84,7 @@ fn default_session_timeout() -> f64 {
 
 /// Sources a daemon serves at most: each is a worker thread with its own shared-memory services.
 /// 300 started in 2.3 s here and held 750 MB; 3000 had 464 workers started after 90 s, the
-/// daemon not ready and deaf to SIGTERM until it would be.
+/// daemon not ready.
 pub const MAX_SOURCES: usize = 256;
 
 fn default_max_sessions() -> usize {

@@ -9,7 +9,8 @@ use std::collections::BTreeSet;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::tile_watch::TileWatch;
@@ -37,6 +38,9 @@ use crate::worker::{self, Reload, WorkerError, WorkerSetup, WorkerSummary};
 
 /// How often the supervisor looks for dead nodes and unknown sources.
 const SUPERVISION_PERIOD: Duration = Duration::from_millis(500);
+
+/// How often a request to stop is looked for while the workers start.
+const STARTUP_POLL: Duration = Duration::from_millis(20);
 
 /// The daemon could not start.
 #[derive(Debug, thiserror::Error)]
@@ -541,6 +545,20 @@ pub fn run(
         lanes,
         tile: info,
     } = prepared;
+    // Signals first: from the `tile loaded` record on, a request to stop is a flag the daemon
+    // acts on (before it, the default action ends the process, which has started nothing).
+    let hangup = Arc::new(AtomicBool::new(false));
+    if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
+        tracing::warn!(error = %error_line(&e), "SIGHUP cannot reload the tile");
+    }
+    // A flag of its own per request, not a "last signal" that the next one (systemd sends
+    // SIGCONT right after SIGTERM) overwrites.
+    let stop = Arc::new(AtomicBool::new(false));
+    for request in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        if let Err(e) = signal_hook::flag::register(request, stop.clone()) {
+            tracing::warn!(error = %error_line(&e), signal = request, "the signal stops the daemon without a clean shutdown");
+        }
+    }
     let _lock = lock(&namespace, state_dir.as_deref())?;
     // Held for the daemon's life: dropping it (or the process ending) ends the request.
     let _cpu_latency = match config.cpu_dma_latency_us {
@@ -585,18 +603,6 @@ pub fn run(
         listed => listing.record(listed),
     }
     let node = namespace.named_node::<Ipc>(&daemon_node_name())?;
-    let hangup = Arc::new(AtomicBool::new(false));
-    if let Err(e) = signal_hook::flag::register(signal_hook::consts::SIGHUP, hangup.clone()) {
-        tracing::warn!(error = %error_line(&e), "SIGHUP cannot reload the tile");
-    }
-    // A flag of its own per request, not a "last signal" that the next one (systemd sends
-    // SIGCONT right after SIGTERM) overwrites.
-    let stop = Arc::new(AtomicBool::new(false));
-    for request in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
-        if let Err(e) = signal_hook::flag::register(request, stop.clone()) {
-            tracing::warn!(error = %error_line(&e), signal = request, "the signal stops the daemon without a clean shutdown");
-        }
-    }
     let (persistence, persistence_thread) = if state_dir.is_some() {
         let (tx, handle) = crate::persistence::spawn().map_err(DaemonError::Persistence)?;
         (Some(tx), Some(handle))
@@ -611,6 +617,9 @@ pub fn run(
     let mut heartbeats = Vec::new();
     let mut failure = None;
     for (i, source) in sources.iter().enumerate() {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
         let name = source.name.to_string();
         let map = match &lanes {
             Lanes::Tile(map) => map.clone(),
@@ -659,16 +668,16 @@ pub fn run(
         }
     }
     drop((ready_tx, persistence));
-    if failure.is_none() {
-        for _ in 0..workers.len() {
-            match ready_rx.recv() {
-                Ok(Ok(())) => {}
-                Ok(Err(e)) => {
-                    failure = Some(e.into());
-                    break;
-                }
-                Err(_) => break,
-            }
+    // A request to stop is heard while the workers start too (256 sources take seconds): the
+    // daemon then stops without ever saying it is ready.
+    let mut started = 0;
+    while failure.is_none() && started < workers.len() {
+        match ready_rx.recv_timeout(STARTUP_POLL) {
+            Ok(Ok(())) => started += 1,
+            Ok(Err(e)) => failure = Some(e.into()),
+            Err(RecvTimeoutError::Timeout) if stop.load(Ordering::Relaxed) => break,
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
         }
     }
     if let Some(e) = failure {
@@ -678,55 +687,71 @@ pub fn run(
         }
         return Err(e);
     }
-    tracing::info!(
-        sources = workers.len(),
-        epoch = format_args!("{epoch:016x}"),
-        "ready"
-    );
-    notify(&[
-        sd_notify::NotifyState::Ready,
-        sd_notify::NotifyState::Status(&format!("serving {} sources", workers.len())),
-    ]);
-    let mut refused = BTreeSet::new();
-    loop {
-        // A signal handled by this thread ends the sleep early (SIGINT or SIGTERM: a request
-        // to stop; SIGHUP: to reload); one handled by another thread is seen when it ends. An
-        // interrupted sleep is no request by itself: a process stopped and continued (SIGSTOP,
-        // SIGCONT) has its sleep interrupted too.
-        let _ = node.wait(SUPERVISION_PERIOD);
+    if started < sources.len() {
         if stop.load(Ordering::Relaxed) {
-            break;
+            tracing::info!(
+                started,
+                sources = sources.len(),
+                "asked to stop while the sources' workers started"
+            );
+        } else {
+            tracing::error!(
+                started,
+                sources = sources.len(),
+                "workers ended before they were ready"
+            );
         }
-        if hangup.swap(false, Ordering::Relaxed)
-            && reload(&config, &path, &sources, &workers, &mut loader_threads)
-        {
-            tile_watch = TileWatch::new(&watched);
-        }
-        if let Some(change) = tile_watch.check() {
-            tracing::warn!(tile = %watched.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions; a grid's cells changed since are refused)");
-        }
-        listing.record(remove_dead_nodes(&namespace));
-        log_drops.record(dropped_log_lines(), Instant::now());
-        for source in unknown_sources(&namespace, &known) {
-            if refused.insert(source.clone()) {
-                tracing::warn!(
-                    source,
-                    refused_sources = refused.len(),
-                    "poses sent to a source that is not configured are refused"
-                );
+    } else {
+        tracing::info!(
+            sources = workers.len(),
+            epoch = format_args!("{epoch:016x}"),
+            "ready"
+        );
+        notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Status(&format!("serving {} sources", workers.len())),
+        ]);
+        let mut refused = BTreeSet::new();
+        loop {
+            // A signal handled by this thread ends the sleep early (SIGINT or SIGTERM: a request
+            // to stop; SIGHUP: to reload); one handled by another thread is seen when it ends. An
+            // interrupted sleep is no request by itself: a process stopped and continued (SIGSTOP,
+            // SIGCONT) has its sleep interrupted too.
+            let _ = node.wait(SUPERVISION_PERIOD);
+            if stop.load(Ordering::Relaxed) {
+                break;
             }
-        }
-        // The watchdog is fed only while every worker goes round its loop.
-        let now = monotonic_ns();
-        let stalled = heartbeats
-            .iter()
-            .any(|h| now.saturating_sub(h.load(Ordering::Relaxed)) > 2_000_000_000);
-        if !stalled {
-            notify(&[sd_notify::NotifyState::Watchdog]);
-        }
-        if workers.iter().all(|(_, h, _)| h.is_finished()) {
-            tracing::error!("every worker has stopped");
-            break;
+            if hangup.swap(false, Ordering::Relaxed)
+                && reload(&config, &path, &sources, &workers, &mut loader_threads)
+            {
+                tile_watch = TileWatch::new(&watched);
+            }
+            if let Some(change) = tile_watch.check() {
+                tracing::warn!(tile = %watched.display(), change, "the tile file changed on disk; every source keeps serving the validated copy loaded at start (SIGHUP loads the file for new sessions; a grid's cells changed since are refused)");
+            }
+            listing.record(remove_dead_nodes(&namespace));
+            log_drops.record(dropped_log_lines(), Instant::now());
+            for source in unknown_sources(&namespace, &known) {
+                if refused.insert(source.clone()) {
+                    tracing::warn!(
+                        source,
+                        refused_sources = refused.len(),
+                        "poses sent to a source that is not configured are refused"
+                    );
+                }
+            }
+            // The watchdog is fed only while every worker goes round its loop.
+            let now = monotonic_ns();
+            let stalled = heartbeats
+                .iter()
+                .any(|h| now.saturating_sub(h.load(Ordering::Relaxed)) > 2_000_000_000);
+            if !stalled {
+                notify(&[sd_notify::NotifyState::Watchdog]);
+            }
+            if workers.iter().all(|(_, h, _)| h.is_finished()) {
+                tracing::error!("every worker has stopped");
+                break;
+            }
         }
     }
     tracing::info!("shutting down");
