@@ -234,6 +234,56 @@ fn killed_clients_leave_no_trace_on_the_town() {
     killed_clients(&t.setup, &t.name, &t.input, &t.poses, 11);
 }
 
+/// Always runs: on a source set for one session, an odometry process killed (`kill -9`) and
+/// started again gets the place at once. The dead client's session gives it up as soon as the
+/// daemon has removed what the client's node held (its supervisor looks every 500 ms), instead
+/// of after three of the source's periods without a pose: set for 0.1 Hz (30 s), the new
+/// session used to wait that long, its poses answered uncorrected (`sessions_full`).
+#[test]
+fn a_killed_clients_place_goes_to_the_next_client() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let t = town_named("orphan", town_setup, synthetic::drive(1, 42).1);
+    let text = std::fs::read_to_string(&t.setup.config).unwrap();
+    assert!(text.contains("max_sessions = 16\n") && text.ends_with("smooth = false\n"));
+    let one_slow = text.replace("max_sessions = 16", "max_sessions = 1")
+        + "\n[source.corrector.overrides]\nodometry_rate_hz = 0.1\n";
+    std::fs::write(&t.setup.config, one_slow).unwrap();
+    let daemon = start(&t.setup);
+    let output = t.setup.dir.path().join("killed.txt");
+    let mut doomed = spawn_replay(&t.setup, &t.name, &t.input, &output, "100");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !daemon.log().contains("accepted=") {
+        assert!(Instant::now() < deadline, "{}", daemon.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    doomed.kill().unwrap();
+    doomed.wait().unwrap();
+    let killed = Instant::now();
+    let mut next = connect(&t.setup, &t.name);
+    wait_for_daemon(&mut next);
+    let mut waited = 0;
+    for pose in &t.poses {
+        let answer = answer_of(&mut next, pose);
+        if answer.status != StatusCode::PassThrough as u32 {
+            break;
+        }
+        waited += 1;
+        assert!(
+            killed.elapsed() < Duration::from_secs(5),
+            "still waiting 5 s after the kill ({waited} poses): {}",
+            daemon.log()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(
+        daemon.log().contains("its client is gone"),
+        "{}",
+        daemon.log()
+    );
+    drop(next);
+    drop(daemon);
+}
+
 /// Always runs: the daemon killed and restarted while its client has nothing in flight. The
 /// idle client does not look for it (nothing is waiting for an answer); its next pose is
 /// answered by the new daemon, which restored the session from its journal, and the client

@@ -174,7 +174,7 @@ struct Live {
     // Ports before the services they belong to.
     publisher: Publisher<Ipc, CorrectedPose, ()>,
     notifier: Notifier<Ipc>,
-    _services: SessionServices<Ipc>,
+    services: SessionServices<Ipc>,
     last_active: Instant,
 }
 
@@ -215,7 +215,7 @@ impl Worker {
             waiting: false,
             publisher,
             notifier,
-            _services: services,
+            services,
             last_active: Instant::now(),
         })
     }
@@ -345,11 +345,21 @@ impl Worker {
         true
     }
 
-    /// Whether a session may start a corrector: fewer than `max_sessions` have one, or the
-    /// least recently active of those has gone quiet ([`quiet_after`]), and then it ends.
+    /// Whether a session may start a corrector: fewer than `max_sessions` have one, or one of
+    /// those lost its client (no one subscribes to its answers: the client died and the
+    /// daemon's supervisor removed what its node held), or the least recently active of those
+    /// has gone quiet ([`quiet_after`]); that one then ends.
     fn make_place(&mut self) -> bool {
         let placed = self.sessions.iter().filter(|(_, l)| !l.waiting);
         if placed.clone().count() < self.setup.max_sessions {
+            return true;
+        }
+        let orphan = placed.clone().find(|(_, l)| l.services.subscribers() == 0);
+        if let Some((&orphan, _)) = orphan {
+            self.end_session(
+                orphan,
+                "its client is gone (more sessions than max_sessions)",
+            );
             return true;
         }
         let Some((oldest, since)) = placed

@@ -770,6 +770,12 @@ impl<S: Service> SessionServices<S> {
         self.answers.dynamic_config().number_of_publishers()
     }
 
+    /// Subscribers to the session's answers: its client's, until the client closes the session
+    /// or dies and its node's resources are removed.
+    pub fn subscribers(&self) -> usize {
+        self.answers.dynamic_config().number_of_subscribers()
+    }
+
     /// Daemon side: publishes the session's answers.
     pub fn publisher(&self) -> Result<Publisher<S, CorrectedPose, ()>, PortCreateError> {
         self.answers
