@@ -153,8 +153,9 @@ pub struct WorkerSetup {
     pub metrics_interval: Duration,
     /// A session with no pose for this long ends.
     pub session_timeout: Duration,
-    /// Sessions with a corrector at most; a new one beyond ends the least recently active, if
-    /// it has gone quiet ([`quiet_after`]), or else waits for a place.
+    /// Sessions with a corrector at most; a new one beyond ends one whose client is gone, or
+    /// the least recently active if it has gone quiet ([`quiet_after`]), or else waits for a
+    /// place.
     pub max_sessions: usize,
     /// Set to stop.
     pub shutdown: Arc<AtomicBool>,
