@@ -185,7 +185,9 @@ fn a_source_faster_than_its_corrector_is_set_for_is_told_in_the_log() {
         poses_of(&r.answers) == offline(&setup, &name, poses),
         "bit for bit"
     );
-    // The warning is written after the 64th answer is sent, before the 65th pose is taken.
+    // The warning is written after the 64th answer is sent, before the 65th pose is taken; in
+    // the log for sure once the session's end is (the log has a thread of its own).
+    closed(conn, &daemon, 0);
     let log = daemon.log();
     let told = log.matches("the poses come at about 100 Hz").count();
     assert_eq!(told, 1, "{log}");
@@ -270,8 +272,12 @@ fn an_odometry_that_stalls_is_told_in_the_log() {
         .chain((0..200).map(|i| &odometry[300 + i / 10]))
         .copied()
         .collect();
-    for (poses, told) in [(&odometry[..500], 0), (&stalled[..], 1)] {
-        let _session = replayed_as_offline(&setup, &name, poses);
+    for (k, (poses, told)) in [(&odometry[..500], 0), (&stalled[..], 1)]
+        .into_iter()
+        .enumerate()
+    {
+        let session = replayed_as_offline(&setup, &name, poses);
+        closed(session, &daemon, k);
         let log = daemon.log();
         assert_eq!(speed_change_lines(&log).len(), told, "{log}");
     }
@@ -494,9 +500,12 @@ fn a_slower_source_is_judged_at_the_rate_of_its_stamps() {
     );
     let stamps_s: Vec<f64> = (0..100).map(|i| 1000.0 + 0.5 * i as f64).collect();
     let stamps: Vec<i64> = stamps_s.iter().map(|t| (t * 1e9).round() as i64).collect();
-    for (poses, told) in [(&braking, 0), (&stalled, 1)] {
-        let (answers, _session) = replay_session(&setup, &name, poses, &stamps, Rate::Max(16));
+    for (k, (poses, told)) in [(&braking, 0), (&stalled, 1)].into_iter().enumerate() {
+        let (answers, session) = replay_session(&setup, &name, poses, &stamps, Rate::Max(16));
         assert!(poses_of(&answers) == offline_stamped(&setup, &name, poses, Some(&stamps_s)));
+        // What a session told is in the log once its end is: the worker logs both, in order.
+        // (Read right after the last answer, a loaded machine's log had not caught up.)
+        closed(session, &daemon, k);
         let log = daemon.log();
         assert_eq!(speed_change_lines(&log).len(), told, "{log}");
     }
