@@ -1164,6 +1164,61 @@ fn sighup_reloads_the_tile_for_new_sessions() {
     a_reload_keeps_running_sessions(&setup, &name, replace, "tile reloaded");
 }
 
+/// Always runs: SIGHUP (`systemctl reload`) reloads the tile only, and says so when the
+/// configuration file has changed since the start, naming what changed, and when it no longer
+/// passes the checks (a restart would fail), naming the key; the daemon serves on as it started.
+/// Before, an edited file and SIGHUP logged only "tile reloaded", as if the edit had been taken.
+#[test]
+fn sighup_tells_what_of_an_edited_configuration_takes_a_restart() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("edited");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let text = std::fs::read_to_string(&setup.config).unwrap();
+    assert!(text.contains("max_sessions = 16\n"), "{text}");
+    let reloads = |k: usize| {
+        hang_up(&daemon);
+        let until = Instant::now() + Duration::from_secs(5);
+        while daemon.log().matches("tile reloaded").count() <= k {
+            assert!(Instant::now() < until, "{}", daemon.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        daemon.log()
+    };
+    let log = reloads(0);
+    assert!(!log.contains("configuration file"), "{log}");
+    std::fs::write(
+        &setup.config,
+        text.replace("max_sessions = 16", "max_sessions = 8"),
+    )
+    .unwrap();
+    let log = reloads(1);
+    let changed = log
+        .lines()
+        .find(|l| l.contains("the configuration file changed since the daemon started"));
+    assert!(
+        changed.is_some_and(|l| l.contains("changed=max_sessions")),
+        "{log}"
+    );
+    std::fs::write(
+        &setup.config,
+        text.replace("max_sessions = 16", "max_sesions = 8"),
+    )
+    .unwrap();
+    let log = reloads(2);
+    let refused = log
+        .lines()
+        .find(|l| l.contains("the configuration file no longer passes the checks"));
+    assert!(refused.is_some_and(|l| l.contains("max_sesions")), "{log}");
+    let (_, odometry) = synthetic::drive(1, 5);
+    assert!(
+        run_replay(&setup, &name, &odometry[..300], Rate::Max(32))
+            == offline(&setup, &name, &odometry[..300]),
+        "the daemon serves on as it started"
+    );
+    assert!(daemon.stop().unwrap());
+}
+
 /// Always runs: SIGHUP reloads a grid too. The new grid is written into a new folder and the
 /// link the configuration names is switched to it; the running session keeps reading the old
 /// folder as it drives.

@@ -17,11 +17,21 @@ pub fn error_chain(error: &(dyn Error + 'static)) -> String {
 }
 
 /// `<message>: <cause>: <cause>` on one line, the causes as [`error_chain`] shows them: for a
-/// log, where a record is a line and its level already says it is an error.
+/// log, where a record is a line and its level already says it is an error. A message of
+/// several lines (a TOML error's, which quotes the line at fault and marks the column) has its
+/// lines joined by spaces, each trimmed, the empty ones dropped.
 pub fn error_line(error: &(dyn Error + 'static)) -> String {
     let mut out = error.to_string();
     for cause in causes(error) {
         let _ = write!(out, ": {cause}");
+    }
+    if out.contains('\n') {
+        out = out
+            .lines()
+            .map(str::trim)
+            .filter(|line| !line.is_empty())
+            .collect::<Vec<_>>()
+            .join(" ");
     }
     out
 }
@@ -103,5 +113,12 @@ mod tests {
         assert_eq!(error_line(&e), "outer: inner");
         let e = Shows(std::io::Error::other("inner"));
         assert_eq!(error_line(&e), "file.txt: inner");
+        let e = Outer(std::io::Error::other(
+            "at line 7\n  |\n7 | x = 1\n  | ^\nunknown field",
+        ));
+        assert_eq!(
+            error_line(&e),
+            "outer: at line 7 | 7 | x = 1 | ^ unknown field"
+        );
     }
 }

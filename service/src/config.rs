@@ -44,7 +44,8 @@ pub struct Config {
     /// 604800). Default 600.
     #[serde(default = "default_session_timeout")]
     pub session_timeout_s: f64,
-    /// Sessions per source at most (1 to 64); a new one beyond ends the least recently active.
+    /// Sessions per source at most (1 to 64); a new one beyond takes the place of one whose
+    /// client is gone, or of the least recently active once that one is quiet, or waits.
     /// Default 16.
     #[serde(default = "default_max_sessions")]
     pub max_sessions: usize,
@@ -252,6 +253,44 @@ impl Config {
             config.tile = path.parent().unwrap_or(Path::new(".")).join(&config.tile);
         }
         Ok(config)
+    }
+
+    /// What `other` changes of this configuration: the top-level keys whose values differ, and
+    /// each source by name (`source 'NAME'`, with ` (added)` or ` (removed)` where only one of
+    /// the two has it). Empty when they configure the same daemon (sources in another order).
+    pub fn changes_to(&self, other: &Config) -> Vec<String> {
+        let keys = |config: &Config| {
+            let without_sources = Config {
+                sources: Vec::new(),
+                ..config.clone()
+            };
+            match toml::Value::try_from(without_sources) {
+                Ok(toml::Value::Table(table)) => table,
+                _ => toml::Table::new(),
+            }
+        };
+        let (mine, theirs) = (keys(self), keys(other));
+        let mut changes: Vec<String> = mine
+            .keys()
+            .chain(theirs.keys().filter(|k| !mine.contains_key(*k)))
+            .filter(|k| mine.get(*k) != theirs.get(*k))
+            .cloned()
+            .collect();
+        for source in &self.sources {
+            match other.sources.iter().find(|o| o.name == source.name) {
+                None => changes.push(format!("source '{}' (removed)", source.name)),
+                Some(o) if o != source => changes.push(format!("source '{}'", source.name)),
+                Some(_) => {}
+            }
+        }
+        for added in other
+            .sources
+            .iter()
+            .filter(|o| !self.sources.iter().any(|s| s.name == o.name))
+        {
+            changes.push(format!("source '{}' (added)", added.name));
+        }
+        changes
     }
 
     /// Checks every rule the daemon applies before it starts a worker, and resolves each
@@ -485,6 +524,36 @@ corrector = { preset = "kiss-icp", overrides = { max_window = 800 } }
         assert_eq!(s[0].corrector.method, Method::Robust);
         assert_eq!(s[0].convention, AxisConvention::KittiCamera);
         assert_eq!(c.metrics_interval_s, 5.0);
+    }
+
+    #[test]
+    fn changes_name_the_keys_and_sources_that_differ() {
+        let p = Path::new("/etc/lanealign/d.toml");
+        let parse = |text: &str| Config::parse(text, p).unwrap();
+        let running = parse(GOOD);
+        assert_eq!(running.changes_to(&parse(GOOD)), Vec::<String>::new());
+        let camera = "\n[[source]]\nname = \"camera\"\nanchor = { lat = 48.98, lon = 8.39, yaw_deg = 0 }\ncorrector = { preset = \"orb-slam3\" }\n";
+        let changed = format!(
+            "max_sessions = 4\n{}{camera}",
+            GOOD.replace("maps/00.tile", "maps/01.tile")
+                .replace("800", "900")
+        );
+        assert_eq!(
+            running.changes_to(&parse(&changed)),
+            [
+                "max_sessions",
+                "tile",
+                "source 'lidar'",
+                "source 'camera' (added)"
+            ]
+        );
+        let both = parse(&format!("{GOOD}{camera}"));
+        let reordered = format!(
+            "tile = \"maps/00.tile\"\n{camera}{}",
+            GOOD.replace("tile = \"maps/00.tile\"", "")
+        );
+        assert_eq!(both.changes_to(&parse(&reordered)), Vec::<String>::new());
+        assert_eq!(both.changes_to(&running), ["source 'camera' (removed)"]);
     }
 
     #[test]

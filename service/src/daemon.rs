@@ -453,6 +453,7 @@ fn reload(
     workers: &[Worker],
     loader_threads: &mut Vec<std::thread::JoinHandle<()>>,
 ) -> bool {
+    tell_config_changes(config, path);
     if grid::is_grid(&config.tile) {
         return match reload_grid(config, path, sources, workers) {
             Ok(handle) => {
@@ -487,6 +488,23 @@ fn reload(
         Err(e) => {
             tracing::error!(error = %e, "SIGHUP: the tile was not reloaded; every session keeps the one it has");
             false
+        }
+    }
+}
+
+/// Says, on SIGHUP, what of the configuration file at `path` the daemon running `running` does
+/// not apply: a file changed since the start (SIGHUP loads only the tile again), or one that no
+/// longer passes the checks, so that a restart would fail.
+fn tell_config_changes(running: &Config, path: &Path) {
+    match Config::load(path).and_then(|now| now.resolve(path).map(|_| now)) {
+        Ok(now) => {
+            let changes = running.changes_to(&now);
+            if !changes.is_empty() {
+                tracing::warn!(config = %path.display(), changed = %changes.join(", "), tile = %running.tile.display(), "SIGHUP: the configuration file changed since the daemon started; SIGHUP loads only the tile again (the one named at the start), the changes take a restart (systemctl restart lanealignd)");
+            }
+        }
+        Err(e) => {
+            tracing::warn!(config = %path.display(), error = %error_line(&e), "SIGHUP: the configuration file no longer passes the checks: the daemon runs on as it started, and a restart would fail (lanealignd check --config FILE)");
         }
     }
 }
