@@ -251,6 +251,11 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
             assert!(jumps.is_empty(), "{jumps:?}");
         }
     }
+    // The log has a thread of its own: wait for the one jump to be written.
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("the odometry jumped") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let log = daemon.log();
     assert_eq!(log.matches("the odometry jumped").count(), 1, "{log}");
     assert!(daemon.stop().unwrap(), "clean exit");
