@@ -56,8 +56,15 @@ pub enum ReplayError {
     #[error(transparent)]
     Receive(#[from] ReceiveError),
     /// No daemon serves the source.
-    #[error("no daemon is serving source '{0}' (waited {1:?})")]
-    NoDaemon(String, Duration),
+    #[error("no daemon is serving source '{name}' (waited {waited:?}): {why}")]
+    NoDaemon {
+        /// The source's name.
+        name: String,
+        /// How long the replay waited for a daemon.
+        waited: Duration,
+        /// What the namespace holds instead ([`Connection::why_unserved`]).
+        why: String,
+    },
     /// Some poses never came back: which, and everything that did.
     #[error("{} of {sent} poses were not answered within {timeout:?} of the last answer (sequence numbers {}){}", missing.len(), summarize(missing), if *unopened { NOT_OPENED } else { "" })]
     Lost {
@@ -150,7 +157,11 @@ pub fn replay(
     let until = deadline_after(wait_for_daemon);
     while !conn.daemon_connected() {
         if time_left(until).is_zero() {
-            return Err(ReplayError::NoDaemon(source.to_string(), wait_for_daemon));
+            return Err(ReplayError::NoDaemon {
+                name: source.to_string(),
+                waited: wait_for_daemon,
+                why: conn.why_unserved(),
+            });
         }
         std::thread::sleep(Duration::from_millis(10));
     }

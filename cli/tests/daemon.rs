@@ -1711,8 +1711,54 @@ fn a_client_of_another_user_is_told_whose_namespace_it_is() {
     // In a namespace of its own the other user connects (there is just no daemon there).
     let own = unique_namespace('n');
     let err = as_nobody(&own);
-    assert!(err.contains("no daemon is serving"), "{err}");
+    assert!(
+        err.contains(&format!("no daemon runs in namespace '{own}'")),
+        "{err}"
+    );
     remove_namespace_files(&own);
+    assert!(daemon.stop().unwrap());
+}
+
+/// Always runs: a replay that finds no daemon serving its source says what the namespace holds
+/// instead: the sources its daemon serves when the name is another (a typo, a source not
+/// configured), or that no daemon runs there (another namespace). Before, both said only "no
+/// daemon is serving source '...'", while a daemon served the namespace.
+#[test]
+fn a_replay_nobody_serves_is_told_what_there_is() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("served");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let input = setup.dir.path().join("in.txt");
+    let (_, odometry) = synthetic::drive(1, 1);
+    write_kitti(&input, &odometry[..10]);
+    let refused = |source: &str, namespace: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
+            .args(["replay", "--source", source, "--namespace", namespace])
+            .args(["--wait-for-daemon", "0.5"])
+            .arg(&input)
+            .arg("-o")
+            .arg(setup.dir.path().join("out.txt"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let namespace = &setup.namespace;
+    let err = refused("no-such-source", namespace);
+    assert!(
+        err.contains(&format!(
+            "the daemon of namespace '{namespace}' serves '{name}', not 'no-such-source'"
+        )),
+        "{err}"
+    );
+    let elsewhere = unique_namespace('e');
+    let err = refused(&name, &elsewhere);
+    assert!(
+        err.contains(&format!("no daemon runs in namespace '{elsewhere}'")),
+        "{err}"
+    );
+    remove_namespace_files(&elsewhere);
     assert!(daemon.stop().unwrap());
 }
 

@@ -233,6 +233,7 @@ impl Rewind {
 /// another publishes ([`Connection::waiter`]).
 pub struct Connection {
     namespace: Namespace,
+    source: SourceName,
     session: u64,
     next_seq: u64,
     pending: BTreeMap<u64, Pending>,
@@ -362,6 +363,7 @@ impl Connection {
         shm::reserve(namespace)?;
         Ok(Connection {
             namespace: namespace.clone(),
+            source: source.clone(),
             session,
             next_seq: next_seq.max(1),
             pending: BTreeMap::new(),
@@ -417,6 +419,34 @@ impl Connection {
     /// memory) says why in its log (`cannot answer a session`).
     pub fn session_opened(&self) -> bool {
         self.ports.answers.publishers() > 0
+    }
+
+    /// Why no daemon serves this connection's source, for a person: no daemon runs in the
+    /// namespace, or the one that runs serves other sources (named), or it has the source and
+    /// has not taken its poses yet.
+    pub fn why_unserved(&self) -> String {
+        let (namespace, source) = (&self.namespace, &self.source);
+        let daemons = match namespace.daemons() {
+            Ok(daemons) => daemons,
+            Err(e) => return format!("the namespace's daemons cannot be listed: {e}"),
+        };
+        if daemons.is_empty() {
+            return format!("no daemon runs in namespace '{namespace}': start lanealignd, or name the namespace its configuration sets");
+        }
+        match namespace.served_sources() {
+            Some(served) if !served.contains(source) => {
+                let names: Vec<String> = served.iter().map(|s| format!("'{s}'")).collect();
+                let serves = if names.is_empty() {
+                    "no source yet".to_string()
+                } else {
+                    names.join(", ")
+                };
+                format!("the daemon of namespace '{namespace}' serves {serves}, not '{source}': check the source's name, or add it to the daemon's configuration (a restart)")
+            }
+            _ => format!(
+                "the daemon of namespace '{namespace}' serves '{source}' but has not taken its poses yet"
+            ),
+        }
     }
 
     /// True when a living daemon serves this source.

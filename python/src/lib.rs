@@ -583,6 +583,13 @@ impl Client {
         self.with_open(|c| c.daemon_connected())
     }
 
+    /// Why no daemon serves the source, for a person: no daemon runs in the namespace, or the
+    /// one that runs serves other sources (named), or it has the source and has not taken its
+    /// poses yet.
+    fn why_unserved(&self) -> PyResult<String> {
+        self.with_open(|c| c.why_unserved())
+    }
+
     /// True when the daemon has opened this session (it does at the session's first pose). A
     /// living daemon that has not opened it after the first pose could not (its log says why,
     /// for example no room in /dev/shm).

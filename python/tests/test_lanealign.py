@@ -486,6 +486,11 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     poses = kitti_00_lidar(600)
     with kitti_00_daemon(tmp_path, namespace) as (daemon, client):
         assert not client.session_opened(), "the daemon opens a session at its first pose"
+        other = lanealign.Client("lidar2", namespace=namespace)
+        assert not other.daemon_connected()
+        why = other.why_unserved()
+        assert f"the daemon of namespace '{namespace}' serves 'lidar', not 'lidar2'" in why, why
+        del other
         answers = []
         for i, pose in enumerate(poses[:590]):
             assert client.publish(i, pose) == i + 1
@@ -616,6 +621,7 @@ def test_a_waiting_recv_lets_other_threads_run_and_ctrl_c_in():
     nothing in flight, recv waits out its timeout."""
     namespace = f"pw-{os.getpid()}"
     client = lanealign.Client("lidar", namespace=namespace)
+    assert client.why_unserved().startswith(f"no daemon runs in namespace '{namespace}'")
     try:
         turns, stop = [0], [False]
 

@@ -612,6 +612,31 @@ impl Namespace {
         })?;
         Ok(found)
     }
+
+    /// The sources a living daemon of this namespace serves (one of its nodes is attached to
+    /// the source's pose service), in name order; for telling a client that names another one
+    /// what there is. `None` when the namespace's services cannot be listed.
+    pub fn served_sources(&self) -> Option<Vec<SourceName>> {
+        let mut served = std::collections::BTreeSet::new();
+        Ipc::list(&self.config(), |service| {
+            let name = service.static_details.name().to_string();
+            let by_daemon = service.dynamic_details.as_ref().is_some_and(|d| {
+                d.nodes.iter().any(|node| match node {
+                    NodeState::Alive(view) => view
+                        .details()
+                        .as_ref()
+                        .is_some_and(|n| daemon_wire_of(n.name().as_str()).is_some()),
+                    _ => false,
+                })
+            });
+            if let Some(source) = SourceName::of_odom_service(&name).filter(|_| by_daemon) {
+                served.insert(source);
+            }
+            CallbackProgression::Continue
+        })
+        .ok()?;
+        Some(served.into_iter().collect())
+    }
 }
 
 /// Whether `name`, a file name in `/dev/shm`, is a shared-memory file of the namespace whose
