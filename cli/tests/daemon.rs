@@ -1192,29 +1192,25 @@ fn sighup_tells_what_of_an_edited_configuration_takes_a_restart() {
     };
     let log = reloads(0);
     assert!(!log.contains("configuration file"), "{log}");
-    std::fs::write(
-        &setup.config,
+    // The file edited to `edited`, then the `k`-th SIGHUP: a line says `warning`, naming `what`.
+    let told = |k: usize, edited: String, warning: &str, what: &str| {
+        std::fs::write(&setup.config, edited).unwrap();
+        let log = reloads(k);
+        let line = log.lines().find(|l| l.contains(warning));
+        assert!(line.is_some_and(|l| l.contains(what)), "{log}");
+    };
+    told(
+        1,
         text.replace("max_sessions = 16", "max_sessions = 8"),
-    )
-    .unwrap();
-    let log = reloads(1);
-    let changed = log
-        .lines()
-        .find(|l| l.contains("the configuration file changed since the daemon started"));
-    assert!(
-        changed.is_some_and(|l| l.contains("changed=max_sessions")),
-        "{log}"
+        "the configuration file changed since the daemon started",
+        "changed=max_sessions",
     );
-    std::fs::write(
-        &setup.config,
+    told(
+        2,
         text.replace("max_sessions = 16", "max_sesions = 8"),
-    )
-    .unwrap();
-    let log = reloads(2);
-    let refused = log
-        .lines()
-        .find(|l| l.contains("the configuration file no longer passes the checks"));
-    assert!(refused.is_some_and(|l| l.contains("max_sesions")), "{log}");
+        "the configuration file no longer passes the checks",
+        "max_sesions",
+    );
     let (_, odometry) = synthetic::drive(1, 5);
     assert!(
         run_replay(&setup, &name, &odometry[..300], Rate::Max(32))
