@@ -423,7 +423,7 @@ impl Connection {
 
     /// Why no daemon serves this connection's source, for a person: no daemon runs in the
     /// namespace, or the one that runs serves other sources (named), or it has the source and
-    /// has not taken its poses yet.
+    /// has not taken its poses yet, or its sources cannot be listed.
     pub fn why_unserved(&self) -> String {
         let (namespace, source) = (&self.namespace, &self.source);
         let daemons = match namespace.daemons() {
@@ -443,8 +443,11 @@ impl Connection {
                 };
                 format!("the daemon of namespace '{namespace}' serves {serves}, not '{source}': check the source's name, or add it to the daemon's configuration (a restart)")
             }
-            _ => format!(
+            Some(_) => format!(
                 "the daemon of namespace '{namespace}' serves '{source}' but has not taken its poses yet"
+            ),
+            None => format!(
+                "a daemon runs in namespace '{namespace}', but which sources it serves cannot be listed"
             ),
         }
     }

@@ -59,7 +59,8 @@ class Client:
     def daemon_connected(self) -> bool: ...
     def why_unserved(self) -> str:
         """Why no daemon serves the source: no daemon runs in the namespace, or the one that runs
-        serves other sources (named), or it has the source and has not taken its poses yet."""
+        serves other sources (named), or it has the source and has not taken its poses yet, or its
+        sources cannot be listed."""
     def session_opened(self) -> bool: ...
     def publish(self, stamp_ns: int, pose: np.ndarray) -> int: ...
     def recv(self, timeout_s: float) -> Optional[Dict[str, object]]:

@@ -585,7 +585,7 @@ impl Client {
 
     /// Why no daemon serves the source, for a person: no daemon runs in the namespace, or the
     /// one that runs serves other sources (named), or it has the source and has not taken its
-    /// poses yet.
+    /// poses yet, or its sources cannot be listed.
     fn why_unserved(&self) -> PyResult<String> {
         self.with_open(|c| c.why_unserved())
     }

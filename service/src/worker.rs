@@ -347,8 +347,9 @@ impl Worker {
     }
 
     /// Whether a session may start a corrector: fewer than `max_sessions` have one, or one of
-    /// those lost its client (no one subscribes to its answers: the client died and the
-    /// daemon's supervisor removed what its node held), or the least recently active of those
+    /// those lost its client (no one subscribes to its answers: the client died and what its
+    /// node held was removed, by the daemon's supervisor within 500 ms or by iceoryx2 as soon as
+    /// any process makes a node, as a new client does), or the least recently active of those
     /// has gone quiet ([`quiet_after`]); that one then ends.
     fn make_place(&mut self) -> bool {
         let placed = self.sessions.iter().filter(|(_, l)| !l.waiting);
