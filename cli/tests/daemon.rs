@@ -2023,6 +2023,8 @@ fn a_session_beyond_max_sessions_waits_while_the_others_stream() {
         "{told}"
     );
     assert_eq!(waited_for_place_warning(&answers.0), None);
+    // Once the second session's end is in the log, so is what was said before it.
+    closed(second, &daemon, 1);
     let log = daemon.log();
     assert_eq!(
         log.matches("a new session waits for a place").count(),
@@ -2034,7 +2036,6 @@ fn a_session_beyond_max_sessions_waits_while_the_others_stream() {
         1,
         "{log}"
     );
-    closed(second, &daemon, 1);
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
