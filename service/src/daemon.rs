@@ -25,8 +25,7 @@ use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile::{self, TileInfo};
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::service::{
-    daemon_node_name, wire_name, Ipc, Namespace, NodeCreateError, NodeListError, SourceName,
-    WIRE_VERSION,
+    wire_name, Ipc, Namespace, NodeCreateError, NodeListError, SourceName, WIRE_VERSION,
 };
 
 use crate::config::{Config, ConfigError, ResolvedSource};
@@ -620,7 +619,7 @@ pub fn run(
         }
         listed => listing.record(listed),
     }
-    let node = namespace.named_node::<Ipc>(&daemon_node_name())?;
+    let node = namespace.daemon_node::<Ipc>()?;
     let (persistence, persistence_thread) = if state_dir.is_some() {
         let (tx, handle) = crate::persistence::spawn().map_err(DaemonError::Persistence)?;
         (Some(tx), Some(handle))

@@ -23,8 +23,8 @@ use lanealign_core::source_corrector::Counts;
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION};
 use lanealign_wire::service::{
-    daemon_node_name, Ipc, Namespace, NodeCreateError, PortCreateError, PoseServices,
-    ServiceOpenError, SessionServices,
+    Ipc, Namespace, NodeCreateError, PortCreateError, PoseServices, ServiceOpenError,
+    SessionServices,
 };
 use lanealign_wire::shm::{self, ShmError};
 
@@ -558,7 +558,7 @@ pub fn run(setup: WorkerSetup, ready: Sender<Result<(), WorkerError>>) -> Worker
         shm::check_room("a source", shm::SOURCE_BYTES).map_err(no_room)?;
         let node = setup
             .namespace
-            .named_node(&daemon_node_name())
+            .daemon_node()
             .map_err(|source| WorkerError::Node {
                 name: name.clone(),
                 source,
