@@ -11,6 +11,8 @@
 
 mod common;
 
+use std::os::unix::net::UnixDatagram;
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -251,12 +253,7 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
             assert!(jumps.is_empty(), "{jumps:?}");
         }
     }
-    // The log has a thread of its own: wait for the one jump to be written.
-    let until = Instant::now() + Duration::from_secs(5);
-    while !daemon.log().contains("the odometry jumped") && Instant::now() < until {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let log = daemon.log();
+    let log = log_once_it_says(&daemon, "the odometry jumped");
     assert_eq!(log.matches("the odometry jumped").count(), 1, "{log}");
     assert!(daemon.stop().unwrap(), "clean exit");
 }
@@ -1765,11 +1762,7 @@ fn a_replay_nobody_serves_is_told_what_there_is() {
 fn systemd_hears_ready_watchdog_and_stopping() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let setup = town_setup(&[&unique("notify")]);
-    let socket_path = setup.dir.path().join("notify.sock");
-    let socket = std::os::unix::net::UnixDatagram::bind(&socket_path).unwrap();
-    socket
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
+    let (socket_path, socket) = notify_socket(&setup, Duration::from_secs(10));
     let mut daemon = Command::new(daemon_binary().unwrap())
         .arg("--config")
         .arg(&setup.config)
@@ -1778,23 +1771,34 @@ fn systemd_hears_ready_watchdog_and_stopping() {
         .spawn()
         .unwrap();
     let mut heard = Vec::new();
-    let mut buf = [0u8; 512];
-    while !heard.iter().any(|m: &String| m.contains("WATCHDOG=1")) {
-        let n = socket.recv(&mut buf).expect("a notification within 10 s");
-        heard.push(String::from_utf8_lossy(&buf[..n]).into_owned());
-    }
+    hear_until(&socket, &mut heard, "WATCHDOG=1");
     assert!(
         heard[0].contains("READY=1") && heard[0].contains("STATUS=serving 1 sources"),
         "{heard:?}"
     );
     signal(daemon.id(), Signal::TERM);
-    loop {
-        let n = socket.recv(&mut buf).expect("STOPPING=1 within 10 s");
-        if String::from_utf8_lossy(&buf[..n]).contains("STOPPING=1") {
-            break;
-        }
-    }
+    hear_until(&socket, &mut heard, "STOPPING=1");
     assert!(daemon.wait().unwrap().success());
+}
+
+/// A socket standing in for systemd's (`NOTIFY_SOCKET`) in `setup`'s folder, its path, and each
+/// receive waiting at most `timeout`.
+fn notify_socket(setup: &Setup, timeout: Duration) -> (PathBuf, UnixDatagram) {
+    let path = setup.dir.path().join("notify.sock");
+    let socket = UnixDatagram::bind(&path).unwrap();
+    socket.set_read_timeout(Some(timeout)).unwrap();
+    (path, socket)
+}
+
+/// Adds what `socket` hears to `heard` until a notification says `what`.
+fn hear_until(socket: &UnixDatagram, heard: &mut Vec<String>, what: &str) {
+    let mut buf = [0u8; 512];
+    while !heard.last().is_some_and(|m| m.contains(what)) {
+        let n = socket
+            .recv(&mut buf)
+            .unwrap_or_else(|e| panic!("{what} not heard: {e} ({heard:?})"));
+        heard.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+    }
 }
 
 /// Always runs: a request to stop is heard while the workers start. 256 sources take about two
@@ -1806,11 +1810,7 @@ fn a_stop_request_while_the_workers_start_is_heard() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let names: Vec<String> = (0..256).map(|i| unique(&format!("early{i}"))).collect();
     let setup = town_setup(&names.iter().map(String::as_str).collect::<Vec<_>>());
-    let socket_path = setup.dir.path().join("notify.sock");
-    let socket = std::os::unix::net::UnixDatagram::bind(&socket_path).unwrap();
-    socket
-        .set_read_timeout(Some(Duration::from_secs(30)))
-        .unwrap();
+    let (socket_path, socket) = notify_socket(&setup, Duration::from_secs(30));
     let log = setup.dir.path().join("early.log");
     let mut daemon = KillOnDrop(
         Command::new(daemon_binary().unwrap())
@@ -1828,11 +1828,7 @@ fn a_stop_request_while_the_workers_start_is_heard() {
     }
     signal(daemon.0.id(), Signal::TERM);
     let mut heard = Vec::new();
-    let mut buf = [0u8; 512];
-    while !heard.iter().any(|m: &String| m.contains("STOPPING=1")) {
-        let n = socket.recv(&mut buf).expect("STOPPING=1 within 30 s");
-        heard.push(String::from_utf8_lossy(&buf[..n]).into_owned());
-    }
+    hear_until(&socket, &mut heard, "STOPPING=1");
     let status = daemon.0.wait().unwrap();
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(status.success(), "{status}\n{text}");

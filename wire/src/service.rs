@@ -508,6 +508,19 @@ fn daemon_wire_of(name: &str) -> Option<Option<u32>> {
     Some(rest.strip_prefix(WIRE_TAG)?.parse().ok())
 }
 
+/// The daemon node `state` is, if it is one and alive.
+fn living_daemon(state: &NodeState<Ipc>) -> Option<DaemonNode> {
+    let NodeState::Alive(view) = state else {
+        return None;
+    };
+    let details = view.details().as_ref()?;
+    Some(DaemonNode {
+        id: view.id().value(),
+        pid: details.process_id().value(),
+        wire: daemon_wire_of(details.name().as_str())?,
+    })
+}
+
 /// A node of a running daemon, as a client sees it (a daemon has one node per worker and one
 /// for its supervisor, all in one process).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -615,17 +628,7 @@ impl Namespace {
     pub fn daemons(&self) -> Result<Vec<DaemonNode>, NodeListError> {
         let mut found = Vec::new();
         Node::<Ipc>::list(&self.config(), |state| {
-            if let NodeState::Alive(view) = &state {
-                if let Some(details) = view.details() {
-                    if let Some(wire) = daemon_wire_of(details.name().as_str()) {
-                        found.push(DaemonNode {
-                            id: view.id().value(),
-                            pid: details.process_id().value(),
-                            wire,
-                        });
-                    }
-                }
-            }
+            found.extend(living_daemon(&state));
             CallbackProgression::Continue
         })
         .map_err(|source| NodeListError {
@@ -642,15 +645,10 @@ impl Namespace {
         let mut served = std::collections::BTreeSet::new();
         Ipc::list(&self.config(), |service| {
             let name = service.static_details.name().to_string();
-            let by_daemon = service.dynamic_details.as_ref().is_some_and(|d| {
-                d.nodes.iter().any(|node| match node {
-                    NodeState::Alive(view) => view
-                        .details()
-                        .as_ref()
-                        .is_some_and(|n| daemon_wire_of(n.name().as_str()).is_some()),
-                    _ => false,
-                })
-            });
+            let by_daemon = service
+                .dynamic_details
+                .as_ref()
+                .is_some_and(|d| d.nodes.iter().any(|node| living_daemon(node).is_some()));
             if let Some(source) = SourceName::of_odom_service(&name).filter(|_| by_daemon) {
                 served.insert(source);
             }

@@ -361,6 +361,16 @@ pub fn closed(conn: Connection, daemon: &DaemonProcess, before: usize) {
     }
 }
 
+/// `daemon`'s log once it says `what`, or after 5 s. The log has a thread of its own: a record
+/// made before an answer was sent may be written after the answer arrives.
+pub fn log_once_it_says(daemon: &DaemonProcess, what: &str) -> String {
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains(what) && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    daemon.log()
+}
+
 /// How many session journals the daemon of `setup` holds for `source`.
 pub fn journal_count(setup: &Setup, source: &str) -> usize {
     std::fs::read_dir(setup.state.join(&setup.namespace).join(source))
