@@ -166,6 +166,34 @@ fn parse_line(line: &str, format: Format) -> Result<Option<(Option<f64>, Pose3)>
     Ok(Some((stamp, pose)))
 }
 
+/// What is wrong with timestamp `t` (seconds) after `last`, the one before it (`None` for the
+/// first): a stamp is finite and later than the one before.
+fn stamp_problem(last: Option<f64>, t: f64) -> Option<String> {
+    if !t.is_finite() {
+        return Some(format!("timestamp {t} is not finite"));
+    }
+    match last {
+        Some(last) if t <= last => Some(format!(
+            "timestamp {t} does not follow {last}: timestamps must increase"
+        )),
+        _ => None,
+    }
+}
+
+/// The first of `stamps_s` (seconds, one per pose) that cannot time its pose, as a TUM file's
+/// are checked: its index and what is wrong with it (not finite, or not later than the one
+/// before). `None` when every stamp is fine.
+pub fn stamps_problem(stamps_s: &[f64]) -> Option<(usize, String)> {
+    let mut last = None;
+    for (i, &t) in stamps_s.iter().enumerate() {
+        if let Some(problem) = stamp_problem(last, t) {
+            return Some((i, problem));
+        }
+        last = Some(t);
+    }
+    None
+}
+
 /// Parses numbered lines into a trajectory; `path` names the source in errors.
 fn parse_lines<I>(lines: I, path: &Path, format: Format) -> Result<Trajectory, TrajectoryError>
 where
@@ -186,12 +214,8 @@ where
             continue;
         };
         if let (Some(stamps), Some(t)) = (out.stamps.as_mut(), stamp) {
-            if let Some(&last) = stamps.last() {
-                if t <= last {
-                    return Err(error(format!(
-                        "timestamp {t} does not follow {last}: timestamps must increase"
-                    )));
-                }
+            if let Some(problem) = stamp_problem(stamps.last().copied(), t) {
+                return Err(error(problem));
             }
             stamps.push(t);
         }
@@ -277,6 +301,34 @@ mod tests {
         let again = parse(format_text(&t, Format::Tum, p).unwrap(), p, Format::Tum).unwrap();
         let (a, b) = (again.poses[0].to_row_major(), t.poses[0].to_row_major());
         assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-12));
+    }
+
+    #[test]
+    fn stamps_are_checked_as_a_tum_file_checks_them() {
+        assert_eq!(stamps_problem(&[]), None);
+        assert_eq!(stamps_problem(&[-1.0, 0.0, 0.1]), None);
+        assert_eq!(
+            stamps_problem(&[0.0, 0.1, 0.1]),
+            Some((
+                2,
+                "timestamp 0.1 does not follow 0.1: timestamps must increase".into()
+            ))
+        );
+        assert_eq!(
+            stamps_problem(&[0.0, f64::NAN, 0.2]),
+            Some((1, "timestamp NaN is not finite".into()))
+        );
+        assert_eq!(
+            stamps_problem(&[f64::INFINITY]),
+            Some((0, "timestamp inf is not finite".into()))
+        );
+        let p = Path::new("x.tum");
+        let refused = parse("1 0 0 0 0 0 0 1\n0.5 0 0 0 0 0 0 1\n", p, Format::Tum);
+        assert!(
+            matches!(&refused, Err(TrajectoryError::Parse { line: 2, reason, .. })
+                if reason == "timestamp 0.5 does not follow 1: timestamps must increase"),
+            "{refused:?}"
+        );
     }
 
     #[test]

@@ -80,9 +80,11 @@ def correct(
     poses, as ``--smooth``. ``overrides``: parameters by name, as ``--set KEY=VALUE`` takes them
     (``lanealign params`` lists them), e.g. ``{"max_window": 800, "lane_tolerance_m": 0.5}``;
     an unknown name or a value of the wrong type is a ``ValueError``. ``stamps``: each pose's
-    time in seconds (N), as a TUM file gives them: the odometry's speed, which tells its jumps
-    (status ``"odometry_jump"``) from its motion, is then judged by them, so that a pause in the
-    poses is not taken for a jump even over a bend; without them the poses come at
+    time in seconds (N), as a TUM file gives them: finite and increasing, as ``lanealign
+    correct`` checks a TUM file's (else a ``ValueError`` names the first that is not). The
+    odometry's speed, which tells its jumps (status ``"odometry_jump"``) from its motion, is
+    then judged by them, so that a pause in the poses is not taken for a jump even over a bend;
+    without them the poses come at
     ``odometry_rate_hz``, and a step too long for one period is motion only where it drives on
     as the step before did (poses missing). An odometry whose scale may be off by more than
     about 1 % (wheel odometry) has it estimated with ``overrides={"scale_sigma": 0.05}``; the

@@ -1,6 +1,7 @@
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
 STATUS_NAMES: List[str]
 WIRE_VERSION: int
@@ -62,7 +63,10 @@ class Client:
         serves other sources (named), or it has the source and has not taken its poses yet, or its
         sources cannot be listed."""
     def session_opened(self) -> bool: ...
-    def publish(self, stamp_ns: int, pose: np.ndarray) -> int: ...
+    def publish(self, stamp_ns: int, pose: npt.ArrayLike) -> int:
+        """Publishes a pose ((3, 4), (4, 4) or a KITTI row of 12 numbers; any array-like of
+        numbers) stamped ``stamp_ns``; returns its sequence number."""
+        ...
     def recv(self, timeout_s: float) -> Optional[Dict[str, object]]:
         """The next answer, or None after ``timeout_s``: ``seq``, ``stamp_ns``, ``pose`` (3x4),
         ``status`` and ``reason`` (the names of the status CSV; ``reason`` is empty but for a

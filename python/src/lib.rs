@@ -17,9 +17,10 @@ use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset, UNMARKED_OFFSET_SCALE};
 use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Placement;
 use lanealign_core::tile;
-use lanealign_core::trajectory::Trajectory;
+use lanealign_core::trajectory::{self, Trajectory};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -28,7 +29,10 @@ use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, St
 use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
-use numpy::{IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn};
+use numpy::{
+    AllowTypeChange, IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyArrayLikeDyn, PyReadonlyArray1,
+    PyReadonlyArrayDyn,
+};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
@@ -39,9 +43,10 @@ fn error(e: impl Into<anyhow::Error>) -> PyErr {
     PyValueError::new_err(message(e))
 }
 
-/// An error's message and its causes on one line, as the command line prints them.
+/// An error's message and its causes on one line, each cause once, as the command line shows
+/// them.
 fn message(e: impl Into<anyhow::Error>) -> String {
-    format!("{:#}", e.into())
+    error_line(e.into().as_ref())
 }
 
 /// The status names, indexed by the codes `correct` returns.
@@ -208,6 +213,9 @@ fn correct<'py>(
                 s.len(),
                 input.len()
             )));
+        }
+        if let Some((i, problem)) = trajectory::stamps_problem(s) {
+            return Err(PyValueError::new_err(format!("stamps[{i}]: {problem}")));
         }
     }
     if matches!(shape.as_slice(), [_, 3]) && frame != AxisConvention::Flu {
@@ -597,19 +605,27 @@ impl Client {
         self.with_open(|c| c.session_opened())
     }
 
-    /// Publishes one pose ((3, 4) or (4, 4), the source's axis convention) stamped `stamp_ns`;
-    /// returns its sequence number.
-    fn publish(&self, stamp_ns: i64, pose: PyReadonlyArrayDyn<'_, f64>) -> PyResult<u64> {
+    /// Publishes one pose stamped `stamp_ns`: a (3, 4) or (4, 4) matrix or the 12 numbers of a
+    /// KITTI row (any array-like of numbers: a numpy array of any number type, a list), in the
+    /// source's axis convention; returns its sequence number.
+    fn publish(
+        &self,
+        stamp_ns: i64,
+        pose: PyArrayLikeDyn<'_, f64, AllowTypeChange>,
+    ) -> PyResult<u64> {
         let array = pose.as_array();
-        if !matches!(array.shape(), [3 | 4, 4]) {
-            return Err(PyValueError::new_err(format!(
-                "a pose has shape (3, 4) or (4, 4), not {:?}",
-                array.shape()
-            )));
-        }
+        let element: &dyn Fn(usize) -> f64 = match array.shape() {
+            [3 | 4, 4] => &|k| array[IxDyn(&[k / 4, k % 4])],
+            [12] => &|k| array[IxDyn(&[k])],
+            shape => {
+                return Err(PyValueError::new_err(format!(
+                    "a pose has shape (3, 4), (4, 4) or (12,), not {shape:?}"
+                )))
+            }
+        };
         let mut v = [0.0; 12];
         for (k, value) in v.iter_mut().enumerate() {
-            *value = array[IxDyn(&[k / 4, k % 4])];
+            *value = element(k);
         }
         self.with_open(|c| c.publish(stamp_ns, &v))?.map_err(error)
     }

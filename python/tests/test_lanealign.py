@@ -169,6 +169,16 @@ def test_poses_missing_are_motion_unless_the_stamps_say_too_fast(tmp_path):
     assert np.array_equal(corrected[:, 1:3], jumped.poses[:, :2, 3])
     with pytest.raises(ValueError, match="stamps: 3 stamps for 180 poses"):
         lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=stamps[:3])
+    # Stamps are checked as `lanealign correct` checks a TUM file's (a NaN, a repeated or a
+    # backward stamp was taken, and changed nothing).
+    for i, value, says in [(7, math.nan, "timestamp NaN is not finite"),
+                           (0, math.inf, "timestamp inf is not finite"),
+                           (100, stamps[99], "timestamps must increase"),
+                           (120, 5.0, "timestamp 5 does not follow 1")]:
+        bad = stamps.copy()
+        bad[i] = value
+        with pytest.raises(ValueError, match=re.escape(f"stamps[{i}]: ") + ".*" + re.escape(says)):
+            lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=bad)
 
 
 def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
@@ -183,8 +193,10 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
         lanealign.correct(poses, preset="kiss-icp")
     with pytest.raises(ValueError, match="shape"):
         lanealign.correct(np.zeros((3, 5)), lanes=str(lanes), preset="kiss-icp")
-    with pytest.raises(ValueError, match="No such file"):
+    # Each cause once, as the command line says it (the file's error came twice).
+    with pytest.raises(ValueError, match="No such file") as missing:
         lanealign.correct(poses, lanes=str(tmp_path / "missing.csv"), preset="kiss-icp")
+    assert str(missing.value).count("No such file") == 1, str(missing.value)
     with pytest.raises(ValueError, match="lat"):
         lanealign.correct(poses, osm="x.osm", anchor=(91, 0, 0, 0, 0), preset="kiss-icp")
     with pytest.raises(ValueError, match=r"anchor is \(lat, lon, yaw_deg\) or .* not 4 values"):
@@ -492,13 +504,21 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
         assert f"the daemon of namespace '{namespace}' serves 'lidar', not 'lidar2'" in why, why
         del other
         answers = []
+        # A pose as a (3, 4) array, a KITTI row, a (4, 4) matrix and a list (the last three
+        # were refused: a shape error, or a TypeError for a list).
+        forms = [lambda p: p, lambda p: p.reshape(12), lambda p: np.vstack([p, [0, 0, 0, 1]]),
+                 lambda p: p.tolist()]
         for i, pose in enumerate(poses[:590]):
-            assert client.publish(i, pose) == i + 1
+            assert client.publish(i, forms[i % len(forms)](pose)) == i + 1
             # A wait longer than any instant is a wait without end (it panicked on the overflow).
             answer = client.recv(10.0 if i else 9.3e18)
             assert answer is not None and answer["seq"] == i + 1
             assert client.session_opened()
             answers.append(answer)
+        for shape in [(5,), (3, 3), (2, 3, 4)]:
+            with pytest.raises(ValueError, match=re.escape(
+                    f"a pose has shape (3, 4), (4, 4) or (12,), not {list(shape)}")):
+                client.publish(590, np.zeros(shape))
         for i, pose in enumerate(poses[590:], start=590):
             assert client.publish(i, pose) == i + 1
         closed = client.close(10.0)
