@@ -175,8 +175,12 @@ pub fn read_regular_file(path: &Path, limit: u64) -> Result<Vec<u8>, InputError>
     Ok(bytes)
 }
 
+/// The UTF-8 encoding of the byte-order mark U+FEFF.
+const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
+
 /// The lines of a reader (by default a regular file), each at most [`MAX_LINE_BYTES`], as
-/// `(line number, text)`. Iteration stops after the first error.
+/// `(line number, text)`, without their line ends (`\n` or `\r\n`) and without a byte-order
+/// mark that begins the first. Iteration stops after the first error.
 pub struct Lines<R = BufReader<File>> {
     reader: R,
     path: PathBuf,
@@ -229,6 +233,11 @@ impl<R: BufRead> Iterator for Lines<R> {
             }
             Ok(0) => return None,
             Ok(_) => {}
+        }
+        // A byte-order mark, which some editors and Windows tools begin a text file with, is no
+        // part of the first line's text.
+        if self.line == 1 && self.buf.starts_with(UTF8_BOM) {
+            self.buf.drain(..UTF8_BOM.len());
         }
         if self.buf.last() == Some(&b'\n') {
             self.buf.pop();
@@ -418,6 +427,19 @@ mod tests {
         std::fs::write(&path, [b'a', 0xff, b'\n']).unwrap();
         let e = Lines::open(&path).unwrap().next().unwrap().unwrap_err();
         assert!(matches!(e, InputError::NotText { line: 1, .. }), "{e}");
+    }
+
+    #[test]
+    fn a_byte_order_mark_begins_no_line() {
+        let text = b"\xEF\xBB\xBF1 2\r\n\xEF\xBB\xBF3\n";
+        let lines: Vec<_> = Lines::new(&text[..], Path::new("bom.txt"))
+            .collect::<Result<_, _>>()
+            .unwrap();
+        // Only the file's first bytes are a mark; further on U+FEFF is text, left to the parser.
+        assert_eq!(
+            lines,
+            [(1, "1 2".to_string()), (2, "\u{feff}3".to_string())]
+        );
     }
 
     #[test]
