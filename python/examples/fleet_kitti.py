@@ -48,17 +48,28 @@ def main():
                for seq in SEQUENCES]
     cluster = None if args.scheduler else distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, dashboard_address=None)
+    failed = 0
     with distributed.Client(args.scheduler or cluster) as client:
         for summary in fleet.correct_drives(client, drives):
+            if "error" in summary:
+                failed += 1
+                print(f"{summary['output']}: failed: {summary['error']}")
+                continue
             raw, corrected = summary["raw"], summary["corrected"]
             print(f"{summary['output']}: {summary['poses']} poses, {summary['accepted']} accepted, "
                   f"APE-2D {raw['ape2d_mean_m']:.3f} -> {corrected['ape2d_mean_m']:.3f} m, "
                   f"cov95 coverage {corrected['cov95_coverage']:.3f} "
                   f"({corrected['calibration_verdict']})")
         for summary in fleet.compile_regions(client, regions):
+            if "error" in summary:
+                failed += 1
+                print(f"{summary['output']}: failed: {summary['error']}")
+                continue
             print(f"{summary['output']}: {summary['lanes']} lanes, {summary['lane_km']:.1f} lane-km")
     if cluster is not None:
         cluster.close()
+    if failed:
+        raise SystemExit(f"{failed} of {len(drives) + len(regions)} tasks failed")
 
 
 if __name__ == "__main__":

@@ -11,8 +11,9 @@ or network file system, or object storage mounted on the workers) and returns a 
 so no trajectory or map travels through the scheduler.
 """
 
+import os
 from dataclasses import dataclass, field
-from typing import List, Optional, Sequence, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -75,7 +76,7 @@ def correct_drive(drive: Drive) -> dict:
         method=drive.method,
         frame=drive.frame,
     )
-    np.savetxt(drive.output, result.poses.reshape(len(poses), 12), fmt="%.17g")
+    _write_kitti(drive.output, result.poses)
     counts = np.bincount(result.status, minlength=len(STATUS_NAMES))
     summary = {
         "output": drive.output,
@@ -89,6 +90,20 @@ def correct_drive(drive: Drive) -> dict:
                                           covariance=result.covariance,
                                           anchor_yaw=result.anchor_yaw)
     return summary
+
+
+def _write_kitti(path: str, poses: np.ndarray) -> None:
+    """Writes ``poses`` to ``path`` in KITTI format, whole or not at all: into ``path.partial``,
+    renamed into place once written, so that a worker killed while writing leaves no short
+    trajectory under the output's name (and the task, run again, writes the same partial file
+    over)."""
+    partial = f"{path}.partial"
+    try:
+        np.savetxt(partial, poses.reshape(len(poses), 12), fmt="%.17g")
+        os.replace(partial, path)
+    finally:
+        if os.path.exists(partial):
+            os.remove(partial)
 
 
 def _evaluated(gt: np.ndarray, est: np.ndarray, **options) -> dict:
@@ -113,10 +128,32 @@ def compile_region(region: Region) -> dict:
 
 
 def correct_drives(client, drives: Sequence[Drive]) -> List[dict]:
-    """Corrects ``drives`` in parallel on a ``dask.distributed.Client``; summaries in order."""
-    return client.gather(client.map(correct_drive, list(drives), pure=False))
+    """Corrects ``drives`` in parallel on a ``dask.distributed.Client``; summaries in order. A
+    drive that fails (a file that cannot be read, a map that does not load, workers that died on
+    it) gets ``{"output": ..., "error": "<exception type>: <message>"}`` in its place, and the
+    other drives' summaries come back all the same."""
+    return _summaries(client, correct_drive, drives)
 
 
 def compile_regions(client, regions: Sequence[Region]) -> List[dict]:
-    """Compiles ``regions`` in parallel on a ``dask.distributed.Client``; summaries in order."""
-    return client.gather(client.map(compile_region, list(regions), pure=False))
+    """Compiles ``regions`` in parallel on a ``dask.distributed.Client``; summaries in order. A
+    region that fails gets ``{"output": ..., "error": ...}`` in its place, as in
+    :func:`correct_drives`."""
+    return _summaries(client, compile_region, regions)
+
+
+def _summaries(client, task: Callable[..., dict],
+               items: Sequence[Union[Drive, Region]]) -> List[dict]:
+    """``task`` of every item on the cluster, gathered at once: a summary per item, in order, or
+    what failed it. The futures are gathered by index, so that one that failed leaves no gap
+    that would shift the others' summaries."""
+    items = list(items)
+    futures = client.map(task, items, pure=False)
+    gathered = client.gather(dict(enumerate(futures)), errors="skip")
+    return [gathered[i] if gathered.get(i) is not None else
+            {"output": item.output, "error": _described(futures[i].exception())}
+            for i, item in enumerate(items)]
+
+
+def _described(error: BaseException) -> str:
+    return f"{type(error).__name__}: {error}"

@@ -1,6 +1,7 @@
 """Fleet batches on a local Dask cluster of two worker processes equal a serial run."""
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -43,8 +44,27 @@ def test_two_workers_equal_a_serial_run(tmp_path):
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         assert len(client.scheduler_info()["workers"]) == 2
-        got = fleet.correct_drives(client, on_cluster)
-        got_tiles = fleet.compile_regions(client, [r for r in regions if "/cluster/" in r.output])
+        # A drive or a region that fails takes its own place in the summaries and no one else's
+        # (one failure raised from the whole batch, and the others' summaries were lost).
+        broken = [replace(on_cluster[0], poses=str(tmp_path / "missing.txt"),
+                          output=str(tmp_path / "missing_out.txt")),
+                  replace(on_cluster[1], osm=on_cluster[1].poses,
+                          output=str(tmp_path / "no_map_out.txt"))]
+        got = fleet.correct_drives(client, broken[:1] + on_cluster + broken[1:])
+        assert got[0] == {"output": broken[0].output,
+                          "error": f"FileNotFoundError: {broken[0].poses} not found."}, got[0]
+        assert got[-1]["output"] == broken[1].output and \
+            got[-1]["error"].startswith("ValueError: ") and "unknown input type" in got[-1]["error"]
+        assert not (tmp_path / "missing_out.txt").exists()
+        assert not (tmp_path / "no_map_out.txt").exists()
+        got = got[1:-1]
+        missing_region = fleet.Region(inputs=[str(tmp_path / "missing.osm")],
+                                      output=str(tmp_path / "missing.tile"))
+        got_tiles = fleet.compile_regions(
+            client, [r for r in regions if "/cluster/" in r.output] + [missing_region])
+        assert got_tiles[-1]["output"] == missing_region.output and \
+            "No such file" in got_tiles[-1]["error"], got_tiles[-1]
+        got_tiles = got_tiles[:-1]
     for s, c, d_s, d_c in zip(expected, got, serial, on_cluster):
         assert {k: v for k, v in s.items() if k != "output"} == \
             {k: v for k, v in c.items() if k != "output"}
@@ -100,3 +120,71 @@ def test_a_drive_whose_figures_cannot_be_computed_is_still_corrected(tmp_path):
     assert summary["poses"] == len(np.loadtxt(tmp_path / "04.txt")) == 271
     for key in ("raw", "corrected"):
         assert set(summary[key]) == {"error"} and "1101" in summary[key]["error"], summary[key]
+
+
+def test_a_worker_killed_mid_batch_loses_no_drive(tmp_path):
+    """kill -9 of a worker while the batch runs: its tasks, and the summaries it held, are
+    computed again elsewhere (Dask's nanny restarts it), and every drive comes back as a serial
+    run gives it."""
+    needs_data()
+    distributed = pytest.importorskip("distributed")
+    import os
+    import signal
+    import threading
+    import time
+
+    def drive(i):
+        return fleet.Drive(poses=str(DATA / "odometry" / "lidar" / "07.txt"),
+                           output=str(tmp_path / f"07_{i}.txt"), preset="kiss-icp",
+                           osm=str(DATA / "osm" / "kitti_07.osm"), anchor=anchor_of("07"),
+                           projection="kitti", frame="kitti-camera")
+
+    expected = fleet.correct_drive(drive("serial"))
+    drives = [drive(i) for i in range(30)]
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        victim = next(iter(client.run(os.getpid).values()))
+        killed = []
+
+        def kill_once_the_batch_runs():
+            deadline = time.monotonic() + 60
+            while not any(tmp_path.glob("07_[0-9]*.txt")) and time.monotonic() < deadline:
+                time.sleep(0.005)
+            os.kill(victim, signal.SIGKILL)
+            killed.append(sum(1 for _ in tmp_path.glob("07_[0-9]*.txt")))
+
+        killer = threading.Thread(target=kill_once_the_batch_runs)
+        killer.start()
+        got = fleet.correct_drives(client, drives)
+        killer.join()
+    assert killed and killed[0] < len(drives), f"the kill came after the batch: {killed}"
+    assert [s["output"] for s in got] == [d.output for d in drives]
+    for summary, d in zip(got, drives):
+        assert {k: v for k, v in summary.items() if k != "output"} == \
+            {k: v for k, v in expected.items() if k != "output"}, summary
+        assert open(d.output).read() == open(expected["output"]).read()
+    assert not list(tmp_path.glob("*.partial")), "a partial output was left behind"
+
+
+def test_a_drive_that_kills_its_workers_is_told_and_the_others_come_back(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    import dask
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                     dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        got = fleet._summaries(client, _exit_on_poison,
+                               [fleet.Region(inputs=[], output=name)
+                                for name in ("a", "poison", "b")])
+    assert got[0] == {"output": "a"} and got[2] == {"output": "b"}, got
+    assert got[1]["output"] == "poison" and got[1]["error"].startswith("KilledWorker: "), got
+
+
+def _exit_on_poison(region):
+    import os
+
+    if region.output == "poison":
+        os._exit(9)
+    return {"output": region.output}
