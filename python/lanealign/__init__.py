@@ -130,8 +130,8 @@ def eval(  # noqa: A001
     ``independent_samples``, what a covariance describing the errors exactly would show over as
     many independent errors (``cov95_coverage_if_exact`` and ``nees_mean_if_exact``: 2.5th and
     97.5th percentiles) and ``calibration_verdict`` ("consistent", "too confident" or "too
-    cautious"). A covariance that is not positive definite (a pose with status
-    ``invalid_input``) is a ``ValueError``.
+    cautious"). A covariance that is not symmetric, or not positive definite (a pose with status
+    ``invalid_input``), is a ``ValueError``.
     """
     if covariance is not None:
         covariance = np.ascontiguousarray(covariance, dtype=np.float64)

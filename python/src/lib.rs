@@ -172,7 +172,8 @@ fn overrides_from(dict: &Bound<'_, PyDict>) -> PyResult<Overrides> {
             }
         } else {
             return Err(PyValueError::new_err(format!(
-                "overrides: {key} = {value}: not a number or a bool"
+                "overrides: {key} = {}: not a number or a bool",
+                value.repr()?
             )));
         };
         pairs.push((key, text));
@@ -400,7 +401,7 @@ fn position_covariances(
             "anchor_yaw: {anchor_yaw:?} is not an angle in [-2 pi, 2 pi] radians"
         )));
     }
-    Ok((0..poses)
+    (0..poses)
         .map(|i| {
             let c = |r: usize, k: usize| array[[i, r, k]];
             let covariance = [
@@ -408,9 +409,28 @@ fn position_covariances(
                 [c(1, 0), c(1, 1), c(1, 2)],
                 [c(2, 0), c(2, 1), c(2, 2)],
             ];
-            status_file::position_covariance_in_odom(anchor_yaw, &covariance)
+            if let Some((r, k)) = asymmetric_entry(&covariance) {
+                return Err(PyValueError::new_err(format!(
+                    "the covariance of pose {i} is not symmetric: [{r}, {k}] = {:?}, [{k}, {r}] = {:?}",
+                    covariance[r][k], covariance[k][r]
+                )));
+            }
+            Ok(status_file::position_covariance_in_odom(
+                anchor_yaw,
+                &covariance,
+            ))
         })
-        .collect())
+        .collect()
+}
+
+/// The first off-diagonal entry `(r, k)` of `covariance` that differs from its mirror by more
+/// than rounding (1e-9 of the larger of the two variances it joins), if any. Not finite
+/// entries are left to the positive-definiteness check.
+fn asymmetric_entry(covariance: &[[f64; 3]; 3]) -> Option<(usize, usize)> {
+    [(0, 1), (0, 2), (1, 2)].into_iter().find(|&(r, k)| {
+        let scale = covariance[r][r].abs().max(covariance[k][k].abs());
+        (covariance[r][k] - covariance[k][r]).abs() > 1e-9 * scale
+    })
 }
 
 /// Compiles road data into a lane tile (or with `grid` a grid folder; PBF inputs stream), as

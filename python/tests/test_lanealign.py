@@ -185,6 +185,8 @@ def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     lanes, poses = straight_lane_and_drift(tmp_path)
     with pytest.raises(ValueError, match="preset"):
         lanealign.correct(poses, lanes=str(lanes), preset="nope")
+    with pytest.raises(ValueError, match=re.escape("overrides: max_window = '800': not a number")):
+        lanealign.correct(poses, lanes=str(lanes), preset="kiss-icp", overrides={"max_window": "800"})
     # A name is quoted to 80 characters (a source of 1000 was quoted whole: 1132 characters).
     with pytest.raises(ValueError, match=r'source "x{80}\.\.\.": ') as refused:
         lanealign.Client("x" * 1000)
@@ -417,6 +419,17 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
     for yaw in (math.nan, 7.0, 1e300):
         with pytest.raises(ValueError, match=r"anchor_yaw: .* is not an angle in \[-2 pi, 2 pi\]"):
             lanealign.eval(got.poses, got.poses, covariance=got.covariance, anchor_yaw=yaw)
+    # A matrix that is not symmetric is no covariance (one was read as its symmetric part).
+    for r, k in [(0, 1), (2, 0)]:
+        skewed = got.covariance.copy()
+        skewed[9, r, k] += 0.5
+        with pytest.raises(ValueError, match=re.escape(
+                f"the covariance of pose 9 is not symmetric: [{min(r, k)}, {max(r, k)}] = ")):
+            lanealign.eval(got.poses, got.poses, covariance=skewed, anchor_yaw=0.0)
+    rounded = got.covariance.copy()
+    rounded[9, 0, 1] *= 1 + 1e-12
+    assert lanealign.eval(got.poses, got.poses, covariance=rounded, anchor_yaw=0.0)["poses"] == \
+        len(got.poses)
     print(f"KITTI 07: lanealign correct {cli_s * 1e3:.1f} ms (whole process), "
           f"lanealign.correct {py_s * 1e3:.1f} ms (call, file read by numpy not included)")
 
