@@ -15,6 +15,11 @@ fn the_python_package_equals_the_command_line() {
             .args(args)
             .current_dir(&root)
             .env("LANEALIGN_BIN", root.join("target/release/lanealign"))
+            // The extension is built on what `cargo test` compiled already: the Python crate
+            // has the workspace's release profile and dependency versions (below), so most of
+            // its dependencies are the workspace's own artifacts (84 s instead of 164 s on a
+            // fresh clone of this machine).
+            .env("CARGO_TARGET_DIR", root.join("target"))
             .output()
             .unwrap_or_else(|e| panic!("{python} is needed for the Python package's tests: {e}"));
         let text = format!(
@@ -37,4 +42,42 @@ fn the_python_package_equals_the_command_line() {
     let report = run(&["-m", "pytest", "python/tests", "-q", "-rs", "-s"]);
     println!("{report}");
     assert!(report.contains("passed"), "{report}");
+}
+
+/// The Python package is built with the command line's dependency versions, so that the two
+/// run the same code (their results are compared bit for bit) and the package's build reuses
+/// the workspace's: every package `python/Cargo.lock` shares with `Cargo.lock` has the same
+/// version there. Copy `Cargo.lock` over `python/Cargo.lock` and run `cargo metadata` in
+/// `python/` to bring them together again.
+#[test]
+fn the_python_package_locks_the_workspaces_dependency_versions() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let versions = |path: &str| -> Vec<(String, String)> {
+        let text = std::fs::read_to_string(root.join(path)).expect(path);
+        let lock: toml::Table = text.parse().expect(path);
+        lock["package"]
+            .as_array()
+            .expect("a lock file lists packages")
+            .iter()
+            .map(|p| {
+                (
+                    p["name"].as_str().unwrap().into(),
+                    p["version"].as_str().unwrap().into(),
+                )
+            })
+            .collect()
+    };
+    let workspace = versions("Cargo.lock");
+    let python = versions("python/Cargo.lock");
+    let differing: Vec<String> = python
+        .iter()
+        .filter(|(name, _)| workspace.iter().any(|(n, _)| n == name))
+        .filter(|package| !workspace.contains(package))
+        .map(|(name, version)| format!("{name} {version}"))
+        .collect();
+    assert!(
+        differing.is_empty(),
+        "python/Cargo.lock has versions Cargo.lock does not: {differing:?}"
+    );
+    assert!(python.len() > 200 && python.iter().any(|(n, _)| n == "pyo3"));
 }
