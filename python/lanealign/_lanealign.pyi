@@ -56,7 +56,14 @@ class Client:
     and one may wait in ``recv`` while others ``publish``; ``recv`` and ``close`` wait without
     the GIL."""
 
-    def __init__(self, source: str, *, namespace: str = ..., wait: str = ...) -> None: ...
+    def __init__(self, source: str, *, namespace: str = ..., wait: str = ...,
+                 session: Optional[int] = ..., next_seq: int = ...) -> None:
+        """A new session, or with ``session`` and ``next_seq`` (an earlier client's) that session
+        continued while the daemon still has it."""
+    @property
+    def session(self) -> int: ...
+    @property
+    def next_seq(self) -> int: ...
     def daemon_connected(self) -> bool: ...
     def why_unserved(self) -> str:
         """Why no daemon serves the source: no daemon runs in the namespace, or the one that runs

@@ -592,18 +592,49 @@ fn seconds(what: &str, s: f64) -> PyResult<Duration> {
 #[pymethods]
 impl Client {
     /// Connects to `source` in the daemon's `namespace` with a new session, waiting for answers
-    /// as `wait` says (`event`, `busy-spin[:CORE]`, `spin-then-block:SPIN_US`).
+    /// as `wait` says (`event`, `busy-spin[:CORE]`, `spin-then-block:SPIN_US`). With `session`
+    /// and `next_seq` (an earlier client's `session` and `next_seq`, kept by a process that was
+    /// restarted) it continues that session instead, while the daemon still has it: its
+    /// corrector goes on where it was.
     #[new]
-    #[pyo3(signature = (source, *, namespace="default", wait="event"))]
-    fn new(source: &str, namespace: &str, wait: &str) -> PyResult<Self> {
+    #[pyo3(signature = (source, *, namespace="default", wait="event", session=None, next_seq=1))]
+    fn new(
+        source: &str,
+        namespace: &str,
+        wait: &str,
+        session: Option<u64>,
+        next_seq: u64,
+    ) -> PyResult<Self> {
         let namespace: Namespace = parsed("namespace", namespace)?;
         let source: SourceName = parsed("source", source)?;
-        let mut connection =
-            Connection::connect_in(&namespace, &source, new_session_id()).map_err(error)?;
+        let mut connection = match session {
+            Some(0) => return Err(PyValueError::new_err("session: 0 is no session")),
+            Some(session) => Connection::resume(&namespace, &source, session, next_seq),
+            None if next_seq != 1 => {
+                return Err(PyValueError::new_err(
+                    "next_seq continues a session: give the session too",
+                ))
+            }
+            None => Connection::connect_in(&namespace, &source, new_session_id()),
+        }
+        .map_err(error)?;
         connection.set_wait_strategy(parsed::<WaitStrategy>("wait", wait)?);
         Ok(Client {
             connection: Mutex::new(Some(connection)),
         })
+    }
+
+    /// This client's session id: with `next_seq`, what a restarted process gives `Client` to
+    /// continue the session.
+    #[getter]
+    fn session(&self) -> PyResult<u64> {
+        self.with_open(|c| c.session())
+    }
+
+    /// The sequence number the next pose gets.
+    #[getter]
+    fn next_seq(&self) -> PyResult<u64> {
+        self.with_open(|c| c.next_seq())
     }
 
     /// True when a daemon serves the source.

@@ -13,6 +13,7 @@ import resource
 import shutil
 import signal
 import subprocess
+import sys
 import threading
 import time
 import warnings
@@ -556,6 +557,66 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     assert all(math.isclose(a["anchor_yaw"], yaw, rel_tol=0, abs_tol=1e-12) for a in answers)
     assert [a["odometry_scale"] for a in answers] == list(offline.odometry_scale)
     assert all(a["odometry_scale_sd"] == 0.0 for a in answers), "kiss-icp does not estimate it"
+
+
+# An odometry process: publishes the poses of POSES (.npy) one at a time, keeps what its
+# restarted self needs (its session and next sequence number) with the answers, and dies by
+# SIGKILL without closing.
+KILLED_CLIENT = """
+import json, os, signal, sys
+import numpy as np
+import lanealign
+
+namespace, poses, out = sys.argv[1:]
+client = lanealign.Client("lidar", namespace=namespace)
+answers = []
+for i, pose in enumerate(np.load(poses)):
+    assert client.publish(i, pose) == i + 1
+    answers.append(client.recv(10.0))
+np.save(out + ".npy", np.stack([a["pose"] for a in answers]))
+with open(out + ".json", "w") as f:
+    json.dump({"session": client.session, "next_seq": client.next_seq,
+               "status": [a["status"] for a in answers]}, f)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_restarted_process_continues_its_session(tmp_path):
+    """An odometry process killed (kill -9) after 300 poses; its restarted self continues the
+    session with the session id and sequence number it kept, and every answer is what one
+    process that ran on gets (a new session would start its corrector afresh)."""
+    needs_data()
+    namespace = f"py-resume-{os.getpid()}"
+    poses = kitti_00_lidar(600)
+    np.save(tmp_path / "poses.npy", poses[:300])
+    with kitti_00_daemon(tmp_path, namespace) as (daemon, _):
+        killed = subprocess.run([sys.executable, "-c", KILLED_CLIENT, namespace,
+                                 str(tmp_path / "poses.npy"), str(tmp_path / "first")],
+                                capture_output=True, text=True, timeout=120)
+        assert killed.returncode == -signal.SIGKILL, killed.stderr
+        kept = json.loads((tmp_path / "first.json").read_text())
+        assert kept["next_seq"] == 301 and kept["session"] > 0
+        client = lanealign.Client("lidar", namespace=namespace, session=kept["session"],
+                                  next_seq=kept["next_seq"])
+        assert (client.session, client.next_seq) == (kept["session"], 301)
+        answers = []
+        for i, pose in enumerate(poses[300:], start=300):
+            assert client.publish(i, pose) == i + 1
+            answer = client.recv(10.0)
+            assert answer is not None and answer["seq"] == i + 1
+            answers.append(answer)
+        assert client.close(10.0)["unanswered"] == []
+    offline = lanealign.correct(poses, osm=str(DATA / "osm" / "kitti_00.osm"), anchor=ANCHOR_00,
+                                projection="kitti", preset="kiss-icp", frame="kitti-camera")
+    got = np.concatenate([np.load(tmp_path / "first.npy"),
+                          np.stack([a["pose"] for a in answers])])
+    assert np.array_equal(got, offline.poses)
+    assert kept["status"] + [a["status"] for a in answers] == \
+        [lanealign.STATUS_NAMES[c] for c in offline.status]
+    with pytest.raises(ValueError, match="0 is no session"):
+        lanealign.Client("lidar", namespace=namespace, session=0)
+    with pytest.raises(ValueError, match="give the session too"):
+        lanealign.Client("lidar", namespace=namespace, next_seq=301)
 
 
 def test_one_client_publishes_on_one_thread_and_receives_on_another(tmp_path):
