@@ -300,3 +300,78 @@ fn inspect_refuses_points_its_plane_cannot_map_back() {
         assert!(!geojson.exists());
     }
 }
+
+/// A grid compiled into the folder of an earlier one holds only its own cells: the earlier
+/// grid's other cells were left beside it, unlisted (here 96 of 50 m cells beside 8 of 200 m;
+/// on KITTI 07's roads 42 of 200 m cells beside 15 of 500 m), and went with every copy of the
+/// folder. Files that are no cell stay.
+#[test]
+fn a_grid_compiled_over_another_leaves_none_of_its_cells() {
+    let dir = tempfile::tempdir().unwrap();
+    let osm = write(dir.path(), "roads.osm", &spread_roads());
+    let grid = dir.path().join("grid");
+    let cells = grid.join("cells");
+    let compile = |cell_m: &str| {
+        let out = lanealign_map(&[
+            "compile",
+            &osm,
+            "--grid",
+            cell_m,
+            "-o",
+            grid.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", stderr(&out));
+    };
+    let listing = || -> std::collections::BTreeSet<String> {
+        std::fs::read_dir(&cells)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect()
+    };
+    let manifest_cells = || -> std::collections::BTreeSet<String> {
+        let opened = lanealign_core::grid::Grid::open(&grid).unwrap();
+        opened
+            .cells()
+            .map(lanealign_core::grid::cell_file_name)
+            .collect()
+    };
+    compile("50");
+    let small = listing();
+    std::fs::write(cells.join("notes.txt"), "kept").unwrap();
+    compile("200");
+    let mut expected = manifest_cells();
+    assert!(
+        small.len() > expected.len() && expected.len() > 1,
+        "{small:?} {expected:?}"
+    );
+    assert!(small.difference(&expected).count() > 0);
+    expected.insert("notes.txt".into());
+    assert_eq!(listing(), expected);
+    let out = lanealign_map(&["inspect", grid.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+}
+
+/// Two residential streets about 600 m apart and 650 m long: roads over many cells.
+fn spread_roads() -> String {
+    let mut text =
+        String::from("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<osm version=\"0.6\">\n");
+    for (i, lat) in (0..7).map(|i| (i, 49.0 + 0.001 * f64::from(i))) {
+        text.push_str(&format!(
+            " <node id=\"{}\" lat=\"{lat:.7}\" lon=\"8.4000000\"/>\n",
+            i + 1
+        ));
+        text.push_str(&format!(
+            " <node id=\"{}\" lat=\"{lat:.7}\" lon=\"8.4080000\"/>\n",
+            i + 101
+        ));
+    }
+    for (way, first) in [(1000, 1), (1001, 101)] {
+        text.push_str(&format!(" <way id=\"{way}\">"));
+        for i in 0..7 {
+            text.push_str(&format!("<nd ref=\"{}\"/>", first + i));
+        }
+        text.push_str("<tag k=\"highway\" v=\"residential\"/></way>\n");
+    }
+    text.push_str("</osm>\n");
+    text
+}

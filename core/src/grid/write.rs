@@ -112,7 +112,39 @@ pub fn write_manifest(
         });
     }
     crate::input::write_atomic(&dir.join(MANIFEST), text.as_bytes())?;
+    remove_cells_not_in(&dir.join("cells"), &manifest)?;
     Ok(manifest)
+}
+
+/// Removes from `cells_dir` every cell file (a name [`cell_file_name`] gives) that `manifest`
+/// does not list: the cells of an earlier grid written into the same folder, which no reader
+/// opens but a copy of the folder would carry. Other files are left alone.
+fn remove_cells_not_in(cells_dir: &Path, manifest: &Manifest) -> Result<(), GridError> {
+    let listed: std::collections::HashSet<CellKey> =
+        manifest.cells.iter().map(|c| [c.x, c.y]).collect();
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| InputError::Io { path, source }
+    };
+    for entry in std::fs::read_dir(cells_dir).map_err(io(cells_dir))? {
+        let entry = entry.map_err(io(cells_dir))?;
+        let name = entry.file_name();
+        let stale = name
+            .to_str()
+            .and_then(cell_key_of_file_name)
+            .is_some_and(|key| !listed.contains(&key));
+        if stale {
+            std::fs::remove_file(entry.path()).map_err(io(&entry.path()))?;
+        }
+    }
+    Ok(())
+}
+
+/// The cell whose file [`cell_file_name`] names `name`, if it names one.
+fn cell_key_of_file_name(name: &str) -> Option<CellKey> {
+    let (x, y) = name.strip_suffix(".tile")?.split_once('_')?;
+    let key = [x.parse().ok()?, y.parse().ok()?];
+    (cell_file_name(key) == name).then_some(key)
 }
 
 /// What a manifest records of the whole map: its lane and point counts and bounds.
@@ -226,4 +258,26 @@ fn encode_one(cell: &CellContent, spec: &GridSpec) -> Result<(CellEntry, Vec<u8>
         points: cell.pieces.len() as u64,
     };
     Ok((entry, bytes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_cells_own_file_name_names_a_cell() {
+        for key in [[0, 0], [-1, 2], [i32::MIN, i32::MAX]] {
+            assert_eq!(cell_key_of_file_name(&cell_file_name(key)), Some(key));
+        }
+        for name in [
+            "0_0.tile.tmp",
+            "+1_0.tile",
+            "01_0.tile",
+            "1_0",
+            "a_b.tile",
+            "1_2_3.tile",
+        ] {
+            assert_eq!(cell_key_of_file_name(name), None, "{name}");
+        }
+    }
 }
