@@ -118,7 +118,8 @@ pub fn write_manifest(
 
 /// Removes from `cells_dir` every cell file (a name [`cell_file_name`] gives) that `manifest`
 /// does not list: the cells of an earlier grid written into the same folder, which no reader
-/// opens but a copy of the folder would carry. Other files are left alone.
+/// opens but a copy of the folder would carry. Other files are left alone; no `cells_dir`, no
+/// cells.
 fn remove_cells_not_in(cells_dir: &Path, manifest: &Manifest) -> Result<(), GridError> {
     let listed: std::collections::HashSet<CellKey> =
         manifest.cells.iter().map(|c| [c.x, c.y]).collect();
@@ -126,7 +127,11 @@ fn remove_cells_not_in(cells_dir: &Path, manifest: &Manifest) -> Result<(), Grid
         let path = path.to_path_buf();
         move |source| InputError::Io { path, source }
     };
-    for entry in std::fs::read_dir(cells_dir).map_err(io(cells_dir))? {
+    let entries = match std::fs::read_dir(cells_dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        read => read.map_err(io(cells_dir))?,
+    };
+    for entry in entries {
         let entry = entry.map_err(io(cells_dir))?;
         let name = entry.file_name();
         let stale = name
