@@ -424,11 +424,12 @@ fn position_covariances(
 }
 
 /// The first off-diagonal entry `(r, k)` of `covariance` that differs from its mirror by more
-/// than rounding (1e-9 of the larger of the two variances it joins), if any. Not finite
-/// entries are left to the positive-definiteness check.
+/// than rounding (1e-9 of `sqrt(c_rr c_kk)`, the largest a covariance of those two variances
+/// can be, in its units), if any. Not finite entries are left to the positive-definiteness
+/// check.
 fn asymmetric_entry(covariance: &[[f64; 3]; 3]) -> Option<(usize, usize)> {
     [(0, 1), (0, 2), (1, 2)].into_iter().find(|&(r, k)| {
-        let scale = covariance[r][r].abs().max(covariance[k][k].abs());
+        let scale = (covariance[r][r] * covariance[k][k]).abs().sqrt();
         (covariance[r][k] - covariance[k][r]).abs() > 1e-9 * scale
     })
 }
