@@ -670,6 +670,11 @@ fn soak_refuses_what_it_cannot_run_before_starting_anything() {
             &["--duration", "inf"],
             "--duration inf: must be a positive number of seconds",
         ),
+        // A strategy named twice ran the same two phases twice.
+        (
+            &["--waits", "event,busy-spin,event"],
+            "--waits: event is named twice",
+        ),
     ] {
         let started = std::time::Instant::now();
         assert_refused(&[&["soak"][..], args].concat(), says);

@@ -232,6 +232,14 @@ fn check(args: &SoakArgs) -> anyhow::Result<()> {
          between 1 and {MAX_POSES_PER_SOURCE:e}"
     );
     anyhow::ensure!(!args.waits.is_empty(), "--waits: name at least one");
+    if let Some(twice) = args
+        .waits
+        .iter()
+        .enumerate()
+        .find_map(|(i, wait)| args.waits[..i].contains(wait).then_some(wait))
+    {
+        anyhow::bail!("--waits: {twice} is named twice");
+    }
     Ok(())
 }
 
