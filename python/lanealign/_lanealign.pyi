@@ -79,6 +79,10 @@ class Client:
         ``status`` and ``reason`` (the names of the status CSV; ``reason`` is empty but for a
         rejected or reset step, or ``sessions_full`` on a ``pass_through`` answer while the
         session waits for a place among the source's ``max_sessions``), ``map_from_odom``,
-        ``covariance`` (3x3), ``anchor_yaw``, ``odometry_scale``, ``odometry_scale_sd``."""
+        ``covariance`` (3x3), ``anchor_yaw``, ``odometry_scale``, ``odometry_scale_sd``; the
+        step's ``residual_m``, ``match_ratio``, ``window_len`` and ``applied_directions`` (the
+        status CSV's columns), ``expected_seq``, ``daemon_epoch``, and the pose's
+        ``sent_mono_ns``, ``received_mono_ns`` and ``published_mono_ns`` (CLOCK_MONOTONIC, which
+        ``time.monotonic_ns()`` reads on Linux: the round trip is it minus ``sent_mono_ns``)."""
         ...
     def close(self, timeout_s: float = ...) -> Dict[str, object]: ...

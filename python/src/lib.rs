@@ -560,7 +560,10 @@ struct Client {
 
 /// An answer as a dict: `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom`
 /// (x, y, yaw), `covariance` (3, 3, map plane), `anchor_yaw` (radians), `odometry_scale` and
-/// `odometry_scale_sd` (ratios).
+/// `odometry_scale_sd` (ratios), and what the status CSV says of the step (`residual_m`,
+/// `match_ratio`, `window_len`, `applied_directions`), the session's `expected_seq`, the
+/// daemon's run (`daemon_epoch`) and the pose's times (`sent_mono_ns`, `received_mono_ns`,
+/// `published_mono_ns`: `CLOCK_MONOTONIC`, the same clock in every process of the machine).
 fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("seq", answer.seq)?;
@@ -582,6 +585,15 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
     d.set_item("anchor_yaw", answer.anchor_yaw)?;
     d.set_item("odometry_scale", answer.odometry_scale)?;
     d.set_item("odometry_scale_sd", answer.odometry_scale_sd)?;
+    d.set_item("residual_m", answer.residual_m)?;
+    d.set_item("match_ratio", answer.match_ratio)?;
+    d.set_item("window_len", answer.window_len)?;
+    d.set_item("applied_directions", answer.applied_directions)?;
+    d.set_item("expected_seq", answer.expected_seq)?;
+    d.set_item("daemon_epoch", answer.daemon_epoch)?;
+    d.set_item("sent_mono_ns", answer.sent_mono_ns)?;
+    d.set_item("received_mono_ns", answer.received_mono_ns)?;
+    d.set_item("published_mono_ns", answer.published_mono_ns)?;
     Ok(d)
 }
 
@@ -686,7 +698,9 @@ impl Client {
     /// with `seq`, `stamp_ns`, `pose` (3, 4), `status` (a name), `map_from_odom` (x, y, yaw),
     /// `covariance` (3, 3, in the map plane), `anchor_yaw` (radians: the rotation of the
     /// odometry frame into the map plane, which turns the covariance into the odometry frame),
-    /// `odometry_scale` and `odometry_scale_sd`. While it waits, other Python threads run, and a
+    /// `odometry_scale` and `odometry_scale_sd`, the step's `residual_m`, `match_ratio`,
+    /// `window_len` and `applied_directions`, `expected_seq`, `daemon_epoch` and the pose's
+    /// `sent_mono_ns`, `received_mono_ns` and `published_mono_ns` (see `answer_dict`). While it waits, other Python threads run, and a
     /// signal (Ctrl-C) is acted on within 0.1 s.
     fn recv<'py>(&self, py: Python<'py>, timeout_s: f64) -> PyResult<Option<Bound<'py, PyDict>>> {
         let deadline = deadline_after(seconds("timeout_s", timeout_s)?);

@@ -5,6 +5,7 @@ Needs the `lanealign` binary (LANEALIGN_BIN, else the workspace's target/release
 """
 
 import contextlib
+import csv
 import json
 import math
 import os
@@ -557,6 +558,24 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     assert all(math.isclose(a["anchor_yaw"], yaw, rel_tol=0, abs_tol=1e-12) for a in answers)
     assert [a["odometry_scale"] for a in answers] == list(offline.odometry_scale)
     assert all(a["odometry_scale_sd"] == 0.0 for a in answers), "kiss-icp does not estimate it"
+    # What the status CSV says of each step, as `lanealign correct --status` says it.
+    write_kitti(tmp_path / "600.txt", poses)
+    cli("correct", "--osm", DATA / "osm" / "kitti_00.osm", "--anchor", ",".join(map(str, ANCHOR_00)),
+        "--projection", "kitti", "--preset", "kiss-icp", "--frame", "kitti-camera",
+        tmp_path / "600.txt", "-o", tmp_path / "600_out.txt", "--status", tmp_path / "600.csv")
+    with open(tmp_path / "600.csv") as f:
+        rows = list(csv.DictReader(f))
+    for key, kind in [("residual_m", float), ("match_ratio", float), ("window_len", int),
+                      ("applied_directions", int)]:
+        expected = [kind(r[key]) for r in rows]
+        got = [a[key] for a in answers]
+        assert np.array_equal(np.array(got, dtype=float), np.array(expected, dtype=float),
+                              equal_nan=True), key
+    assert all(a["sent_mono_ns"] <= a["received_mono_ns"] <= a["published_mono_ns"]
+               for a in answers)
+    assert all(a["published_mono_ns"] <= time.monotonic_ns() for a in answers)
+    assert len({a["daemon_epoch"] for a in answers}) == 1
+    assert [a["expected_seq"] for a in answers] == list(range(2, 602))
 
 
 # An odometry process: publishes the poses of POSES (.npy) one at a time, keeps what its
