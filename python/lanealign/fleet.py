@@ -64,7 +64,7 @@ class Region:
 
 def correct_drive(drive: Drive) -> dict:
     """Corrects one drive (a task): writes ``drive.output``, returns a summary."""
-    poses = np.loadtxt(drive.poses, ndmin=2).reshape(-1, 3, 4)
+    poses = _read_kitti(drive.poses)
     result = correct(
         poses,
         preset=drive.preset,
@@ -84,12 +84,18 @@ def correct_drive(drive: Drive) -> dict:
         **{name: int(n) for name, n in zip(STATUS_NAMES, counts)},
     }
     if drive.gt is not None:
-        gt = np.loadtxt(drive.gt, ndmin=2).reshape(-1, 3, 4)
+        gt = _read_kitti(drive.gt)
         summary["raw"] = _evaluated(gt, poses, frame=drive.frame)
         summary["corrected"] = _evaluated(gt, result.poses, frame=drive.frame,
                                           covariance=result.covariance,
                                           anchor_yaw=result.anchor_yaw)
     return summary
+
+
+def _read_kitti(path: str) -> np.ndarray:
+    """The (N, 3, 4) poses of a KITTI file, which may begin with a byte-order mark as the
+    command line allows."""
+    return np.loadtxt(path, ndmin=2, encoding="utf-8-sig").reshape(-1, 3, 4)
 
 
 def _write_kitti(path: str, poses: np.ndarray) -> None:

@@ -188,3 +188,25 @@ def _exit_on_poison(region):
     if region.output == "poison":
         os._exit(9)
     return {"output": region.output}
+
+
+def test_a_log_saved_with_a_byte_order_mark_is_read_as_the_command_line_reads_it(tmp_path):
+    """KITTI files that a Windows tool saved as UTF-8 with a byte-order mark (numpy refused their
+    first number, `'\\ufeff1.0'`): the drive's log and its ground truth."""
+    needs_data()
+
+    def marked(path):
+        copy = tmp_path / f"marked_{path.parent.name}_{path.name}"
+        copy.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+        return str(copy)
+
+    log, gt = DATA / "odometry" / "lidar" / "04.txt", DATA / "kitti" / "poses" / "04.txt"
+    drive = fleet.Drive(poses=str(log), output=str(tmp_path / "plain_out.txt"), preset="kiss-icp",
+                        osm=str(DATA / "osm" / "kitti_04.osm"), anchor=anchor_of("04"),
+                        projection="kitti", frame="kitti-camera", gt=str(gt))
+    plain = fleet.correct_drive(drive)
+    from_marked = fleet.correct_drive(replace(drive, poses=marked(log), gt=marked(gt),
+                                              output=str(tmp_path / "marked_out.txt")))
+    assert {k: v for k, v in plain.items() if k != "output"} == \
+        {k: v for k, v in from_marked.items() if k != "output"}
+    assert plain["poses"] == 271 and plain["corrected"]["poses"] == 271
