@@ -118,13 +118,19 @@ def eval(  # noqa: A001
     frame: str = "flu",
     covariance: Optional[np.ndarray] = None,
     anchor_yaw: Optional[float] = None,
+    gt_stamps: Optional[np.ndarray] = None,
+    est_stamps: Optional[np.ndarray] = None,
 ) -> dict:
-    """APE-2D of ``est`` against ``gt`` (paired by index, no alignment), as ``lanealign eval``.
-    Each is (N, 3, 4), (N, 4, 4), (N, 12) or planar (N, 3), as ``correct`` takes them.
+    """APE-2D of ``est`` against ``gt`` (no alignment), as ``lanealign eval``. Each is
+    (N, 3, 4), (N, 4, 4), (N, 12) or planar (N, 3), as ``correct`` takes them. They are paired by
+    index (then as long as each other), or, given ``gt_stamps`` and ``est_stamps`` (seconds, one
+    per pose, finite and increasing), by time as ``lanealign eval`` pairs two TUM files: each
+    estimated pose with the ground truth within 10 ms of it, each pose in one pair at most.
 
     Returns ``ape2d_mean_m``, ``rmse_m``, ``lateral_rmse_m``, ``heading_mean_deg``, ``max_m``
     and ``poses``. With ``covariance`` (N, 3, 3) and ``anchor_yaw`` (``Corrected.covariance``
-    and ``Corrected.anchor_yaw``; a ``Client``'s answers carry both) also how well the
+    and ``Corrected.anchor_yaw``, one per estimated pose; a ``Client``'s answers carry both)
+    also how well the
     covariances describe the errors, as ``lanealign eval --status``: ``cov95_coverage`` (the
     fraction of poses whose error lies inside the 95 % ellipse), ``nees_mean``,
     ``independent_samples``, what a covariance describing the errors exactly would show over as
@@ -133,14 +139,17 @@ def eval(  # noqa: A001
     cautious"). A covariance that is not symmetric, or not positive definite (a pose with status
     ``invalid_input``), is a ``ValueError``.
     """
-    if covariance is not None:
-        covariance = np.ascontiguousarray(covariance, dtype=np.float64)
+    def floats(a):
+        return None if a is None else np.ascontiguousarray(a, dtype=np.float64)
+
     return _lanealign.eval(
-        np.ascontiguousarray(gt, dtype=np.float64),
-        np.ascontiguousarray(est, dtype=np.float64),
+        floats(gt),
+        floats(est),
         frame=frame,
-        covariance=covariance,
+        covariance=floats(covariance),
         anchor_yaw=anchor_yaw,
+        gt_stamps=floats(gt_stamps),
+        est_stamps=floats(est_stamps),
     )
 
 

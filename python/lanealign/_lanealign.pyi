@@ -29,6 +29,8 @@ def eval(
     frame: str = ...,
     covariance: Optional[np.ndarray] = ...,
     anchor_yaw: Optional[float] = ...,
+    gt_stamps: Optional[np.ndarray] = ...,
+    est_stamps: Optional[np.ndarray] = ...,
 ) -> Dict[str, Union[float, int]]: ...
 def compile_map(
     inputs: List[str],

@@ -336,7 +336,8 @@ fn correct<'py>(
 /// `covariance` ((N, 3, 3), the map plane's, as `correct` returns it) and `anchor_yaw` (radians,
 /// the map plane's rotation from the odometry frame) also its calibration, as `eval --status`.
 #[pyfunction]
-#[pyo3(signature = (gt, est, *, frame="flu", covariance=None, anchor_yaw=None))]
+#[pyo3(signature = (gt, est, *, frame="flu", covariance=None, anchor_yaw=None, gt_stamps=None, est_stamps=None))]
+#[allow(clippy::too_many_arguments)]
 fn eval<'py>(
     py: Python<'py>,
     gt: PyReadonlyArrayDyn<'py, f64>,
@@ -344,20 +345,47 @@ fn eval<'py>(
     frame: &str,
     covariance: Option<PyReadonlyArrayDyn<'py, f64>>,
     anchor_yaw: Option<f64>,
+    gt_stamps: Option<PyReadonlyArray1<'py, f64>>,
+    est_stamps: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let frame: AxisConvention = parsed("frame", frame)?;
-    let trajectory = |a: &PyReadonlyArrayDyn<'py, f64>| -> PyResult<Trajectory> {
-        Ok(Trajectory {
-            stamps: None,
-            poses: poses_from(&a.as_array().to_owned())?,
-        })
+    if gt_stamps.is_some() != est_stamps.is_some() {
+        return Err(PyValueError::new_err(
+            "gt_stamps= and est_stamps= go together (pairing by time needs both)",
+        ));
+    }
+    let trajectory = |what: &str,
+                      a: &PyReadonlyArrayDyn<'py, f64>,
+                      stamps: Option<&PyReadonlyArray1<'py, f64>>|
+     -> PyResult<Trajectory> {
+        let poses = poses_from(&a.as_array().to_owned())?;
+        let stamps = stamps.map(|s| s.as_array().to_vec());
+        if let Some(s) = &stamps {
+            if s.len() != poses.len() {
+                return Err(PyValueError::new_err(format!(
+                    "{what}_stamps: {} stamps for {} poses",
+                    s.len(),
+                    poses.len()
+                )));
+            }
+            if let Some((i, problem)) = trajectory::stamps_problem(s) {
+                return Err(PyValueError::new_err(format!(
+                    "{what}_stamps[{i}]: {problem}"
+                )));
+            }
+        }
+        Ok(Trajectory { stamps, poses })
     };
-    let paired = evaluation::pair(&trajectory(&gt)?, &trajectory(&est)?, frame).map_err(error)?;
+    let est = trajectory("est", &est, est_stamps.as_ref())?;
+    let paired = evaluation::pair(&trajectory("gt", &gt, gt_stamps.as_ref())?, &est, frame)
+        .map_err(error)?;
     let m = ape_2d(&paired.gt, &paired.est).map_err(error)?;
     let check = match (covariance, anchor_yaw) {
         (None, None) => None,
         (Some(c), Some(yaw)) => {
-            let covariance = position_covariances(&c.as_array(), paired.est.len(), yaw)?;
+            // One covariance per estimated pose, taken for the poses paired.
+            let all = position_covariances(&c.as_array(), est.poses.len(), yaw)?;
+            let covariance: Vec<[[f64; 2]; 2]> = paired.pairs.iter().map(|p| all[p.1]).collect();
             Some(
                 calibration(&paired.gt, &paired.est, &covariance)
                     .map_err(error)?

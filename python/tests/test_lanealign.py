@@ -183,6 +183,50 @@ def test_poses_missing_are_motion_unless_the_stamps_say_too_fast(tmp_path):
             lanealign.correct(poses[kept], preset="kiss-icp", lanes=lanes, stamps=bad)
 
 
+def test_eval_pairs_by_time_as_the_command_line_pairs_tum_files(tmp_path):
+    """Ground truth at 20 Hz and an estimate at 10 Hz stamped 3 ms late: given both stamps,
+    `eval` pairs them by time as `lanealign eval --format tum` pairs the two files, and takes the
+    covariances of the estimated poses it paired (without stamps only equal counts pair)."""
+    lanes, poses = straight_lane_and_drift(tmp_path)
+    est_stamps = np.arange(len(poses)) * 0.1 + 0.003
+    truth = np.zeros((2 * len(poses), 3, 4))
+    truth[:, :, :3] = np.eye(3)
+    truth[:, 0, 3] = np.arange(len(truth)) * 0.6
+    gt_stamps = np.arange(len(truth)) * 0.05
+
+    def tum(path, stamps, xyz):
+        path.write_text("".join(f"{float(t)!r} {float(x)!r} {float(y)!r} {float(z)!r} 0 0 0 1\n"
+                                for t, (x, y, z) in zip(stamps, xyz)))
+        return path
+
+    gt_file = tum(tmp_path / "gt.tum", gt_stamps, truth[:, :, 3])
+    est_file = tum(tmp_path / "est.tum", est_stamps, poses[:, :, 3])
+    cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--format", "tum", est_file,
+        "-o", tmp_path / "out.tum", "--status", tmp_path / "status.csv")
+    expected = json.loads(cli("eval", "--gt", gt_file, "--est", tmp_path / "out.tum", "--format",
+                              "tum", "--status", tmp_path / "status.csv", "--json"))
+    corrected = lanealign.correct(poses, preset="kiss-icp", lanes=lanes, stamps=est_stamps)
+    got = lanealign.eval(truth, corrected.poses, gt_stamps=gt_stamps, est_stamps=est_stamps,
+                         covariance=corrected.covariance, anchor_yaw=corrected.anchor_yaw)
+    assert got.keys() == expected.keys() and got["poses"] == expected["poses"] == len(poses)
+    for key, value in expected.items():
+        if isinstance(value, float):
+            # The command line reads the corrected heading back from a quaternion.
+            assert math.isclose(got[key], value, rel_tol=1e-9, abs_tol=1e-12), key
+        else:
+            assert got[key] == value, key
+    with pytest.raises(ValueError, match="400 poses and the estimate 200"):
+        lanealign.eval(truth, corrected.poses)
+    with pytest.raises(ValueError, match="go together"):
+        lanealign.eval(truth, corrected.poses, gt_stamps=gt_stamps)
+    with pytest.raises(ValueError, match=re.escape("est_stamps: 3 stamps for 200 poses")):
+        lanealign.eval(truth, corrected.poses, gt_stamps=gt_stamps, est_stamps=est_stamps[:3])
+    backwards = gt_stamps.copy()
+    backwards[7] = 0.0
+    with pytest.raises(ValueError, match=re.escape("gt_stamps[7]: timestamp 0 does not follow")):
+        lanealign.eval(truth, corrected.poses, gt_stamps=backwards, est_stamps=est_stamps)
+
+
 def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):
     lanes, poses = straight_lane_and_drift(tmp_path)
     with pytest.raises(ValueError, match="preset"):
