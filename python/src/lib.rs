@@ -152,6 +152,28 @@ type Corrected<'py> = (
     f64,
 );
 
+/// The stamps (seconds) of `poses` poses given as argument `name`, checked as a TUM file's are
+/// (`trajectory::stamps_problem`): one per pose, finite and increasing.
+fn checked_stamps(
+    name: &str,
+    stamps: Option<&PyReadonlyArray1<'_, f64>>,
+    poses: usize,
+) -> PyResult<Option<Vec<f64>>> {
+    let Some(stamps) = stamps.map(|s| s.as_array().to_vec()) else {
+        return Ok(None);
+    };
+    if stamps.len() != poses {
+        return Err(PyValueError::new_err(format!(
+            "{name}: {} stamps for {poses} poses",
+            stamps.len()
+        )));
+    }
+    if let Some((i, problem)) = trajectory::stamps_problem(&stamps) {
+        return Err(PyValueError::new_err(format!("{name}[{i}]: {problem}")));
+    }
+    Ok(Some(stamps))
+}
+
 /// Parameter overrides from a dict of names to numbers and bools, read as the command line's
 /// `--set KEY=VALUE` reads them (a float stays a float: `800.0` is no pose count).
 fn overrides_from(dict: &Bound<'_, PyDict>) -> PyResult<Overrides> {
@@ -206,19 +228,7 @@ fn correct<'py>(
     let shape = array.shape().to_vec();
     let frame: AxisConvention = parsed("frame", frame)?;
     let input = poses_from(&array)?;
-    let stamps: Option<Vec<f64>> = stamps.map(|s| s.as_array().to_vec());
-    if let Some(s) = &stamps {
-        if s.len() != input.len() {
-            return Err(PyValueError::new_err(format!(
-                "stamps: {} stamps for {} poses",
-                s.len(),
-                input.len()
-            )));
-        }
-        if let Some((i, problem)) = trajectory::stamps_problem(s) {
-            return Err(PyValueError::new_err(format!("stamps[{i}]: {problem}")));
-        }
-    }
+    let stamps = checked_stamps("stamps", stamps.as_ref(), input.len())?;
     if matches!(shape.as_slice(), [_, 3]) && frame != AxisConvention::Flu {
         return Err(PyValueError::new_err(
             "planar (N, 3) poses are in the flu frame",
@@ -359,21 +369,7 @@ fn eval<'py>(
                       stamps: Option<&PyReadonlyArray1<'py, f64>>|
      -> PyResult<Trajectory> {
         let poses = poses_from(&a.as_array().to_owned())?;
-        let stamps = stamps.map(|s| s.as_array().to_vec());
-        if let Some(s) = &stamps {
-            if s.len() != poses.len() {
-                return Err(PyValueError::new_err(format!(
-                    "{what}_stamps: {} stamps for {} poses",
-                    s.len(),
-                    poses.len()
-                )));
-            }
-            if let Some((i, problem)) = trajectory::stamps_problem(s) {
-                return Err(PyValueError::new_err(format!(
-                    "{what}_stamps[{i}]: {problem}"
-                )));
-            }
-        }
+        let stamps = checked_stamps(&format!("{what}_stamps"), stamps, poses.len())?;
         Ok(Trajectory { stamps, poses })
     };
     let est = trajectory("est", &est, est_stamps.as_ref())?;
@@ -610,18 +606,26 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
     d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
     let covariance = numpy::ndarray::arr2(&from_upper_triangle(&answer.covariance));
     d.set_item("covariance", covariance.into_pyarray(py))?;
-    d.set_item("anchor_yaw", answer.anchor_yaw)?;
-    d.set_item("odometry_scale", answer.odometry_scale)?;
-    d.set_item("odometry_scale_sd", answer.odometry_scale_sd)?;
-    d.set_item("residual_m", answer.residual_m)?;
-    d.set_item("match_ratio", answer.match_ratio)?;
-    d.set_item("window_len", answer.window_len)?;
-    d.set_item("applied_directions", answer.applied_directions)?;
-    d.set_item("expected_seq", answer.expected_seq)?;
-    d.set_item("daemon_epoch", answer.daemon_epoch)?;
-    d.set_item("sent_mono_ns", answer.sent_mono_ns)?;
-    d.set_item("received_mono_ns", answer.received_mono_ns)?;
-    d.set_item("published_mono_ns", answer.published_mono_ns)?;
+    for (key, value) in [
+        ("anchor_yaw", answer.anchor_yaw),
+        ("odometry_scale", answer.odometry_scale),
+        ("odometry_scale_sd", answer.odometry_scale_sd),
+        ("residual_m", answer.residual_m),
+        ("match_ratio", answer.match_ratio),
+    ] {
+        d.set_item(key, value)?;
+    }
+    for (key, value) in [
+        ("window_len", u64::from(answer.window_len)),
+        ("applied_directions", u64::from(answer.applied_directions)),
+        ("expected_seq", answer.expected_seq),
+        ("daemon_epoch", answer.daemon_epoch),
+        ("sent_mono_ns", answer.sent_mono_ns),
+        ("received_mono_ns", answer.received_mono_ns),
+        ("published_mono_ns", answer.published_mono_ns),
+    ] {
+        d.set_item(key, value)?;
+    }
     Ok(d)
 }
 
