@@ -28,7 +28,7 @@ use lanealign_wire::clock::{deadline_after, time_left};
 use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
 use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
-use numpy::ndarray::{Array1, Array3, ArrayD, IxDyn};
+use numpy::ndarray::{Array1, Array3, ArrayD, ArrayViewD, Axis, IxDyn};
 use numpy::{
     AllowTypeChange, IntoPyArray, PyArray1, PyArray3, PyArrayDyn, PyArrayLikeDyn, PyReadonlyArray1,
     PyReadonlyArrayDyn,
@@ -52,31 +52,35 @@ fn message(e: impl Into<anyhow::Error>) -> String {
 /// The status names, indexed by the codes `correct` returns.
 const STATUS_NAMES: [&str; 7] = Status::NAMES;
 
+/// The 12 row-major numbers of each pose (a KITTI row each) of an (N, 3, 4), (N, 4, 4) or
+/// (N, 12) array; `None` for any other shape.
+fn kitti_rows(array: &ArrayViewD<'_, f64>) -> Option<Vec<[f64; 12]>> {
+    let element: &dyn Fn(usize, usize) -> f64 = match array.shape() {
+        [_, 3 | 4, 4] => &|i, k| array[IxDyn(&[i, k / 4, k % 4])],
+        [_, 12] => &|i, k| array[IxDyn(&[i, k])],
+        _ => return None,
+    };
+    Some(
+        (0..array.shape()[0])
+            .map(|i| std::array::from_fn(|k| element(i, k)))
+            .collect(),
+    )
+}
+
 /// Poses of shape (N, 3, 4), (N, 4, 4), (N, 12) (a KITTI file's rows, as `np.loadtxt` reads
 /// it) or planar (N, 3) `[x, y, yaw]`.
 fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
-    let shape = array.shape().to_vec();
-    let rows = |element: &dyn Fn(usize, usize) -> f64| {
-        (0..shape[0])
-            .map(|i| {
-                let mut v = [0.0; 12];
-                for (k, value) in v.iter_mut().enumerate() {
-                    *value = element(i, k);
-                }
-                Pose3::from_row_major(&v)
-            })
-            .collect()
-    };
-    match shape.as_slice() {
-        [_, 3 | 4, 4] => Ok(rows(&|i, k| array[IxDyn(&[i, k / 4, k % 4])])),
-        [_, 12] => Ok(rows(&|i, k| array[IxDyn(&[i, k])])),
-        [_, 3] => Ok((0..shape[0])
+    if let Some(rows) = kitti_rows(&array.view()) {
+        return Ok(rows.iter().map(Pose3::from_row_major).collect());
+    }
+    match array.shape() {
+        [n, 3] => Ok((0..*n)
             .map(|i| {
                 let p = |c: usize| array[IxDyn(&[i, c])];
                 Pose3::planar(p(0), p(1), p(2), 0.0)
             })
             .collect()),
-        _ => Err(PyValueError::new_err(format!(
+        shape => Err(PyValueError::new_err(format!(
             "poses must have shape (N, 3, 4), (N, 4, 4), (N, 12) or (N, 3), not {shape:?}"
         ))),
     }
@@ -710,20 +714,16 @@ impl Client {
         pose: PyArrayLikeDyn<'_, f64, AllowTypeChange>,
     ) -> PyResult<u64> {
         let array = pose.as_array();
-        let element: &dyn Fn(usize) -> f64 = match array.shape() {
-            [3 | 4, 4] => &|k| array[IxDyn(&[k / 4, k % 4])],
-            [12] => &|k| array[IxDyn(&[k])],
-            shape => {
-                return Err(PyValueError::new_err(format!(
-                    "a pose has shape (3, 4), (4, 4) or (12,), not {shape:?}"
-                )))
-            }
-        };
-        let mut v = [0.0; 12];
-        for (k, value) in v.iter_mut().enumerate() {
-            *value = element(k);
-        }
-        self.with_open(|c| c.publish(stamp_ns, &v))?.map_err(error)
+        let row = kitti_rows(&array.view().insert_axis(Axis(0)))
+            .and_then(|rows| rows.first().copied())
+            .ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "a pose has shape (3, 4), (4, 4) or (12,), not {:?}",
+                    array.shape()
+                ))
+            })?;
+        self.with_open(|c| c.publish(stamp_ns, &row))?
+            .map_err(error)
     }
 
     /// The next answer of this session, waiting up to `timeout_s` seconds: `None`, or a dict

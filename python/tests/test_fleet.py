@@ -1,6 +1,10 @@
 """Fleet batches on a local Dask cluster of two worker processes equal a serial run."""
 
+import os
 import re
+import signal
+import threading
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -128,10 +132,6 @@ def test_a_worker_killed_mid_batch_loses_no_drive(tmp_path):
     run gives it."""
     needs_data()
     distributed = pytest.importorskip("distributed")
-    import os
-    import signal
-    import threading
-    import time
 
     def drive(i):
         return fleet.Drive(poses=str(DATA / "odometry" / "lidar" / "07.txt"),
@@ -183,8 +183,6 @@ def test_a_drive_that_kills_its_workers_is_told_and_the_others_come_back(tmp_pat
 
 
 def _exit_on_poison(region):
-    import os
-
     if region.output == "poison":
         os._exit(9)
     return {"output": region.output}

@@ -60,6 +60,14 @@ def write_kitti(path, poses):
     np.savetxt(path, poses.reshape(len(poses), 12), fmt="%.17g")
 
 
+def write_tum(path, stamps, poses):
+    """`poses` ((N, 3, 4), rotations the identity) stamped `stamps` as a TUM file, every number
+    as Python writes it back exactly."""
+    path.write_text("".join(f"{float(t)!r} {float(x)!r} {float(y)!r} {float(z)!r} 0 0 0 1\n"
+                            for t, (x, y, z) in zip(stamps, poses[:, :, 3])))
+    return path
+
+
 def read_kitti(path):
     return np.loadtxt(path).reshape(-1, 3, 4)
 
@@ -159,12 +167,7 @@ def test_poses_missing_are_motion_unless_the_stamps_say_too_fast(tmp_path):
     names = [lanealign.STATUS_NAMES[c] for c in jumped.status]
     assert names.count("odometry_jump") == 1 and names[gap] == "odometry_jump"
     assert abs(jumped.poses[-1, 0, 3] - unstamped.poses[-1, 0, 3]) > 20.0
-    tum = tmp_path / "jumped.tum"
-    rows = []
-    for t, p in zip(stamps, poses[kept]):
-        x, y, z = map(float, p[:, 3])
-        rows.append(f"{float(t)!r} {x!r} {y!r} {z!r} 0 0 0 1\n")
-    tum.write_text("".join(rows))
+    tum = write_tum(tmp_path / "jumped.tum", stamps, poses[kept])
     out = tmp_path / "out.tum"
     cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--format", "tum", tum, "-o", out)
     corrected = np.loadtxt(out)
@@ -194,13 +197,8 @@ def test_eval_pairs_by_time_as_the_command_line_pairs_tum_files(tmp_path):
     truth[:, 0, 3] = np.arange(len(truth)) * 0.6
     gt_stamps = np.arange(len(truth)) * 0.05
 
-    def tum(path, stamps, xyz):
-        path.write_text("".join(f"{float(t)!r} {float(x)!r} {float(y)!r} {float(z)!r} 0 0 0 1\n"
-                                for t, (x, y, z) in zip(stamps, xyz)))
-        return path
-
-    gt_file = tum(tmp_path / "gt.tum", gt_stamps, truth[:, :, 3])
-    est_file = tum(tmp_path / "est.tum", est_stamps, poses[:, :, 3])
+    gt_file = write_tum(tmp_path / "gt.tum", gt_stamps, truth)
+    est_file = write_tum(tmp_path / "est.tum", est_stamps, poses)
     cli("correct", "--lanes", lanes, "--preset", "kiss-icp", "--format", "tum", est_file,
         "-o", tmp_path / "out.tum", "--status", tmp_path / "status.csv")
     expected = json.loads(cli("eval", "--gt", gt_file, "--est", tmp_path / "out.tum", "--format",
