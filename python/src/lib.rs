@@ -773,7 +773,33 @@ impl Client {
             }
         }
     }
+
+    /// `with Client(...) as client:` gives the client to the block.
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// Leaving the `with` block ends the session as `close()` does (waiting up to 1 s for the
+    /// answers in flight, which are then dropped: to keep them, call `close` in the block), unless
+    /// it is closed already. A failed close raises `CloseError`, chained to the block's exception
+    /// when there is one; the block's exception is never swallowed.
+    fn __exit__<'py>(
+        &self,
+        py: Python<'py>,
+        _exc_type: Bound<'py, PyAny>,
+        _exc_value: Bound<'py, PyAny>,
+        _traceback: Bound<'py, PyAny>,
+    ) -> PyResult<bool> {
+        if self.locked()?.is_some() {
+            self.close(py, EXIT_CLOSE_TIMEOUT_S)?;
+        }
+        Ok(false)
+    }
 }
+
+/// How long leaving a client's `with` block waits for the answers in flight (seconds): as long
+/// as `Client.close` does by default.
+const EXIT_CLOSE_TIMEOUT_S: f64 = 1.0;
 
 create_exception!(
     lanealign,

@@ -769,6 +769,44 @@ def test_a_close_that_fails_keeps_the_answers_it_received(tmp_path):
             client.recv(0.0)
 
 
+def test_a_with_block_ends_its_session_and_keeps_the_blocks_exception(tmp_path):
+    needs_data()
+    namespace = f"py-with-{os.getpid()}"
+    poses = kitti_00_lidar(20)
+    journals = tmp_path / "state" / namespace / "lidar"
+
+    def forgotten():
+        deadline = time.monotonic() + 5
+        while any(journals.iterdir()) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return not any(journals.iterdir())
+
+    with kitti_00_daemon(tmp_path, namespace) as (daemon, _):
+        with lanealign.Client("lidar", namespace=namespace) as client:
+            for i, pose in enumerate(poses):
+                assert client.publish(i, pose) == i + 1
+                assert client.recv(10.0)["seq"] == i + 1
+            assert any(journals.iterdir()), "the daemon journals an open session"
+        assert forgotten(), "leaving the block told the daemon the session is over"
+        with pytest.raises(ValueError, match="closed"):
+            client.recv(0.0)
+        # An odometry process that fails in the block: its exception comes out, not the
+        # close's, and the session still ends.
+        with pytest.raises(KeyError, match="the odometry failed"):
+            with lanealign.Client("lidar", namespace=namespace) as client:
+                client.publish(0, poses[0])
+                assert client.recv(10.0)["seq"] == 1
+                raise KeyError("the odometry failed")
+        assert forgotten(), "a block that raised ended its session too"
+        # Closed in the block (to keep the answers in flight), leaving it closes nothing more.
+        with lanealign.Client("lidar", namespace=namespace) as client:
+            for i, pose in enumerate(poses[:5]):
+                client.publish(i, pose)
+            closed = client.close(10.0)
+        assert [a["seq"] for a in closed["answers"]] == [1, 2, 3, 4, 5]
+        assert closed["daemon_told"] and forgotten()
+
+
 def test_a_waiting_recv_lets_other_threads_run_and_ctrl_c_in():
     """`Client.recv` waits without the GIL: another Python thread runs as much meanwhile as
     while the caller sleeps (it got 0.6 % when recv held the GIL), and Ctrl-C (SIGINT) stops a
