@@ -1,5 +1,6 @@
 //! Compiling road data into a lane map: read every input, choose the map plane, derive lanes.
 
+use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -14,9 +15,9 @@ use lanealign_core::tile::SigningKey;
 use crate::lane_spill::SpillError;
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
 use crate::node_store::NodeStoreError;
-use crate::osm::{read_xml_file, OsmData, OsmError};
+use crate::osm::{read_xml_file, MergedNodes, OsmData, OsmError};
 use crate::osm_lanes::{
-    derive_lanes, DeriveReport, LaneOptions, MAX_NODE_GAP_M, MAX_PLANE_RADIUS_M,
+    derive_way_lanes, road_class, DeriveReport, LaneOptions, MAX_NODE_GAP_M, MAX_PLANE_RADIUS_M,
 };
 use crate::pbf::{read_pbf_file, PbfError};
 
@@ -49,7 +50,7 @@ impl std::fmt::Display for InputReport {
                 f,
                 "OSM, {} ways read: {} drivable -> {} lanes; skipped {} not drivable, {} without \
                  geometry (fewer than 2 known nodes, nodes over {} km apart, or over {} km from \
-                 the map's origin); {} missing node references",
+                 the map's origin){}; {} missing node references",
                 r.ways_read(),
                 r.ways_used,
                 r.lanes,
@@ -57,6 +58,10 @@ impl std::fmt::Display for InputReport {
                 r.ways_without_geometry,
                 MAX_NODE_GAP_M / 1000.0,
                 MAX_PLANE_RADIUS_M / 1000.0,
+                match r.ways_in_earlier_input {
+                    0 => String::new(),
+                    n => format!(", {n} already read from an earlier input"),
+                },
                 r.missing_node_refs
             ),
             InputReport::Lanelet2(r) => write!(
@@ -275,19 +280,38 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
     let plane = MapPlane::new(options.projection, lat, lon);
     let mut lanes: Vec<Lane> = Vec::new();
     let mut reports = Vec::with_capacity(data.len());
-    let mut from_osm_ways = false;
-    for osm in &data {
-        if is_lanelet2(osm) {
+    let lanelet2: Vec<bool> = data.iter().map(is_lanelet2).collect();
+    let osm_inputs: Vec<&OsmData> = data
+        .iter()
+        .zip(&lanelet2)
+        .filter_map(|(osm, &lanelet2)| (!lanelet2).then_some(osm))
+        .collect();
+    // The roads of the OSM inputs before: overlapping extracts hold the ways of their overlap.
+    let mut earlier_roads = HashSet::new();
+    for (osm, &lanelet2) in data.iter().zip(&lanelet2) {
+        if lanelet2 {
             let (l, r) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
             lanes.extend(l);
             reports.push(InputReport::Lanelet2(r));
-        } else {
-            let (l, r) = derive_lanes(osm, &plane, &options.lanes);
-            lanes.extend(l);
-            reports.push(InputReport::Osm(r));
-            from_osm_ways = true;
+            continue;
         }
+        let nodes = MergedNodes::new(osm, &osm_inputs);
+        let mut report = DeriveReport::default();
+        for way in &osm.ways {
+            if earlier_roads.contains(&way.id) {
+                report.ways_in_earlier_input += 1;
+            } else {
+                derive_way_lanes(way, &nodes, &plane, &options.lanes, &mut report, &mut lanes);
+            }
+        }
+        let roads = osm
+            .ways
+            .iter()
+            .filter(|w| road_class(w, &options.lanes).is_some());
+        earlier_roads.extend(roads.map(|w| w.id));
+        reports.push(InputReport::Osm(report));
     }
+    let from_osm_ways = !osm_inputs.is_empty();
     let geometry = if from_osm_ways {
         options.lanes.geometry()
     } else {

@@ -27,8 +27,8 @@ use osmpbf::Element;
 use crate::compile::{compile, is_pbf, CompileError, CompileOptions, InputReport, NodeBounds};
 use crate::lane_spill::{BlockKey, BlockLanes, LaneSpill, SpillError, SpilledLanes};
 use crate::node_store::{NodeStore, NodeStoreError, NodeWriter};
-use crate::osm::tag;
-use crate::osm_lanes::{derive_way_lanes, DeriveReport};
+use crate::osm::{tag, MergedNodes};
+use crate::osm_lanes::{derive_way_lanes, road_class, DeriveReport};
 use crate::pbf::{for_each_blob, for_each_element, node_of, relation_of, way_of};
 
 /// The grid to cut.
@@ -141,13 +141,30 @@ fn stream(
     let block_cells = (BLOCK_M / grid.cell_size_m).round().clamp(1.0, 64.0) as i32;
     let mut spill = LaneSpill::new_in(output, grid.cell_size_m, grid.margin_m, block_cells);
     let mut reports = Vec::with_capacity(inputs.len());
-    for (path, store) in inputs.iter().zip(&stores) {
-        match derive_streamed(path, output, store, &plane, options, &mut spill)? {
-            Derived::Lanes(report) => reports.push(InputReport::Osm(report)),
+    let all: Vec<&NodeStore> = stores.iter().map(|s| &s.store).collect();
+    // The roads of the inputs before, ascending: overlapping extracts hold the ways of their
+    // overlap, whose lanes come from the first (as the in-memory compile takes them).
+    let mut earlier_roads: Vec<i64> = Vec::new();
+    for (k, (path, stored)) in inputs.iter().zip(&stores).enumerate() {
+        let input = StreamedInput {
+            path,
+            nodes: MergedNodes::new(&stored.store, &all),
+            with_ways: &stored.with_ways,
+            earlier_roads: &earlier_roads,
+            keep_roads: k + 1 < inputs.len(),
+        };
+        match derive_streamed(&input, output, &plane, options, &mut spill)? {
+            Derived::Lanes(report, roads) => {
+                reports.push(InputReport::Osm(report));
+                earlier_roads.extend(roads);
+                earlier_roads.sort_unstable();
+                earlier_roads.dedup();
+            }
             Derived::Lanelet2 => return Ok(Err(format!("{} is a Lanelet2 map", path.display()))),
             Derived::Unsorted(why) => return Ok(Err(unsorted(path, &why))),
         }
     }
+    drop(all);
     drop(stores);
     let mut spilled = spill.finish().map_err(lane_error(output))?;
     if spilled.summary.lanes == 0 {
@@ -307,24 +324,38 @@ impl InOrder {
 
 /// What the second pass over one input made.
 enum Derived {
-    /// Its lanes are in the spill, with what derivation did.
-    Lanes(DeriveReport),
+    /// Its lanes are in the spill, with what derivation did and its roads' ids (ascending;
+    /// none for the last input).
+    Lanes(DeriveReport, Vec<i64>),
     /// It is a Lanelet2 map (lanes come from relations, read in memory).
     Lanelet2,
     /// Its ways are not sorted by id (so the map's order cannot be kept as they stream).
     Unsorted(String),
 }
 
-/// The ways of one blob with lanes, in file order, and what derivation did.
-type BlobLanes = (Vec<(i64, Vec<Lane>)>, DeriveReport);
+/// The ways of one blob with lanes, in file order, its roads' ids, and what derivation did.
+type BlobLanes = (Vec<(i64, Vec<Lane>)>, Vec<i64>, DeriveReport);
+
+/// One input of the second pass.
+struct StreamedInput<'a> {
+    /// The file.
+    path: &'a Path,
+    /// Its nodes, then those of the other inputs.
+    nodes: MergedNodes<'a, NodeStore>,
+    /// Its blobs that hold ways or relations (from the first pass), ascending.
+    with_ways: &'a [u64],
+    /// The ids of the roads of the inputs before it, ascending.
+    earlier_roads: &'a [i64],
+    /// Whether inputs follow, which need its roads' ids.
+    keep_roads: bool,
+}
 
 /// The second pass over one input: every way's lanes, derived on every core, into `spill` in
 /// the whole map's order (ways by id, as the in-memory compile orders them); scratch files in
 /// `dir`.
 fn derive_streamed(
-    path: &Path,
+    input: &StreamedInput<'_>,
     dir: &Path,
-    stored: &StoredNodes,
     plane: &MapPlane,
     options: &CompileOptions,
     spill: &mut LaneSpill,
@@ -333,26 +364,35 @@ fn derive_streamed(
         spill,
         blobs: InFileOrder::default(),
         last_way: None,
+        roads: Vec::new(),
         report: DeriveReport::default(),
         stop: None,
     });
-    let walked = for_each_blob(path, |k, blob| {
+    let walked = for_each_blob(input.path, |k, blob| {
         let mut report = DeriveReport::default();
-        if stored.with_ways.binary_search(&k).is_err() {
+        if input.with_ways.binary_search(&k).is_err() {
             let mut order = order.lock().unwrap_or_else(PoisonError::into_inner);
-            order.blobs.insert(k, (Vec::new(), report));
+            order.blobs.insert(k, (Vec::new(), Vec::new(), report));
             order.write_ready();
             return Ok(());
         }
         let mut ways = Vec::new();
+        let mut roads = Vec::new();
         let mut lanes = Vec::new();
         for_each_element(blob, |e| {
             match e {
                 Element::Way(w) => {
                     let way = way_of(&w);
+                    if input.keep_roads && road_class(&way, &options.lanes).is_some() {
+                        roads.push(way.id);
+                    }
+                    if input.earlier_roads.binary_search(&way.id).is_ok() {
+                        report.ways_in_earlier_input += 1;
+                        return Ok(());
+                    }
                     derive_way_lanes(
                         &way,
-                        &stored.store,
+                        &input.nodes,
                         plane,
                         &options.lanes,
                         &mut report,
@@ -380,7 +420,7 @@ fn derive_streamed(
             e
         })?;
         let mut order = order.lock().unwrap_or_else(PoisonError::into_inner);
-        order.blobs.insert(k, (ways, report));
+        order.blobs.insert(k, (ways, roads, report));
         order.write_ready();
         match &order.stop {
             None => Ok(()),
@@ -393,14 +433,14 @@ fn derive_streamed(
         Some(Stop::Unsorted(why)) => return Ok(Derived::Unsorted(why)),
         Some(Stop::Duplicate(way)) => {
             return Err(CompileError::DuplicateWay {
-                path: path.to_path_buf(),
+                path: input.path.to_path_buf(),
                 way,
             })
         }
         Some(Stop::Spill(e)) => return Err(lane_error(dir)(e)),
         None => walked?,
     }
-    Ok(Derived::Lanes(order.report))
+    Ok(Derived::Lanes(order.report, order.roads))
 }
 
 /// The message that stops the walk at a Lanelet2 relation.
@@ -431,6 +471,7 @@ struct WaysInOrder<'a> {
     spill: &'a mut LaneSpill,
     blobs: InFileOrder<BlobLanes>,
     last_way: Option<i64>,
+    roads: Vec<i64>,
     report: DeriveReport,
     stop: Option<Stop>,
 }
@@ -439,11 +480,12 @@ impl WaysInOrder<'_> {
     /// Pushes every waiting blob that is next in the file into the spill, checking that ways
     /// ascend by id.
     fn write_ready(&mut self) {
-        while let Some((ways, report)) = self.blobs.next_ready() {
+        while let Some((ways, roads, report)) = self.blobs.next_ready() {
             self.report.add(&report);
             if self.stop.is_some() {
                 continue;
             }
+            self.roads.extend(roads);
             for (way, lanes) in ways {
                 match self.last_way {
                     Some(last) if way == last => self.stop = Some(Stop::Duplicate(way)),

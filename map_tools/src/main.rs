@@ -32,7 +32,8 @@ enum Command {
     /// Compile .osm, .osm.pbf and Lanelet2 .osm inputs into one tile, or with --grid into a
     /// folder of tiles (a grid: square cells loaded on demand, and a manifest).
     Compile {
-        /// Inputs, merged in order.
+        /// Inputs, merged in order (a way several OSM inputs hold, as overlapping extracts do,
+        /// comes from the first; its nodes from any)
         #[arg(required = true)]
         inputs: Vec<PathBuf>,
         /// Origin of the map plane, LAT,LON in degrees (default: the centre of the data).

@@ -67,6 +67,29 @@ pub trait NodePositions {
     fn position(&self, id: i64) -> Option<(f64, f64)>;
 }
 
+/// The node positions of several OSM inputs merged: a way's own input first, then the others in
+/// input order, so that a way cut at one extract's border finds its nodes in the extract beside
+/// it (OSM ids are one space: a node id means the same node in every extract).
+pub struct MergedNodes<'a, N> {
+    order: Vec<&'a N>,
+}
+
+impl<'a, N> MergedNodes<'a, N> {
+    /// `own` first, then the rest of `all` (every OSM input, in input order; `own` among them).
+    pub fn new(own: &'a N, all: &[&'a N]) -> Self {
+        let others = all.iter().copied().filter(|n| !std::ptr::eq(*n, own));
+        MergedNodes {
+            order: std::iter::once(own).chain(others).collect(),
+        }
+    }
+}
+
+impl<N: NodePositions> NodePositions for MergedNodes<'_, N> {
+    fn position(&self, id: i64) -> Option<(f64, f64)> {
+        self.order.iter().find_map(|nodes| nodes.position(id))
+    }
+}
+
 impl NodePositions for OsmData {
     fn position(&self, id: i64) -> Option<(f64, f64)> {
         self.position(id)

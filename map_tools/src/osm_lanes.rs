@@ -80,8 +80,11 @@ pub struct DeriveReport {
     /// consecutive nodes are more than [`MAX_NODE_GAP_M`] apart, or a node lies more than
     /// [`MAX_PLANE_RADIUS_M`] from the plane's origin.
     pub ways_without_geometry: usize,
-    /// References to nodes that the file does not contain (skipped).
+    /// References to nodes that no OSM input contains (skipped).
     pub missing_node_refs: usize,
+    /// Ways skipped because an earlier OSM input holds them as roads (the overlap of two
+    /// extracts): a way's lanes come from the first input that holds it.
+    pub ways_in_earlier_input: usize,
     /// Lanes produced.
     pub lanes: usize,
 }
@@ -89,7 +92,10 @@ pub struct DeriveReport {
 impl DeriveReport {
     /// Ways in the input: every way is used, not drivable or without geometry.
     pub fn ways_read(&self) -> usize {
-        self.ways_used + self.ways_not_drivable + self.ways_without_geometry
+        self.ways_used
+            + self.ways_not_drivable
+            + self.ways_without_geometry
+            + self.ways_in_earlier_input
     }
 
     /// Adds the counts of `other` (a part of the same input derived apart).
@@ -98,6 +104,7 @@ impl DeriveReport {
         self.ways_used += other.ways_used;
         self.ways_without_geometry += other.ways_without_geometry;
         self.missing_node_refs += other.missing_node_refs;
+        self.ways_in_earlier_input += other.ways_in_earlier_input;
         self.lanes += other.lanes;
     }
 }
@@ -288,6 +295,14 @@ pub fn derive_lanes(
     (lanes, report)
 }
 
+/// The class of `way` when it is a road lanes are derived from: a `highway` of a selected
+/// class, not an area.
+pub fn road_class(way: &Way, opts: &LaneOptions) -> Option<RoadClass> {
+    tag(&way.tags, "highway")
+        .and_then(RoadClass::from_osm)
+        .filter(|&c| opts.classes.contains(c) && tag(&way.tags, "area") != Some("yes"))
+}
+
 /// Appends the lane centerlines of `way` (none when it is not drivable or has no usable
 /// geometry) to `lanes`, its nodes placed by `nodes` and projected with `plane`; counts what it
 /// did into `report`. Lanes come in the order of their lane numbers.
@@ -299,10 +314,7 @@ pub fn derive_way_lanes(
     report: &mut DeriveReport,
     lanes: &mut Vec<Lane>,
 ) {
-    let road_class = tag(&way.tags, "highway")
-        .and_then(RoadClass::from_osm)
-        .filter(|&c| opts.classes.contains(c) && tag(&way.tags, "area") != Some("yes"));
-    let Some(road_class) = road_class else {
+    let Some(road_class) = road_class(way, opts) else {
         report.ways_not_drivable += 1;
         return;
     };

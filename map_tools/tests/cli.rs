@@ -60,6 +60,31 @@ fn compile_says_what_it_read_and_skipped() {
     );
     let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
     assert!(out.status.success(), "{}", stderr(&out));
+
+    // An extract beside it, overlapping: it holds way 10 again and the node way 11 lacked (and
+    // way 11, which the first extract holds already).
+    let beside = write(
+        dir.path(),
+        "beside.osm",
+        r#"<osm version="0.6">
+ <node id="1" lat="49.0000000" lon="8.4000000"/>
+ <node id="99" lat="49.0000000" lon="8.4010000"/>
+ <way id="10"><nd ref="1"/><nd ref="2"/><nd ref="3"/><tag k="highway" v="secondary"/></way>
+ <way id="11"><nd ref="1"/><nd ref="99"/><tag k="highway" v="residential"/></way>
+</osm>"#,
+    );
+    let out = lanealign_map(&["compile", &osm, &beside, "-o", tile.to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("small.osm: OSM, 4 ways read: 2 drivable -> 4 lanes; skipped 2 not drivable, 0 without geometry (fewer than 2 known nodes, nodes over 5 km apart, or over 300 km from the map's origin); 0 missing node references"),
+        "{err}"
+    );
+    assert!(
+        err.contains("beside.osm: OSM, 2 ways read: 0 drivable -> 0 lanes; skipped 0 not drivable, 0 without geometry (fewer than 2 known nodes, nodes over 5 km apart, or over 300 km from the map's origin), 2 already read from an earlier input; 0 missing node references"),
+        "{err}"
+    );
+    assert!(err.contains("small.tile: 4 lanes"), "{err}");
 }
 
 /// `SMALL_OSM` compiled in `dir` into `small.tile` with `options`.

@@ -1,6 +1,7 @@
 //! The streaming grid compile (PBF inputs: nodes and lanes on disk, cells cut a block at a time)
 //! writes, byte for byte, the grid cut from the map compiled in memory; inputs that cannot
-//! stream are read in memory and say why; a way twice in one input is refused.
+//! stream are read in memory and say why; a way twice in one input is refused; overlapping
+//! extracts merge into the map of the area they cover.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -180,4 +181,70 @@ fn a_way_twice_in_one_input_is_refused() {
         !out.join("manifest.toml").exists(),
         "no manifest for a failed compile"
     );
+}
+
+/// `input` cut by osmium to the box `west,south,east,north` (degrees) with `strategy`, in the
+/// format `out`'s name says.
+fn extract(input: &Path, bbox: &str, strategy: &str, out: &Path) {
+    let status = Command::new("osmium")
+        .args(["extract", "--overwrite", "-s", strategy, "-b", bbox, "-o"])
+        .arg(out)
+        .arg(input)
+        .status()
+        .unwrap();
+    assert!(status.success(), "osmium extract {}", input.display());
+}
+
+/// Every lane of a compiled map, by id: its id, class and points.
+fn lanes_by_id(inputs: &[PathBuf]) -> Vec<(u64, String, Vec<[f64; 2]>)> {
+    let compiled = compile(inputs, &CompileOptions::default()).unwrap();
+    let mut lanes: Vec<_> = compiled
+        .map
+        .lanes()
+        .map(|(id, info, points)| (id, format!("{info:?}"), points.to_vec()))
+        .collect();
+    lanes.sort_by_key(|lane| lane.0);
+    lanes
+}
+
+/// Two extracts that overlap (as neighbouring regions' do) compile into the map of the area
+/// they cover: the ways of the overlap once (they gave their lanes twice), and a way an extract
+/// cut at its border whole, from the nodes the other extract holds. Streamed, the same grid.
+#[test]
+fn overlapping_extracts_merge_into_the_map_of_the_whole() {
+    let Some(data) = shared_data() else { return };
+    if !osmium_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let whole = data.join("osm/kitti_00.osm");
+    // KITTI 00's roads span longitudes 8.383-8.409; the two boxes share 8.395-8.397.
+    let (west, east) = ("8.38,48.97,8.397,48.995", "8.395,48.97,8.41,48.995");
+    let expected = lanes_by_id(std::slice::from_ref(&whole));
+    for strategy in ["simple", "complete_ways"] {
+        let cut = |bbox, name: &str| {
+            let path = dir.path().join(format!("{strategy}_{name}"));
+            extract(&whole, bbox, strategy, &path);
+            path
+        };
+        let halves = [cut(west, "w.osm"), cut(east, "e.osm")];
+        let merged = lanes_by_id(&halves);
+        assert_eq!(merged.len(), expected.len(), "{strategy}: lanes");
+        assert!(merged == expected, "{strategy}: the lanes of the whole");
+        // The west half alone lacks what lies beyond its border (with `simple`, the parts of
+        // the ways that cross it): the east half adds to it.
+        assert!(
+            lanes_by_id(&halves[..1]).len() < expected.len(),
+            "{strategy}"
+        );
+
+        let pbfs = [cut(west, "w.osm.pbf"), cut(east, "e.osm.pbf")];
+        let out = dir.path().join(format!("{strategy}_grid"));
+        let (reading, streamed, in_memory) = both_grids(&pbfs, 200.0, &out);
+        assert_eq!(reading, Reading::Streamed, "{strategy}");
+        assert!(
+            files(&streamed) == files(&in_memory),
+            "{strategy}: the grids"
+        );
+    }
 }
