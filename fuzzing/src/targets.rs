@@ -296,7 +296,7 @@ fn pbf_grid(bytes: &[u8]) -> Outcome {
             );
             Ok(())
         }
-        (Err(e), Err(_)) | (Err(e @ CompileError::DuplicateWay { .. }), Ok(_)) => Err(err(&e)),
+        (Err(e), Err(_)) => Err(err(&e)),
         (Ok(_), Err(e)) => panic!("read in memory it is refused ({e}), streamed it is accepted"),
         (Err(e), Ok(_)) => panic!("read in memory it is accepted, streamed it is refused ({e})"),
     }

@@ -288,7 +288,7 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         .collect();
     // The roads of the OSM inputs before: overlapping extracts hold the ways of their overlap.
     let mut earlier_roads = HashSet::new();
-    for (osm, &lanelet2) in data.iter().zip(&lanelet2) {
+    for ((osm, &lanelet2), path) in data.iter().zip(&lanelet2).zip(inputs) {
         if lanelet2 {
             let (l, r) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
             lanes.extend(l);
@@ -297,11 +297,23 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         }
         let nodes = MergedNodes::new(osm, &osm_inputs);
         let mut report = DeriveReport::default();
+        let mut last_with_lanes = None;
         for way in &osm.ways {
             if earlier_roads.contains(&way.id) {
                 report.ways_in_earlier_input += 1;
-            } else {
-                derive_way_lanes(way, &nodes, &plane, &options.lanes, &mut report, &mut lanes);
+                continue;
+            }
+            let before = lanes.len();
+            derive_way_lanes(way, &nodes, &plane, &options.lanes, &mut report, &mut lanes);
+            // Ways come by id: a way given twice gives its lanes twice in a row.
+            if lanes.len() > before {
+                if last_with_lanes == Some(way.id) {
+                    return Err(CompileError::DuplicateWay {
+                        path: path.clone(),
+                        way: way.id,
+                    });
+                }
+                last_with_lanes = Some(way.id);
             }
         }
         let roads = osm

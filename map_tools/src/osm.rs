@@ -111,12 +111,41 @@ impl OsmData {
         self.relations.sort_by_key(|r| r.id);
     }
 
-    /// Adds another file's elements.
-    pub fn merge(&mut self, other: OsmData) {
-        self.nodes.extend(other.nodes);
+    /// Adds node `id` at `(lat, lon)` (nanodegrees). A node met again at the same position is
+    /// taken once; at another position it is refused, `Err` holding the first position (the map
+    /// would depend on which a reader met last, and a PBF's blocks are met in no fixed order).
+    pub fn add_node(&mut self, id: i64, at: (i64, i64)) -> Result<(), (i64, i64)> {
+        match self.nodes.insert(id, at) {
+            Some(first) if first != at => Err(first),
+            _ => Ok(()),
+        }
+    }
+
+    /// Adds the elements of another part of the same file; `Err` names a node the two place
+    /// apart (see [`OsmData::add_node`]).
+    pub fn merge(&mut self, other: OsmData) -> Result<(), String> {
+        for (id, at) in other.nodes {
+            self.add_node(id, at)
+                .map_err(|first| node_twice(id, first, at))?;
+        }
         self.ways.extend(other.ways);
         self.relations.extend(other.relations);
+        Ok(())
     }
+}
+
+/// Why a file that places node `id` at `first` and at `again` (nanodegrees) is refused.
+pub fn node_twice(id: i64, first: (i64, i64), again: (i64, i64)) -> String {
+    format!(
+        "node {id} appears twice, at {} and at {} (an OSM file holds each node once)",
+        degrees(first),
+        degrees(again)
+    )
+}
+
+/// `(lat, lon)` in nanodegrees, written in degrees.
+fn degrees((lat, lon): (i64, i64)) -> String {
+    format!("({}, {})", lat as f64 / 1e9, lon as f64 / 1e9)
 }
 
 /// Degrees to integer nanodegrees, quantised to OSM's precision of 1e-7 degrees (the unit of
@@ -347,7 +376,15 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
                 {
                     return Err(er.bad("node", format!("coordinates out of range ({lat}, {lon})")));
                 }
-                data.nodes.insert(id, (nanodegrees(lat), nanodegrees(lon)));
+                let at = (nanodegrees(lat), nanodegrees(lon));
+                data.add_node(id, at).map_err(|first| {
+                    let why = format!(
+                        "an id given before at another place: node {id} at {}, before at {}",
+                        degrees(at),
+                        degrees(first)
+                    );
+                    er.bad("node", why)
+                })?;
                 if !is_empty {
                     open = Open::Node;
                 }
@@ -460,6 +497,37 @@ mod tests {
         assert_eq!(tag(&d.ways[0].tags, "name"), Some("A & B"));
         assert_eq!(d.relations[0].members[0].role, "left");
         assert_eq!(tag(&d.relations[0].tags, "type"), Some("lanelet"));
+    }
+
+    /// A node given again at the same place is one node; at another place the file is refused
+    /// (the map took the last, and a PBF's blocks, merged in no fixed order, any of the two).
+    #[test]
+    fn a_node_given_twice_must_be_in_one_place() {
+        let twice = |lat| {
+            format!(
+                r#"<osm><node id="1" lat="49" lon="8"/><node id="2" lat="49.1" lon="8"/>
+                <node id="1" lat="{lat}" lon="8"/></osm>"#
+            )
+        };
+        let d = read_xml(twice("49.0000000").as_bytes(), Path::new("t.osm")).unwrap();
+        assert_eq!(d.nodes.len(), 2);
+        let e = read_xml(twice("49.0000001").as_bytes(), Path::new("t.osm")).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "t.osm: at byte 86: <node> has an id given before at another place: node 1 at \
+             (49.0000001, 8), before at (49, 8)"
+        );
+        let mut a = read_xml(twice("49").as_bytes(), Path::new("a.osm")).unwrap();
+        let mut b = OsmData::default();
+        b.add_node(2, (49_100_000_100, 8_000_000_000)).unwrap();
+        assert_eq!(
+            a.merge(b),
+            Err(
+                "node 2 appears twice, at (49.1, 8) and at (49.1000001, 8) (an OSM file holds \
+                 each node once)"
+                    .to_string()
+            )
+        );
     }
 
     #[test]

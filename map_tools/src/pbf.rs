@@ -46,7 +46,8 @@ fn add_element(d: &mut OsmData, e: Element<'_>) -> Result<(), String> {
         node => {
             if let Some(n) = node_of(&node) {
                 let (id, at) = n?;
-                d.nodes.insert(id, at);
+                d.add_node(id, at)
+                    .map_err(|first| crate::osm::node_twice(id, first, at))?;
             }
         }
     }
@@ -175,7 +176,7 @@ pub fn read_pbf<R: Read + Send>(input: R, path: &Path) -> Result<OsmData, PbfErr
         .par_bridge()
         .map(|blob| decode_block(&blob.map_err(|e| e.to_string())?))
         .try_reduce(OsmData::default, |mut a, b| {
-            a.merge(b);
+            a.merge(b)?;
             Ok(a)
         })
         .map_err(err)?;

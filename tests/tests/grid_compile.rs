@@ -145,8 +145,10 @@ fn inputs_that_cannot_stream_are_read_in_memory_and_say_why() {
     assert_eq!(files(&streamed), files(&in_memory));
 }
 
+/// A way twice in one input is refused, streamed or read in memory (which gave its lanes twice);
+/// so is a node at two places (which took one of the two as the blocks' decoding happened to end).
 #[test]
-fn a_way_twice_in_one_input_is_refused() {
+fn a_way_or_a_node_twice_in_one_input_is_refused() {
     if !osmium_installed() {
         return;
     }
@@ -181,6 +183,40 @@ fn a_way_twice_in_one_input_is_refused() {
         !out.join("manifest.toml").exists(),
         "no manifest for a failed compile"
     );
+    let err = compile(std::slice::from_ref(&xml), &CompileOptions::default())
+        .err()
+        .expect("in memory too");
+    assert!(
+        matches!(err, CompileError::DuplicateWay { way: 7, .. }),
+        "{err}"
+    );
+
+    let moved = dir.path().join("moved.osm");
+    std::fs::write(
+        &moved,
+        "<?xml version='1.0' encoding='UTF-8'?>\n<osm version='0.6'>\n\
+         <node id='1' lat='49.0' lon='8.4'/>\n<node id='2' lat='49.0005' lon='8.4'/>\n\
+         <node id='2' lat='49.0006' lon='8.4'/>\n{way}</osm>\n",
+    )
+    .unwrap();
+    let pbf = dir.path().join("moved.osm.pbf");
+    to_pbf(&moved, &pbf);
+    for (input, said) in [
+        (&moved, "node 2 at (49.0006, 8.4), before at (49.0005, 8.4)"),
+        (
+            &pbf,
+            "node 2 appears twice, at (49.0005, 8.4) and at (49.0006, 8.4)",
+        ),
+    ] {
+        let err = compile(std::slice::from_ref(input), &CompileOptions::default())
+            .err()
+            .expect("a node at two places is refused");
+        assert!(err.to_string().contains(said), "{err}");
+    }
+    let err = compile_grid(&[pbf], &CompileOptions::default(), &out, &grid)
+        .err()
+        .expect("streamed too");
+    assert!(err.to_string().contains("node 2 appears twice"), "{err}");
 }
 
 /// `input` cut by osmium to the box `west,south,east,north` (degrees) with `strategy`, in the
