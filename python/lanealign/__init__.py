@@ -191,6 +191,25 @@ def compile_map(
     )
 
 
+def read_trajectory(path, *, format: str = "kitti") -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """Read a trajectory file as ``lanealign correct`` reads it (``format``: ``"kitti"`` or
+    ``"tum"``; the same checks and messages, a leading byte-order mark allowed): ``(poses,
+    stamps)``, the (N, 3, 4) poses in the file's axis convention and, for TUM, the (N,) stamps in
+    seconds (``None`` for KITTI).
+    """
+    return _lanealign.read_trajectory(str(path), format=format)
+
+
+def format_trajectory(poses, *, format: str = "kitti", stamps=None) -> str:
+    """The text of a trajectory file as ``lanealign correct`` writes it: ``poses`` as
+    :func:`correct` takes them, ``format`` ``"kitti"`` or ``"tum"`` (which needs ``stamps``,
+    seconds, checked as a TUM file's are); every number in the shortest text that reads back
+    exactly.
+    """
+    floats = None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64)
+    return _lanealign.format_trajectory(poses, format=format, stamps=floats)
+
+
 def synthetic_town(tile: str, *, laps: int = 3, seed: int = 42) -> Tuple[np.ndarray, np.ndarray]:
     """The synthetic town ``lanealign demo`` runs without data: writes its tile to ``tile`` and
     returns ``(truth, odometry)``, (N, 3, 4) poses each (``frame="flu"``, metres). The odometry
@@ -209,5 +228,7 @@ __all__ = [
     "compile_map",
     "correct",
     "eval",
+    "format_trajectory",
+    "read_trajectory",
     "synthetic_town",
 ]

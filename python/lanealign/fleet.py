@@ -17,17 +17,17 @@ from typing import Callable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from . import STATUS_NAMES, compile_map, correct
+from . import STATUS_NAMES, compile_map, correct, format_trajectory, read_trajectory
 from . import eval as evaluate
 
 
 @dataclass(frozen=True)
 class Drive:
-    """One drive to correct: a KITTI-format pose file and where it lies on which map."""
+    """One drive to correct: a pose file and where it lies on which map."""
 
-    #: KITTI-format poses (12 numbers a line).
+    #: The odometry's poses, in ``format``.
     poses: str
-    #: Where the corrected poses go (KITTI format, full precision).
+    #: Where the corrected poses go, in ``format`` (as ``lanealign correct`` writes them).
     output: str
     #: Parameter preset of the drive's odometry: liodom, basalt, kiss-icp or orb-slam3.
     preset: str
@@ -40,12 +40,17 @@ class Drive:
     projection: Optional[str] = None
     method: str = "robust"
     frame: str = "flu"
-    #: Ground truth of the drive (KITTI format, paired by index): the summary then holds ``raw``
-    #: and ``corrected``, what :func:`lanealign.eval` reports for each (for ``corrected`` with the
-    #: covariances' calibration), or ``{"error": message}`` where that cannot be computed (a
-    #: ground truth of another length, a pose that is no pose). A file that cannot be read fails
-    #: the task, after the corrected poses are written.
+    #: Ground truth of the drive, in ``format`` (KITTI paired by index, TUM by time, as
+    #: ``lanealign eval`` pairs them): the summary then holds ``raw`` and ``corrected``, what
+    #: :func:`lanealign.eval` reports for each (for ``corrected`` with the covariances'
+    #: calibration), or ``{"error": message}`` where that cannot be computed (a ground truth of
+    #: another length, a pose that is no pose). A file that cannot be read fails the task, after
+    #: the corrected poses are written.
     gt: Optional[str] = None
+    #: The format of ``poses``, ``gt`` and ``output``: ``"kitti"`` (12 numbers a line) or
+    #: ``"tum"`` (stamped: the corrector reads the odometry's rate from the stamps), read and
+    #: written as ``lanealign correct --format`` reads and writes them.
+    format: str = "kitti"
 
 
 @dataclass(frozen=True)
@@ -64,7 +69,7 @@ class Region:
 
 def correct_drive(drive: Drive) -> dict:
     """Corrects one drive (a task): writes ``drive.output``, returns a summary."""
-    poses = _read_kitti(drive.poses)
+    poses, stamps = read_trajectory(drive.poses, format=drive.format)
     result = correct(
         poses,
         preset=drive.preset,
@@ -75,8 +80,9 @@ def correct_drive(drive: Drive) -> dict:
         projection=drive.projection,
         method=drive.method,
         frame=drive.frame,
+        stamps=stamps,
     )
-    _write_kitti(drive.output, result.poses)
+    _write(drive.output, format_trajectory(result.poses, format=drive.format, stamps=stamps))
     counts = np.bincount(result.status, minlength=len(STATUS_NAMES))
     summary = {
         "output": drive.output,
@@ -84,28 +90,23 @@ def correct_drive(drive: Drive) -> dict:
         **{name: int(n) for name, n in zip(STATUS_NAMES, counts)},
     }
     if drive.gt is not None:
-        gt = _read_kitti(drive.gt)
-        summary["raw"] = _evaluated(gt, poses, frame=drive.frame)
+        gt, gt_stamps = read_trajectory(drive.gt, format=drive.format)
+        paired = {} if stamps is None else {"gt_stamps": gt_stamps, "est_stamps": stamps}
+        summary["raw"] = _evaluated(gt, poses, frame=drive.frame, **paired)
         summary["corrected"] = _evaluated(gt, result.poses, frame=drive.frame,
                                           covariance=result.covariance,
-                                          anchor_yaw=result.anchor_yaw)
+                                          anchor_yaw=result.anchor_yaw, **paired)
     return summary
 
 
-def _read_kitti(path: str) -> np.ndarray:
-    """The (N, 3, 4) poses of a KITTI file, which may begin with a byte-order mark as the
-    command line allows."""
-    return np.loadtxt(path, ndmin=2, encoding="utf-8-sig").reshape(-1, 3, 4)
-
-
-def _write_kitti(path: str, poses: np.ndarray) -> None:
-    """Writes ``poses`` to ``path`` in KITTI format, whole or not at all: into ``path.partial``,
-    renamed into place once written, so that a worker killed while writing leaves no short
-    trajectory under the output's name (and the task, run again, writes the same partial file
-    over)."""
+def _write(path: str, text: str) -> None:
+    """Writes ``text`` to ``path``, whole or not at all: into ``path.partial``, renamed into place
+    once written, so that a worker killed while writing leaves no short trajectory under the
+    output's name (and the task, run again, writes the same partial file over)."""
     partial = f"{path}.partial"
     try:
-        np.savetxt(partial, poses.reshape(len(poses), 12), fmt="%.17g")
+        with open(partial, "w", encoding="utf-8") as f:
+            f.write(text)
         os.replace(partial, path)
     finally:
         if os.path.exists(partial):

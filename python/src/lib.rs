@@ -846,9 +846,64 @@ impl Client {
     }
 }
 
+/// A trajectory read from a file.
+type ReadTrajectory<'py> = (Bound<'py, PyArray3<f64>>, Option<Bound<'py, PyArray1<f64>>>);
+
+/// Reads a trajectory file as `lanealign correct` reads it (`format`: kitti or tum; the same
+/// checks and messages): `(poses, stamps)`, the poses (N, 3, 4) in the file's axis convention
+/// and for TUM the stamps (N,) in seconds (`None` for KITTI).
+#[pyfunction]
+#[pyo3(signature = (path, *, format="kitti"))]
+fn read_trajectory<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    format: &str,
+) -> PyResult<ReadTrajectory<'py>> {
+    let format: trajectory::Format = parsed("format", format)?;
+    let read = py
+        .detach(|| trajectory::read(&path, format))
+        .map_err(error)?;
+    let like = [read.poses.len(), 3, 4];
+    let poses = poses_into(&read.poses, &like)
+        .into_dimensionality()
+        .map_err(error)?
+        .into_pyarray(py);
+    let stamps = read.stamps.map(|s| Array1::from(s).into_pyarray(py));
+    Ok((poses, stamps))
+}
+
+/// The text of a trajectory file as `lanealign correct` writes it (`format`: kitti or tum, which
+/// needs `stamps`, checked as a TUM file's are): every number with the shortest text that reads
+/// back exactly. `poses` as `correct` takes them ((N, 3, 4), (N, 4, 4) or (N, 12)).
+#[pyfunction]
+#[pyo3(signature = (poses, *, format="kitti", stamps=None))]
+fn format_trajectory(
+    poses: PyArrayLikeDyn<'_, f64, AllowTypeChange>,
+    format: &str,
+    stamps: Option<PyReadonlyArray1<'_, f64>>,
+) -> PyResult<String> {
+    let format: trajectory::Format = parsed("format", format)?;
+    let array = poses.as_array();
+    let poses = match kitti_rows(&array) {
+        Some(rows) => rows.iter().map(Pose3::from_row_major).collect::<Vec<_>>(),
+        None => {
+            return Err(PyValueError::new_err(format!(
+                "poses must have shape (N, 3, 4), (N, 4, 4) or (N, 12), not {:?}",
+                array.shape()
+            )))
+        }
+    };
+    let stamps = checked_stamps("stamps", stamps.as_ref(), poses.len())?;
+    let trajectory = Trajectory { stamps, poses };
+    trajectory::format_text(&trajectory, format, std::path::Path::new("the trajectory"))
+        .map_err(error)
+}
+
 #[pymodule]
 fn _lanealign(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(correct, m)?)?;
+    m.add_function(wrap_pyfunction!(read_trajectory, m)?)?;
+    m.add_function(wrap_pyfunction!(format_trajectory, m)?)?;
     m.add_function(wrap_pyfunction!(eval, m)?)?;
     m.add_function(wrap_pyfunction!(compile_map, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_town, m)?)?;

@@ -1,8 +1,11 @@
 """Fleet batches on a local Dask cluster of two worker processes equal a serial run."""
 
+import json
+import math
 import os
 import re
 import signal
+import subprocess
 import threading
 import time
 from dataclasses import replace
@@ -12,7 +15,7 @@ import pytest
 
 import lanealign
 from lanealign import fleet
-from test_lanealign import DATA, needs_data
+from test_lanealign import BIN, DATA, needs_data
 
 
 def anchor_of(seq):
@@ -56,7 +59,8 @@ def test_two_workers_equal_a_serial_run(tmp_path):
                           output=str(tmp_path / "no_map_out.txt"))]
         got = fleet.correct_drives(client, broken[:1] + on_cluster + broken[1:])
         assert got[0] == {"output": broken[0].output,
-                          "error": f"FileNotFoundError: {broken[0].poses} not found."}, got[0]
+                          "error": f"ValueError: {broken[0].poses}: No such file or directory "
+                                   "(os error 2)"}, got[0]
         assert got[-1]["output"] == broken[1].output and \
             got[-1]["error"].startswith("ValueError: ") and "unknown input type" in got[-1]["error"]
         assert not (tmp_path / "missing_out.txt").exists()
@@ -208,3 +212,53 @@ def test_a_log_saved_with_a_byte_order_mark_is_read_as_the_command_line_reads_it
     assert {k: v for k, v in plain.items() if k != "output"} == \
         {k: v for k, v in from_marked.items() if k != "output"}
     assert plain["poses"] == 271 and plain["corrected"]["poses"] == 271
+    # Written as the command line writes it (numpy's `%.17g` wrote other digits).
+    cli_out = tmp_path / "cli_out.txt"
+    subprocess.run([str(BIN), "correct", "--osm", drive.osm, "--anchor",
+                    ",".join(repr(v) for v in anchor_of("04")), "--projection", "kitti",
+                    "--preset", "kiss-icp", "--frame", "kitti-camera", str(log), "-o", str(cli_out)],
+                   check=True, capture_output=True)
+    assert (tmp_path / "plain_out.txt").read_bytes() == cli_out.read_bytes()
+
+
+def test_tum_drives_are_read_corrected_and_written_as_the_command_line_does(tmp_path):
+    """A drive logged in TUM (stamped, as a ROS bag gives it): its output equals `lanealign
+    correct --format tum` byte for byte, and its figures are what `lanealign eval --format tum`
+    reports (paired by time); the KITTI drives only could be corrected before."""
+    needs_data()
+    poses = lanealign.read_trajectory(DATA / "odometry" / "lidar" / "07.txt")[0]
+    gt = lanealign.read_trajectory(DATA / "kitti" / "poses" / "07.txt")[0]
+    # 10 Hz with a camera's jitter; the truth at its own stamps, 2 ms later.
+    stamps = 1.7e9 + 0.1 * np.arange(len(poses)) + np.random.default_rng(7).uniform(0, 2e-3, len(poses))
+    log, truth = tmp_path / "log.tum", tmp_path / "truth.tum"
+    log.write_text(lanealign.format_trajectory(poses, format="tum", stamps=stamps))
+    truth.write_text(lanealign.format_trajectory(gt, format="tum", stamps=stamps + 2e-3))
+    drive = fleet.Drive(poses=str(log), output=str(tmp_path / "fleet.tum"), preset="kiss-icp",
+                        osm=str(DATA / "osm" / "kitti_07.osm"), anchor=anchor_of("07"),
+                        projection="kitti", frame="kitti-camera", gt=str(truth), format="tum")
+    summary = fleet.correct_drive(drive)
+    cli_out, cli_status = tmp_path / "cli.tum", tmp_path / "cli.csv"
+    anchor = ",".join(repr(v) for v in anchor_of("07"))
+    subprocess.run([str(BIN), "correct", "--format", "tum", "--osm", drive.osm, "--anchor", anchor,
+                    "--projection", "kitti", "--preset", "kiss-icp", "--frame", "kitti-camera",
+                    str(log), "-o", str(cli_out), "--status", str(cli_status)],
+                   check=True, capture_output=True)
+    assert (tmp_path / "fleet.tum").read_bytes() == cli_out.read_bytes()
+
+    def cli_eval(est, *status):
+        out = subprocess.run([str(BIN), "eval", "--format", "tum", "--frame", "kitti-camera",
+                              "--gt", str(truth), "--est", str(est), "--json", *status],
+                             check=True, capture_output=True, text=True).stdout
+        return json.loads(out)
+
+    for key, expected in [("raw", cli_eval(log)),
+                          ("corrected", cli_eval(cli_out, "--status", str(cli_status)))]:
+        got = summary[key]
+        assert got["poses"] == len(poses) and set(got) == set(expected), (key, got)
+        for name, value in expected.items():
+            if isinstance(value, list):
+                assert np.allclose(got[name], value, rtol=1e-9, atol=0), (key, name)
+            elif isinstance(value, str):
+                assert got[name] == value, (key, name)
+            else:
+                assert math.isclose(got[name], value, rel_tol=1e-9, abs_tol=1e-12), (key, name)
