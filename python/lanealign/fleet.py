@@ -13,7 +13,7 @@ so no trajectory or map travels through the scheduler.
 
 import os
 from dataclasses import dataclass, field
-from typing import Callable, List, Optional, Sequence, Tuple, Union
+from typing import Callable, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -40,6 +40,13 @@ class Drive:
     projection: Optional[str] = None
     method: str = "robust"
     frame: str = "flu"
+    #: The odometry's rate (Hz) when the log has no stamps and is not at the presets' 10 Hz
+    #: (``--set odometry_rate_hz=...``); a TUM log's stamps say it.
+    odometry_rate_hz: Optional[float] = None
+    #: Parameter overrides, as :func:`lanealign.correct` takes them (``--set KEY=VALUE``).
+    overrides: Optional[Mapping[str, Union[float, int, bool]]] = None
+    #: Smooth the corrections (``--smooth``).
+    smooth: bool = False
     #: Ground truth of the drive, in ``format`` (KITTI paired by index, TUM by time, as
     #: ``lanealign eval`` pairs them): the summary then holds ``raw`` and ``corrected``, what
     #: :func:`lanealign.eval` reports for each (for ``corrected`` with the covariances'
@@ -81,6 +88,9 @@ def correct_drive(drive: Drive) -> dict:
         method=drive.method,
         frame=drive.frame,
         stamps=stamps,
+        odometry_rate_hz=drive.odometry_rate_hz,
+        overrides=drive.overrides,
+        smooth=drive.smooth,
     )
     _write(drive.output, format_trajectory(result.poses, format=drive.format, stamps=stamps))
     counts = np.bincount(result.status, minlength=len(STATUS_NAMES))

@@ -262,3 +262,30 @@ def test_tum_drives_are_read_corrected_and_written_as_the_command_line_does(tmp_
                 assert got[name] == value, (key, name)
             else:
                 assert math.isclose(got[name], value, rel_tol=1e-9, abs_tol=1e-12), (key, name)
+
+
+# KITTI's 10 Hz said to be 20 Hz doubles its accelerations, and the corrector says so.
+@pytest.mark.filterwarnings("ignore:the odometry's speed changes")
+def test_a_drive_takes_what_correct_takes_on_the_command_line(tmp_path):
+    """A KITTI log said to be at 20 Hz, with overrides and smoothing: the output equals
+    `lanealign correct --set odometry_rate_hz=20 --set ... --smooth` byte for byte (a drive could
+    say none of these, so a log at another rate was corrected as if at 10 Hz)."""
+    needs_data()
+    log = DATA / "odometry" / "lidar" / "07.txt"
+    drive = fleet.Drive(poses=str(log), output=str(tmp_path / "fleet.txt"), preset="kiss-icp",
+                        osm=str(DATA / "osm" / "kitti_07.osm"), anchor=anchor_of("07"),
+                        projection="kitti", frame="kitti-camera", odometry_rate_hz=20.0,
+                        overrides={"max_window": 200, "trim_ratio": 0.2}, smooth=True)
+    summary = fleet.correct_drive(drive)
+    cli_out = tmp_path / "cli.txt"
+    subprocess.run([str(BIN), "correct", "--osm", drive.osm, "--anchor",
+                    ",".join(repr(v) for v in anchor_of("07")), "--projection", "kitti",
+                    "--preset", "kiss-icp", "--frame", "kitti-camera", "--set", "odometry_rate_hz=20",
+                    "--set", "max_window=200", "--set", "trim_ratio=0.2", "--smooth", str(log),
+                    "-o", str(cli_out)], check=True, capture_output=True)
+    assert (tmp_path / "fleet.txt").read_bytes() == cli_out.read_bytes()
+    assert summary["accepted"] > 100, summary
+    plain = fleet.correct_drive(fleet.Drive(poses=drive.poses, output=str(tmp_path / "plain.txt"),
+                                            preset="kiss-icp", osm=drive.osm, anchor=drive.anchor,
+                                            projection="kitti", frame="kitti-camera"))
+    assert plain != {**summary, "output": plain["output"]}, "the options change the correction"
