@@ -62,6 +62,7 @@ def correct(
     smooth: bool = False,
     overrides: Optional[Mapping[str, Union[int, float, bool]]] = None,
     stamps: Optional[np.ndarray] = None,
+    status: Optional[str] = None,
 ) -> Corrected:
     """Correct a trajectory against lane centrelines, as ``lanealign correct`` does.
 
@@ -88,7 +89,9 @@ def correct(
     ``odometry_rate_hz``, and a step too long for one period is motion only where it drives on
     as the step before did (poses missing). An odometry whose scale may be off by more than
     about 1 % (wheel odometry) has it estimated with ``overrides={"scale_sigma": 0.05}``; the
-    orb-slam3 preset does so by default; ``odometry_scale`` says what came of it.
+    orb-slam3 preset does so by default; ``odometry_scale`` says what came of it. ``status``: a
+    path to write the status CSV ``--status`` writes (what happened at each pose, the covariance,
+    ``map_from_odom``), whole or not at all.
 
     What ``lanealign correct`` prints as ``WARN`` lines (a run set up wrongly, an odometry that
     jumped or lost track) comes as a ``UserWarning`` each, with the same text.
@@ -108,6 +111,7 @@ def correct(
         smooth=smooth,
         overrides=overrides,
         stamps=None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64),
+        status=None if status is None else str(status),
     ))
 
 

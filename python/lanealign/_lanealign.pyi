@@ -21,6 +21,7 @@ def correct(
     smooth: bool = ...,
     overrides: Optional[Mapping[str, Union[int, float, bool]]] = ...,
     stamps: Optional[np.ndarray] = ...,
+    status: Optional[str] = ...,
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]: ...
 def eval(
     gt: np.ndarray,

@@ -47,6 +47,9 @@ class Drive:
     overrides: Optional[Mapping[str, Union[float, int, bool]]] = None
     #: Smooth the corrections (``--smooth``).
     smooth: bool = False
+    #: Where the status CSV goes (``--status``): what happened at each pose, its covariance and
+    #: ``map_from_odom``; written whole or not at all.
+    status: Optional[str] = None
     #: Ground truth of the drive, in ``format`` (KITTI paired by index, TUM by time, as
     #: ``lanealign eval`` pairs them): the summary then holds ``raw`` and ``corrected``, what
     #: :func:`lanealign.eval` reports for each (for ``corrected`` with the covariances'
@@ -91,6 +94,7 @@ def correct_drive(drive: Drive) -> dict:
         odometry_rate_hz=drive.odometry_rate_hz,
         overrides=drive.overrides,
         smooth=drive.smooth,
+        status=drive.status,
     )
     _write(drive.output, format_trajectory(result.poses, format=drive.format, stamps=stamps))
     counts = np.bincount(result.status, minlength=len(STATUS_NAMES))

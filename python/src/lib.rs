@@ -13,6 +13,7 @@ use lanealign_client::connection::new_session_id;
 use lanealign_client::{Closed, Connection};
 use lanealign_core::corrector::Status;
 use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::input::write_atomic;
 use lanealign_core::lane_geometry::{RoadClasses, Traffic};
 use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset, UNMARKED_OFFSET_SCALE};
@@ -211,7 +212,7 @@ fn overrides_from(dict: &Bound<'_, PyDict>) -> PyResult<Overrides> {
 /// Corrects a trajectory as `lanealign correct` does (see the package's docstring).
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None, smooth=false, overrides=None, stamps=None))]
+#[pyo3(signature = (poses, *, preset, osm=None, tile=None, lanes=None, anchor=None, projection=None, method="robust", frame="flu", odometry_rate_hz=None, smooth=false, overrides=None, stamps=None, status=None))]
 fn correct<'py>(
     py: Python<'py>,
     poses: PyReadonlyArrayDyn<'py, f64>,
@@ -227,6 +228,7 @@ fn correct<'py>(
     smooth: bool,
     overrides: Option<Bound<'py, PyDict>>,
     stamps: Option<PyReadonlyArray1<'py, f64>>,
+    status: Option<PathBuf>,
 ) -> PyResult<Corrected<'py>> {
     let array = poses.as_array().to_owned();
     let shape = array.shape().to_vec();
@@ -307,6 +309,10 @@ fn correct<'py>(
                 )?
                 .0;
             let warnings = loaded.warnings(&input, stamps.as_deref(), frame, &run, &params);
+            if let Some(path) = &status {
+                let text = status_file::of_run(&run, &loaded.anchored_from_odom);
+                write_atomic(path, text.as_bytes())?;
+            }
             Ok((run, loaded.anchored_from_odom.yaw(), warnings))
         })
         .map_err(error)?;

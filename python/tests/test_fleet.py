@@ -235,7 +235,8 @@ def test_tum_drives_are_read_corrected_and_written_as_the_command_line_does(tmp_
     truth.write_text(lanealign.format_trajectory(gt, format="tum", stamps=stamps + 2e-3))
     drive = fleet.Drive(poses=str(log), output=str(tmp_path / "fleet.tum"), preset="kiss-icp",
                         osm=str(DATA / "osm" / "kitti_07.osm"), anchor=anchor_of("07"),
-                        projection="kitti", frame="kitti-camera", gt=str(truth), format="tum")
+                        projection="kitti", frame="kitti-camera", gt=str(truth), format="tum",
+                        status=str(tmp_path / "fleet.csv"))
     summary = fleet.correct_drive(drive)
     cli_out, cli_status = tmp_path / "cli.tum", tmp_path / "cli.csv"
     anchor = ",".join(repr(v) for v in anchor_of("07"))
@@ -244,6 +245,7 @@ def test_tum_drives_are_read_corrected_and_written_as_the_command_line_does(tmp_
                     str(log), "-o", str(cli_out), "--status", str(cli_status)],
                    check=True, capture_output=True)
     assert (tmp_path / "fleet.tum").read_bytes() == cli_out.read_bytes()
+    assert (tmp_path / "fleet.csv").read_bytes() == cli_status.read_bytes()
 
     def cli_eval(est, *status):
         out = subprocess.run([str(BIN), "eval", "--format", "tum", "--frame", "kitti-camera",
