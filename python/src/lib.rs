@@ -767,17 +767,7 @@ impl Client {
     fn close<'py>(&self, py: Python<'py>, timeout_s: f64) -> PyResult<Bound<'py, PyDict>> {
         let timeout = seconds("timeout_s", timeout_s)?;
         let connection = self.locked()?.take().ok_or_else(closed_error)?;
-        match py.detach(move || connection.close(timeout)) {
-            Ok(closed) => closed_dict(py, &closed),
-            Err(e) => {
-                let items = closed_dict(py, e.closed())?;
-                let raised = CloseError::new_err(message(e));
-                for (name, value) in items.iter() {
-                    raised.value(py).setattr(name.cast::<PyString>()?, value)?;
-                }
-                Err(raised)
-            }
-        }
+        close_connection(py, connection, timeout)
     }
 
     /// `with Client(...) as client:` gives the client to the block.
@@ -796,16 +786,36 @@ impl Client {
         _exc_value: Bound<'py, PyAny>,
         _traceback: Bound<'py, PyAny>,
     ) -> PyResult<bool> {
-        if self.locked()?.is_some() {
-            self.close(py, EXIT_CLOSE_TIMEOUT_S)?;
+        let open = self.locked()?.take();
+        if let Some(connection) = open {
+            close_connection(py, connection, EXIT_CLOSE_TIMEOUT)?;
         }
         Ok(false)
     }
 }
 
-/// How long leaving a client's `with` block waits for the answers in flight (seconds): as long
-/// as `Client.close` does by default.
-const EXIT_CLOSE_TIMEOUT_S: f64 = 1.0;
+/// Closes `connection` (see `Client.close`), waiting up to `timeout` without the GIL.
+fn close_connection<'py>(
+    py: Python<'py>,
+    connection: Connection,
+    timeout: Duration,
+) -> PyResult<Bound<'py, PyDict>> {
+    match py.detach(move || connection.close(timeout)) {
+        Ok(closed) => closed_dict(py, &closed),
+        Err(e) => {
+            let items = closed_dict(py, e.closed())?;
+            let raised = CloseError::new_err(message(e));
+            for (name, value) in items.iter() {
+                raised.value(py).setattr(name.cast::<PyString>()?, value)?;
+            }
+            Err(raised)
+        }
+    }
+}
+
+/// How long leaving a client's `with` block waits for the answers in flight: as long as
+/// `Client.close` does by default.
+const EXIT_CLOSE_TIMEOUT: Duration = Duration::from_secs(1);
 
 create_exception!(
     lanealign,
