@@ -15,7 +15,7 @@ use lanealign_core::tile::SigningKey;
 use crate::lane_spill::SpillError;
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
 use crate::node_store::NodeStoreError;
-use crate::osm::{read_xml_file, MergedNodes, OsmData, OsmError};
+use crate::osm::{is_shared_id, read_xml_file, MergedNodes, OsmData, OsmError};
 use crate::osm_lanes::{
     derive_way_lanes, road_class, DeriveReport, LaneOptions, MAX_NODE_GAP_M, MAX_PLANE_RADIUS_M,
 };
@@ -286,7 +286,8 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         .zip(&lanelet2)
         .filter_map(|(osm, &lanelet2)| (!lanelet2).then_some(osm))
         .collect();
-    // The roads of the OSM inputs before: overlapping extracts hold the ways of their overlap.
+    // The roads of the OSM inputs before (by shared id): overlapping extracts hold the ways of
+    // their overlap.
     let mut earlier_roads = HashSet::new();
     for ((osm, &lanelet2), path) in data.iter().zip(&lanelet2).zip(inputs) {
         if lanelet2 {
@@ -319,7 +320,7 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         let roads = osm
             .ways
             .iter()
-            .filter(|w| road_class(w, &options.lanes).is_some());
+            .filter(|w| is_shared_id(w.id) && road_class(w, &options.lanes).is_some());
         earlier_roads.extend(roads.map(|w| w.id));
         reports.push(InputReport::Osm(report));
     }

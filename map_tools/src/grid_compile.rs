@@ -27,7 +27,7 @@ use osmpbf::Element;
 use crate::compile::{compile, is_pbf, CompileError, CompileOptions, InputReport, NodeBounds};
 use crate::lane_spill::{BlockKey, BlockLanes, LaneSpill, SpillError, SpilledLanes};
 use crate::node_store::{NodeStore, NodeStoreError, NodeWriter};
-use crate::osm::{tag, MergedNodes};
+use crate::osm::{is_shared_id, tag, MergedNodes};
 use crate::osm_lanes::{derive_way_lanes, road_class, DeriveReport};
 use crate::pbf::{for_each_blob, for_each_element, node_of, relation_of, way_of};
 
@@ -383,7 +383,10 @@ fn derive_streamed(
             match e {
                 Element::Way(w) => {
                     let way = way_of(&w);
-                    if input.keep_roads && road_class(&way, &options.lanes).is_some() {
+                    if input.keep_roads
+                        && is_shared_id(way.id)
+                        && road_class(&way, &options.lanes).is_some()
+                    {
                         roads.push(way.id);
                     }
                     if input.earlier_roads.binary_search(&way.id).is_ok() {

@@ -69,7 +69,9 @@ pub trait NodePositions {
 
 /// The node positions of several OSM inputs merged: a way's own input first, then the others in
 /// input order, so that a way cut at one extract's border finds its nodes in the extract beside
-/// it (OSM ids are one space: a node id means the same node in every extract).
+/// it (OSM's ids are one space: a node id means the same node in every extract). A negative id
+/// is an object an editor made and never uploaded (JOSM numbers them -1, -2, ... in each file):
+/// it is looked up in its own input only.
 pub struct MergedNodes<'a, N> {
     order: Vec<&'a N>,
 }
@@ -86,8 +88,21 @@ impl<'a, N> MergedNodes<'a, N> {
 
 impl<N: NodePositions> NodePositions for MergedNodes<'_, N> {
     fn position(&self, id: i64) -> Option<(f64, f64)> {
-        self.order.iter().find_map(|nodes| nodes.position(id))
+        let inputs = if is_shared_id(id) {
+            self.order.len()
+        } else {
+            1
+        };
+        self.order[..inputs]
+            .iter()
+            .find_map(|nodes| nodes.position(id))
     }
+}
+
+/// Whether an OSM id names one object in every file: a positive id is the OSM database's; a
+/// negative one an editor's, local to its file.
+pub fn is_shared_id(id: i64) -> bool {
+    id > 0
 }
 
 impl NodePositions for OsmData {

@@ -85,6 +85,25 @@ fn compile_says_what_it_read_and_skipped() {
         "{err}"
     );
     assert!(err.contains("small.tile: 4 lanes"), "{err}");
+
+    // Two files an editor made (JOSM numbers new objects -1, -2, ... in each): their negative
+    // ids name different nodes and ways, so each file keeps its own.
+    let drawn = |name: &str, lat: &str| {
+        let text = format!(
+            r#"<osm version="0.6">
+ <node id="-1" lat="{lat}0" lon="8.41"/>
+ <node id="-2" lat="{lat}9" lon="8.41"/>
+ <way id="-1"><nd ref="-1"/><nd ref="-2"/><tag k="highway" v="residential"/></way>
+</osm>"#
+        );
+        write(dir.path(), name, &text)
+    };
+    let (a, b) = (drawn("a.osm", "49.00"), drawn("b.osm", "49.02"));
+    let out = lanealign_map(&["compile", &a, &b, "-o", tile.to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.contains("already read"), "{err}");
+    assert!(err.contains("small.tile: 4 lanes"), "{err}");
 }
 
 /// `SMALL_OSM` compiled in `dir` into `small.tile` with `options`.

@@ -283,4 +283,30 @@ fn overlapping_extracts_merge_into_the_map_of_the_whole() {
             "{strategy}: the grids"
         );
     }
+
+    // Files an editor made number their new objects -1, -2, ... each: their ways and nodes are
+    // their own, streamed as in memory.
+    let drawn: Vec<PathBuf> = ["49.00", "49.02"]
+        .iter()
+        .enumerate()
+        .map(|(k, lat)| {
+            let xml = dir.path().join(format!("drawn{k}.osm"));
+            std::fs::write(
+                &xml,
+                format!(
+                    "<osm version='0.6'>\n<node id='-2' lat='{lat}9' lon='8.41'/>\n\
+                     <node id='-1' lat='{lat}0' lon='8.41'/>\n<way id='-1'><nd ref='-1'/>\
+                     <nd ref='-2'/><tag k='highway' v='residential'/></way>\n</osm>\n"
+                ),
+            )
+            .unwrap();
+            let pbf = dir.path().join(format!("drawn{k}.osm.pbf"));
+            to_pbf(&xml, &pbf);
+            pbf
+        })
+        .collect();
+    assert_eq!(lanes_by_id(&drawn).len(), 4, "two lanes from each file");
+    let (reading, streamed, in_memory) = both_grids(&drawn, 200.0, &dir.path().join("drawn"));
+    assert_eq!(reading, Reading::Streamed);
+    assert!(files(&streamed) == files(&in_memory), "the drawn grids");
 }
