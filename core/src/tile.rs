@@ -123,6 +123,15 @@ pub enum TileError {
         /// The file.
         path: PathBuf,
     },
+    /// OSM road data (XML or PBF, raw OSM or Lanelet2) where a tile was expected.
+    #[error(
+        "{path}: OSM road data, not a lane tile: compile it into one with `lanealign-map compile` \
+         (`lanealign correct` also takes it as --osm)"
+    )]
+    RoadData {
+        /// The file.
+        path: PathBuf,
+    },
     /// A tile of another format version.
     #[error("{path}: tile format version {found}, this build reads version {VERSION}; compile it again with this build's lanealign-map")]
     BadVersion {
@@ -472,6 +481,24 @@ fn f64_at(b: &[u8], at: usize) -> f64 {
     f64::from_bits(u64_at(b, at))
 }
 
+/// Whether `bytes` begin as OSM road data does: XML whose first kilobyte opens an `<osm>`
+/// element (after an optional byte-order mark), or PBF, whose first block header names its type
+/// `OSMHeader`.
+fn is_road_data(bytes: &[u8]) -> bool {
+    let start = &bytes[..bytes.len().min(1024)];
+    let xml = start
+        .strip_prefix(b"\xef\xbb\xbf")
+        .unwrap_or(start)
+        .trim_ascii_start()
+        .starts_with(b"<")
+        && start.windows(4).any(|w| w == b"<osm");
+    let pbf = start.len() > 4
+        && start[4..start.len().min(32)]
+            .windows(9)
+            .any(|w| w == b"OSMHeader");
+    xml || pbf
+}
+
 /// Checks a tile's header and checksum and returns what it says (the payload's content is
 /// checked by [`decode`]).
 pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
@@ -481,6 +508,9 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
         field,
         value,
     };
+    if bytes.get(0..8) != Some(&MAGIC[..]) && is_road_data(bytes) {
+        return Err(TileError::RoadData { path: p() });
+    }
     if bytes.len() < HEADER_LEN {
         return Err(TileError::Truncated {
             path: p(),
@@ -840,6 +870,15 @@ mod tests {
         let mut b = bytes.clone();
         b[0] = b'X';
         check(&b, "bad magic");
+        // Road data given for a tile says so (it said "bad magic", or "truncated" when short).
+        for osm in [
+            &b"<?xml version='1.0'?>\n<osm version='0.6'>\n</osm>\n"[..],
+            b"\xef\xbb\xbf  <osm version='0.6'/>",
+            b"\0\0\0\x0d\x0a\x09OSMHeader\x18\x7b",
+        ] {
+            check(osm, "OSM road data, not a lane tile: compile it into one");
+        }
+        check(b"<?xml version='1.0'?><gpx/>", "truncated");
         let mut b = bytes.clone();
         b[8] = 9;
         check(&b, "version 9");
