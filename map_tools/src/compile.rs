@@ -1,6 +1,6 @@
 //! Compiling road data into a lane map: read every input, choose the map plane, derive lanes.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -66,8 +66,14 @@ impl std::fmt::Display for InputReport {
             ),
             InputReport::Lanelet2(r) => write!(
                 f,
-                "Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds",
-                r.lanelets_used, r.lanelets_not_drivable, r.lanelets_broken
+                "Lanelet2, {} drivable lanelets; {} not drivable, {} with broken bounds{}",
+                r.lanelets_used,
+                r.lanelets_not_drivable,
+                r.lanelets_broken,
+                match r.lanes_in_earlier_input {
+                    0 => String::new(),
+                    n => format!("; {n} lanes already read from an earlier input"),
+                }
             ),
         }
     }
@@ -289,11 +295,23 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
     // The roads of the OSM inputs before (by shared id): overlapping extracts hold the ways of
     // their overlap.
     let mut earlier_roads = HashSet::new();
+    // The lanes of the Lanelet2 inputs before, by id. A Lanelet2 map's ids are its own (two maps
+    // may give one id to different lanelets), so only a lane with the same points is the same.
+    let mut earlier_lanelet_lanes: HashMap<u64, Vec<[f64; 2]>> = HashMap::new();
     for ((osm, &lanelet2), path) in data.iter().zip(&lanelet2).zip(inputs) {
         if lanelet2 {
-            let (l, r) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
-            lanes.extend(l);
-            reports.push(InputReport::Lanelet2(r));
+            let (derived, mut report) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
+            let (again, new): (Vec<Lane>, Vec<Lane>) = derived
+                .into_iter()
+                .partition(|l| earlier_lanelet_lanes.get(&l.id) == Some(&l.points));
+            report.lanes_in_earlier_input = again.len();
+            for lane in new {
+                earlier_lanelet_lanes
+                    .entry(lane.id)
+                    .or_insert_with(|| lane.points.clone());
+                lanes.push(lane);
+            }
+            reports.push(InputReport::Lanelet2(report));
             continue;
         }
         let nodes = MergedNodes::new(osm, &osm_inputs);

@@ -31,6 +31,9 @@ pub struct LaneletReport {
     pub lanelets_not_drivable: usize,
     /// Lanelets whose bounds are missing or have fewer than two known nodes, skipped.
     pub lanelets_broken: usize,
+    /// Lanes an earlier Lanelet2 input gave already, with the same id and the same points (tiles
+    /// of one map share the lanelets of their borders), skipped.
+    pub lanes_in_earlier_input: usize,
 }
 
 /// True when the file holds Lanelet2 lanelets.

@@ -1,5 +1,6 @@
 //! Lane tiles on real data: every map compiles, PBF gives the same tile as XML, a tile corrects
-//! exactly like the OSM it came from, and Lanelet2 lanes run in their lanelets' direction.
+//! exactly like the OSM it came from, Lanelet2 lanes run in their lanelets' direction, and
+//! Lanelet2 inputs given together take their shared lanelets once.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -230,4 +231,50 @@ fn known_lanelets_start_and_end_between_their_bounds() {
             "lanelet {lanelet}: end {end:?} is not between bound ends"
         );
     }
+}
+
+/// Lanelet2 inputs given together: a lane an earlier input gave with the same id and points is
+/// the same lanelet (tiles of one map share their borders' lanelets) and is taken once; a map
+/// whose ids are another map's own (the same ids, other places) keeps all its lanes. The map
+/// given twice gave every lane twice.
+#[test]
+fn lanelet2_inputs_merge_their_shared_lanelets_once() {
+    let Some(data) = shared_data() else { return };
+    let example = data.join("lanelet2/mapping_example.osm");
+    let dir = tempfile::tempdir().unwrap();
+    // The same lanelets 2 km north: other places under the same ids.
+    let text = std::fs::read_to_string(&example).unwrap();
+    let moved = shifted_north(&text, 0.018);
+    let elsewhere = dir.path().join("elsewhere.osm");
+    std::fs::write(&elsewhere, moved).unwrap();
+    let options = CompileOptions {
+        origin: Some((49.0, 8.4)),
+        ..CompileOptions::default()
+    };
+    let once = compile(std::slice::from_ref(&example), &options).unwrap();
+    let twice = compile(&[example.clone(), example.clone()], &options).unwrap();
+    assert_eq!(twice.map.lane_ids().len(), once.map.lane_ids().len());
+    assert!(
+        twice.tile_bytes(3.0) == once.tile_bytes(3.0),
+        "the same tile"
+    );
+    let two_maps = compile(&[example.clone(), elsewhere], &options).unwrap();
+    assert_eq!(two_maps.map.lane_ids().len(), 2 * once.map.lane_ids().len());
+}
+
+/// `text` with every `lat='...'` / `lat="..."` value raised by `dlat` degrees.
+fn shifted_north(text: &str, dlat: f64) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = rest.find("lat=") {
+        let quote = rest.as_bytes()[at + 4] as char;
+        let start = at + 5;
+        let end = start + rest[start..].find(quote).unwrap();
+        let lat: f64 = rest[start..end].parse().unwrap();
+        out.push_str(&rest[..start]);
+        out.push_str(&format!("{:.9}", lat + dlat));
+        rest = &rest[end..];
+    }
+    out.push_str(rest);
+    out
 }
