@@ -297,18 +297,21 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
     let mut earlier_roads = HashSet::new();
     // The lanes of the Lanelet2 inputs before, by id. A Lanelet2 map's ids are its own (two maps
     // may give one id to different lanelets), so only a lane with the same points is the same.
-    let mut earlier_lanelet_lanes: HashMap<u64, Vec<[f64; 2]>> = HashMap::new();
+    let mut earlier_lanelet_lanes: HashMap<u64, Vec<Vec<[f64; 2]>>> = HashMap::new();
     for ((osm, &lanelet2), path) in data.iter().zip(&lanelet2).zip(inputs) {
         if lanelet2 {
             let (derived, mut report) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
-            let (again, new): (Vec<Lane>, Vec<Lane>) = derived
-                .into_iter()
-                .partition(|l| earlier_lanelet_lanes.get(&l.id) == Some(&l.points));
+            let (again, new): (Vec<Lane>, Vec<Lane>) = derived.into_iter().partition(|l| {
+                earlier_lanelet_lanes
+                    .get(&l.id)
+                    .is_some_and(|taken| taken.contains(&l.points))
+            });
             report.lanes_in_earlier_input = again.len();
             for lane in new {
                 earlier_lanelet_lanes
                     .entry(lane.id)
-                    .or_insert_with(|| lane.points.clone());
+                    .or_default()
+                    .push(lane.points.clone());
                 lanes.push(lane);
             }
             reports.push(InputReport::Lanelet2(report));

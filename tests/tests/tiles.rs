@@ -258,8 +258,14 @@ fn lanelet2_inputs_merge_their_shared_lanelets_once() {
         twice.tile_bytes(3.0) == once.tile_bytes(3.0),
         "the same tile"
     );
-    let two_maps = compile(&[example.clone(), elsewhere], &options).unwrap();
+    let two_maps = compile(&[example.clone(), elsewhere.clone()], &options).unwrap();
     assert_eq!(two_maps.map.lane_ids().len(), 2 * once.map.lane_ids().len());
+    // The second map given again is the second map's lanes again, not the first's.
+    let again = compile(&[example.clone(), elsewhere.clone(), elsewhere], &options).unwrap();
+    assert!(
+        again.tile_bytes(3.0) == two_maps.tile_bytes(3.0),
+        "the two maps' tile"
+    );
 }
 
 /// `text` with every `lat='...'` / `lat="..."` value raised by `dlat` degrees.
