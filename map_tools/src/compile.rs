@@ -1,6 +1,6 @@
 //! Compiling road data into a lane map: read every input, choose the map plane, derive lanes.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -15,9 +15,9 @@ use lanealign_core::tile::SigningKey;
 use crate::lane_spill::SpillError;
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
 use crate::node_store::NodeStoreError;
-use crate::osm::{is_shared_id, read_xml_file, MergedNodes, OsmData, OsmError};
+use crate::osm::{read_xml_file, MergedNodes, NodePositions, OsmData, OsmError};
 use crate::osm_lanes::{
-    derive_way_lanes, road_class, DeriveReport, LaneOptions, MAX_NODE_GAP_M, MAX_PLANE_RADIUS_M,
+    derive_way_lanes, DeriveReport, EarlierRoads, LaneOptions, MAX_NODE_GAP_M, MAX_PLANE_RADIUS_M,
 };
 use crate::pbf::{read_pbf_file, PbfError};
 
@@ -257,6 +257,68 @@ impl Compiled {
     }
 }
 
+/// Appends to `lanes` the lanes of the ways of OSM input `osm` (read from `path`) that no input
+/// before holds as a road, its nodes placed by `nodes`; what derivation did. A way given twice in
+/// the input is refused.
+fn add_osm_lanes(
+    path: &Path,
+    osm: &OsmData,
+    nodes: &impl NodePositions,
+    earlier_roads: &EarlierRoads,
+    plane: &MapPlane,
+    options: &CompileOptions,
+    lanes: &mut Vec<Lane>,
+) -> Result<DeriveReport, CompileError> {
+    let mut report = DeriveReport::default();
+    let mut last_with_lanes = None;
+    for way in &osm.ways {
+        if earlier_roads.took(way, &mut report) {
+            continue;
+        }
+        let before = lanes.len();
+        derive_way_lanes(way, nodes, plane, &options.lanes, &mut report, lanes);
+        // Ways come by id: a way given twice gives its lanes twice in a row.
+        if lanes.len() > before {
+            if last_with_lanes == Some(way.id) {
+                return Err(CompileError::DuplicateWay {
+                    path: path.to_path_buf(),
+                    way: way.id,
+                });
+            }
+            last_with_lanes = Some(way.id);
+        }
+    }
+    Ok(report)
+}
+
+/// Appends to `lanes` the lanes of `derived` (one Lanelet2 input's) but those `taken` from an
+/// input before: the same id with the same points (tiles of one map share their borders'
+/// lanelets; a Lanelet2 map's ids are its own, so the same id elsewhere is another lanelet).
+/// `taken` holds the points of every lane taken, by id. Returns how many were taken before.
+fn add_untaken_lanes(
+    derived: Vec<Lane>,
+    taken: &mut HashMap<u64, Vec<Vec<[f64; 2]>>>,
+    lanes: &mut Vec<Lane>,
+) -> usize {
+    let mut again = 0;
+    let mut this_input = Vec::new();
+    for lane in derived {
+        if taken
+            .get(&lane.id)
+            .is_some_and(|t| t.contains(&lane.points))
+        {
+            again += 1;
+        } else {
+            this_input.push((lane.id, lane.points.clone()));
+            lanes.push(lane);
+        }
+    }
+    for (id, points) in this_input {
+        taken.entry(id).or_default().push(points);
+    }
+    again
+}
+
 /// The map plane's origin `(lat, lon)` (degrees): `given`, checked (a NaN origin compiled a map
 /// with no lane), else the data's `centre` (found only then: it walks every node).
 pub(crate) fn plane_origin(
@@ -292,58 +354,33 @@ pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled,
         .zip(&lanelet2)
         .filter_map(|(osm, &lanelet2)| (!lanelet2).then_some(osm))
         .collect();
-    // The roads of the OSM inputs before (by shared id): overlapping extracts hold the ways of
-    // their overlap.
-    let mut earlier_roads = HashSet::new();
-    // The lanes of the Lanelet2 inputs before, by id. A Lanelet2 map's ids are its own (two maps
-    // may give one id to different lanelets), so only a lane with the same points is the same.
-    let mut earlier_lanelet_lanes: HashMap<u64, Vec<Vec<[f64; 2]>>> = HashMap::new();
+    let mut earlier_roads = EarlierRoads::default();
+    let mut lanelet_lanes_taken = HashMap::new();
     for ((osm, &lanelet2), path) in data.iter().zip(&lanelet2).zip(inputs) {
-        if lanelet2 {
-            let (derived, mut report) = derive_lanelet_lanes(osm, &plane, options.lanes.spacing_m);
-            let (again, new): (Vec<Lane>, Vec<Lane>) = derived.into_iter().partition(|l| {
-                earlier_lanelet_lanes
-                    .get(&l.id)
-                    .is_some_and(|taken| taken.contains(&l.points))
-            });
-            report.lanes_in_earlier_input = again.len();
-            for lane in new {
-                earlier_lanelet_lanes
-                    .entry(lane.id)
-                    .or_default()
-                    .push(lane.points.clone());
-                lanes.push(lane);
-            }
-            reports.push(InputReport::Lanelet2(report));
-            continue;
-        }
-        let nodes = MergedNodes::new(osm, &osm_inputs);
-        let mut report = DeriveReport::default();
-        let mut last_with_lanes = None;
-        for way in &osm.ways {
-            if earlier_roads.contains(&way.id) {
-                report.ways_in_earlier_input += 1;
-                continue;
-            }
-            let before = lanes.len();
-            derive_way_lanes(way, &nodes, &plane, &options.lanes, &mut report, &mut lanes);
-            // Ways come by id: a way given twice gives its lanes twice in a row.
-            if lanes.len() > before {
-                if last_with_lanes == Some(way.id) {
-                    return Err(CompileError::DuplicateWay {
-                        path: path.clone(),
-                        way: way.id,
-                    });
-                }
-                last_with_lanes = Some(way.id);
-            }
-        }
-        let roads = osm
-            .ways
-            .iter()
-            .filter(|w| is_shared_id(w.id) && road_class(w, &options.lanes).is_some());
-        earlier_roads.extend(roads.map(|w| w.id));
-        reports.push(InputReport::Osm(report));
+        reports.push(if lanelet2 {
+            let spacing_m = options.lanes.spacing_m;
+            let (derived, mut report) = derive_lanelet_lanes(osm, &plane, spacing_m);
+            report.lanes_in_earlier_input =
+                add_untaken_lanes(derived, &mut lanelet_lanes_taken, &mut lanes);
+            InputReport::Lanelet2(report)
+        } else {
+            let nodes = MergedNodes::new(osm, &osm_inputs);
+            let report = add_osm_lanes(
+                path,
+                osm,
+                &nodes,
+                &earlier_roads,
+                &plane,
+                options,
+                &mut lanes,
+            )?;
+            earlier_roads.add(
+                osm.ways
+                    .iter()
+                    .filter_map(|w| EarlierRoads::id_of(w, &options.lanes)),
+            );
+            InputReport::Osm(report)
+        });
     }
     let from_osm_ways = !osm_inputs.is_empty();
     let geometry = if from_osm_ways {

@@ -27,8 +27,8 @@ use osmpbf::Element;
 use crate::compile::{compile, is_pbf, CompileError, CompileOptions, InputReport, NodeBounds};
 use crate::lane_spill::{BlockKey, BlockLanes, LaneSpill, SpillError, SpilledLanes};
 use crate::node_store::{NodeStore, NodeStoreError, NodeWriter};
-use crate::osm::{is_shared_id, tag, MergedNodes};
-use crate::osm_lanes::{derive_way_lanes, road_class, DeriveReport};
+use crate::osm::{tag, MergedNodes};
+use crate::osm_lanes::{derive_way_lanes, DeriveReport, EarlierRoads};
 use crate::pbf::{for_each_blob, for_each_element, node_of, relation_of, way_of};
 
 /// The grid to cut.
@@ -142,9 +142,7 @@ fn stream(
     let mut spill = LaneSpill::new_in(output, grid.cell_size_m, grid.margin_m, block_cells);
     let mut reports = Vec::with_capacity(inputs.len());
     let all: Vec<&NodeStore> = stores.iter().map(|s| &s.store).collect();
-    // The roads of the inputs before, ascending: overlapping extracts hold the ways of their
-    // overlap, whose lanes come from the first (as the in-memory compile takes them).
-    let mut earlier_roads: Vec<i64> = Vec::new();
+    let mut earlier_roads = EarlierRoads::default();
     for (k, (path, stored)) in inputs.iter().zip(&stores).enumerate() {
         let input = StreamedInput {
             path,
@@ -156,9 +154,7 @@ fn stream(
         match derive_streamed(&input, output, &plane, options, &mut spill)? {
             Derived::Lanes(report, roads) => {
                 reports.push(InputReport::Osm(report));
-                earlier_roads.extend(roads);
-                earlier_roads.sort_unstable();
-                earlier_roads.dedup();
+                earlier_roads.add(roads);
             }
             Derived::Lanelet2 => return Ok(Err(format!("{} is a Lanelet2 map", path.display()))),
             Derived::Unsorted(why) => return Ok(Err(unsorted(path, &why))),
@@ -324,8 +320,8 @@ impl InOrder {
 
 /// What the second pass over one input made.
 enum Derived {
-    /// Its lanes are in the spill, with what derivation did and its roads' ids (ascending;
-    /// none for the last input).
+    /// Its lanes are in the spill, with what derivation did and its roads' ids (none for the
+    /// last input).
     Lanes(DeriveReport, Vec<i64>),
     /// It is a Lanelet2 map (lanes come from relations, read in memory).
     Lanelet2,
@@ -344,8 +340,8 @@ struct StreamedInput<'a> {
     nodes: MergedNodes<'a, NodeStore>,
     /// Its blobs that hold ways or relations (from the first pass), ascending.
     with_ways: &'a [u64],
-    /// The ids of the roads of the inputs before it, ascending.
-    earlier_roads: &'a [i64],
+    /// The roads of the inputs before it.
+    earlier_roads: &'a EarlierRoads,
     /// Whether inputs follow, which need its roads' ids.
     keep_roads: bool,
 }
@@ -383,14 +379,10 @@ fn derive_streamed(
             match e {
                 Element::Way(w) => {
                     let way = way_of(&w);
-                    if input.keep_roads
-                        && is_shared_id(way.id)
-                        && road_class(&way, &options.lanes).is_some()
-                    {
-                        roads.push(way.id);
+                    if input.keep_roads {
+                        roads.extend(EarlierRoads::id_of(&way, &options.lanes));
                     }
-                    if input.earlier_roads.binary_search(&way.id).is_ok() {
-                        report.ways_in_earlier_input += 1;
+                    if input.earlier_roads.took(&way, &mut report) {
                         return Ok(());
                     }
                     derive_way_lanes(

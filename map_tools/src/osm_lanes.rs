@@ -8,7 +8,7 @@ use lanealign_core::lane_geometry::{LaneGeometry, LaneInfo, RoadClass, RoadClass
 use lanealign_core::lane_map::{resample, Lane};
 use lanealign_core::params::{Method, UNMARKED_OFFSET_SCALE};
 
-use crate::osm::{tag, NodePositions, OsmData, Tags, Way};
+use crate::osm::{is_shared_id, tag, NodePositions, OsmData, Tags, Way};
 
 /// How lanes are derived.
 #[derive(Clone, Debug, PartialEq)]
@@ -293,6 +293,38 @@ pub fn derive_lanes(
         derive_way_lanes(way, osm, plane, opts, &mut report, &mut lanes);
     }
     (lanes, report)
+}
+
+/// The roads of the OSM inputs before the one being derived, by OSM's shared ids
+/// ([`is_shared_id`]): a way that several inputs hold (extracts overlap) has its lanes from the
+/// first. Both compiles, in memory and streamed, skip by it.
+#[derive(Clone, Debug, Default)]
+pub struct EarlierRoads {
+    /// Ascending, each once.
+    ids: Vec<i64>,
+}
+
+impl EarlierRoads {
+    /// Whether an input before holds `way` as a road, so that its lanes came from there
+    /// (counted into `report`).
+    pub fn took(&self, way: &Way, report: &mut DeriveReport) -> bool {
+        let took = self.ids.binary_search(&way.id).is_ok();
+        report.ways_in_earlier_input += usize::from(took);
+        took
+    }
+
+    /// The id the inputs after must not derive again: `way`'s, when it is a road under a shared
+    /// id.
+    pub fn id_of(way: &Way, opts: &LaneOptions) -> Option<i64> {
+        (is_shared_id(way.id) && road_class(way, opts).is_some()).then_some(way.id)
+    }
+
+    /// Adds an input's roads (ids from [`EarlierRoads::id_of`]).
+    pub fn add(&mut self, ids: impl IntoIterator<Item = i64>) {
+        self.ids.extend(ids);
+        self.ids.sort_unstable();
+        self.ids.dedup();
+    }
 }
 
 /// The class of `way` when it is a road lanes are derived from: a `highway` of a selected

@@ -25,6 +25,11 @@ STATUS_NAMES: Tuple[str, ...] = tuple(_lanealign.STATUS_NAMES)
 WIRE_VERSION: int = _lanealign.WIRE_VERSION
 
 
+def _floats(a):
+    """``a`` as a contiguous float64 array, as the extension takes arrays; ``None`` stays."""
+    return None if a is None else np.ascontiguousarray(a, dtype=np.float64)
+
+
 class Corrected(NamedTuple):
     """The result of :func:`correct`."""
 
@@ -96,9 +101,8 @@ def correct(
     What ``lanealign correct`` prints as ``WARN`` lines (a run set up wrongly, an odometry that
     jumped or lost track) comes as a ``UserWarning`` each, with the same text.
     """
-    array = np.ascontiguousarray(poses, dtype=np.float64)
     return Corrected(*_lanealign.correct(
-        array,
+        np.ascontiguousarray(poses, dtype=np.float64),
         preset=preset,
         osm=osm,
         tile=tile,
@@ -110,7 +114,7 @@ def correct(
         odometry_rate_hz=odometry_rate_hz,
         smooth=smooth,
         overrides=overrides,
-        stamps=None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64),
+        stamps=_floats(stamps),
         status=None if status is None else str(status),
     ))
 
@@ -143,17 +147,14 @@ def eval(  # noqa: A001
     cautious"). A covariance that is not symmetric, or not positive definite (a pose with status
     ``invalid_input``), is a ``ValueError``.
     """
-    def floats(a):
-        return None if a is None else np.ascontiguousarray(a, dtype=np.float64)
-
     return _lanealign.eval(
-        floats(gt),
-        floats(est),
+        _floats(gt),
+        _floats(est),
         frame=frame,
-        covariance=floats(covariance),
+        covariance=_floats(covariance),
         anchor_yaw=anchor_yaw,
-        gt_stamps=floats(gt_stamps),
-        est_stamps=floats(est_stamps),
+        gt_stamps=_floats(gt_stamps),
+        est_stamps=_floats(est_stamps),
     )
 
 
@@ -210,8 +211,7 @@ def format_trajectory(poses, *, format: str = "kitti", stamps=None) -> str:
     seconds, checked as a TUM file's are); every number in the shortest text that reads back
     exactly.
     """
-    floats = None if stamps is None else np.ascontiguousarray(stamps, dtype=np.float64)
-    return _lanealign.format_trajectory(poses, format=format, stamps=floats)
+    return _lanealign.format_trajectory(poses, format=format, stamps=_floats(stamps))
 
 
 def synthetic_town(tile: str, *, laps: int = 3, seed: int = 42) -> Tuple[np.ndarray, np.ndarray]:

@@ -68,11 +68,16 @@ fn kitti_rows(array: &ArrayViewD<'_, f64>) -> Option<Vec<[f64; 12]>> {
     )
 }
 
+/// The poses of an (N, 3, 4), (N, 4, 4) or (N, 12) array; `None` for any other shape.
+fn kitti_poses(array: &ArrayViewD<'_, f64>) -> Option<Vec<Pose3>> {
+    kitti_rows(array).map(|rows| rows.iter().map(Pose3::from_row_major).collect())
+}
+
 /// Poses of shape (N, 3, 4), (N, 4, 4), (N, 12) (a KITTI file's rows, as `np.loadtxt` reads
 /// it) or planar (N, 3) `[x, y, yaw]`.
-fn poses_from(array: &ArrayD<f64>) -> PyResult<Vec<Pose3>> {
-    if let Some(rows) = kitti_rows(&array.view()) {
-        return Ok(rows.iter().map(Pose3::from_row_major).collect());
+fn poses_from(array: &ArrayViewD<'_, f64>) -> PyResult<Vec<Pose3>> {
+    if let Some(poses) = kitti_poses(array) {
+        return Ok(poses);
     }
     match array.shape() {
         [n, 3] => Ok((0..*n)
@@ -230,7 +235,7 @@ fn correct<'py>(
     stamps: Option<PyReadonlyArray1<'py, f64>>,
     status: Option<PathBuf>,
 ) -> PyResult<Corrected<'py>> {
-    let array = poses.as_array().to_owned();
+    let array = poses.as_array();
     let shape = array.shape().to_vec();
     let frame: AxisConvention = parsed("frame", frame)?;
     let input = poses_from(&array)?;
@@ -378,7 +383,7 @@ fn eval<'py>(
                       a: &PyReadonlyArrayDyn<'py, f64>,
                       stamps: Option<&PyReadonlyArray1<'py, f64>>|
      -> PyResult<Trajectory> {
-        let poses = poses_from(&a.as_array().to_owned())?;
+        let poses = poses_from(&a.as_array())?;
         let stamps = checked_stamps(&format!("{what}_stamps"), stamps, poses.len())?;
         Ok(Trajectory { stamps, poses })
     };
@@ -900,15 +905,12 @@ fn format_trajectory(
 ) -> PyResult<String> {
     let format: trajectory::Format = parsed("format", format)?;
     let array = poses.as_array();
-    let poses = match kitti_rows(&array) {
-        Some(rows) => rows.iter().map(Pose3::from_row_major).collect::<Vec<_>>(),
-        None => {
-            return Err(PyValueError::new_err(format!(
-                "poses must have shape (N, 3, 4), (N, 4, 4) or (N, 12), not {:?}",
-                array.shape()
-            )))
-        }
-    };
+    let poses = kitti_poses(&array).ok_or_else(|| {
+        PyValueError::new_err(format!(
+            "poses must have shape (N, 3, 4), (N, 4, 4) or (N, 12), not {:?}",
+            array.shape()
+        ))
+    })?;
     let stamps = checked_stamps("stamps", stamps.as_ref(), poses.len())?;
     let trajectory = Trajectory { stamps, poses };
     trajectory::format_text(&trajectory, format, std::path::Path::new("the trajectory"))
