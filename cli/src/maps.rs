@@ -92,8 +92,15 @@ impl LoadedMap {
         // The rate the stamps say the poses come at, where they say one.
         let stamped_rate = stamps_s.and_then(plausibility::rate_from_stamps);
         let counts = counts(run);
+        let axes = plausibility::axis_convention_warning(poses, convention);
+        // Read in the other axis convention, every pose is tilted too: that warning says why.
+        let tilt = match axes {
+            Some(_) => None,
+            None => plausibility::tilt_warning(poses, convention),
+        };
         [
-            plausibility::axis_convention_warning(poses, convention),
+            axes,
+            tilt,
             // The first pose that is one: a pose of NaNs (answered `invalid_input`) is nowhere.
             poses
                 .iter()

@@ -133,6 +133,43 @@ fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     assert_eq!(carried, 1800, "nine of every ten poses");
 }
 
+/// A TUM file whose quaternions were written scalar first (`qw qx qy qz`, the order of Eigen's
+/// constructor) reads as a vehicle upside down: the run says so, and its corrections are
+/// those of the file written in TUM's order.
+#[test]
+fn quaternions_written_scalar_first_are_told() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path(), 200);
+    let poses = tum_along_the_lane(dir.path(), 1000, 10.0);
+    let (err, accepted) = correct_tum(dir.path(), &lanes, &poses, &[], "accepted");
+    assert!(!err.contains("WARN"), "{err}");
+    let in_order = std::fs::read_to_string(dir.path().join("out.tum")).unwrap();
+    let text = std::fs::read_to_string(&poses).unwrap();
+    let scalar_first: String = text
+        .lines()
+        .map(|l| l.replace(" 0 0 0 1", " 1 0 0 0") + "\n")
+        .collect();
+    std::fs::write(&poses, scalar_first).unwrap();
+    let (err, accepted_scalar_first) = correct_tum(dir.path(), &lanes, &poses, &[], "accepted");
+    assert!(
+        err.contains(
+            "WARN the poses are tilted more than 60 degrees from upright on 100% of their path"
+        ) && err.contains("were these written qw qx qy qz?"),
+        "{err}"
+    );
+    assert!(
+        accepted > 600 && accepted_scalar_first == accepted,
+        "{accepted} {accepted_scalar_first}"
+    );
+    let positions = |text: &str| -> Vec<String> {
+        text.lines()
+            .map(|l| l.split(' ').take(4).collect::<Vec<_>>().join(" "))
+            .collect()
+    };
+    let out = std::fs::read_to_string(dir.path().join("out.tum")).unwrap();
+    assert_eq!(positions(&out), positions(&in_order));
+}
+
 #[test]
 fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
     let dir = tempfile::tempdir().unwrap();

@@ -9,7 +9,7 @@ use crate::pose::{AxisConvention, Pose3};
 pub const MAX_VERTICAL_SHARE: f64 = 0.33;
 
 /// Shortest 3D path (metres) the axis check judges: standing still proves nothing.
-const MIN_PATH_FOR_AXIS_CHECK_M: f64 = 10.0;
+pub(super) const MIN_PATH_FOR_AXIS_CHECK_M: f64 = 10.0;
 
 /// A warning when the motion of `poses` looks like the other axis convention.
 pub fn axis_convention_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
