@@ -190,6 +190,16 @@ pub enum OsmError {
         /// The parser's message.
         message: String,
     },
+    /// A node given twice at two places ([`node_twice`] says which).
+    #[error("{path}: at byte {position}: {problem}")]
+    NodeTwice {
+        /// The file.
+        path: PathBuf,
+        /// Byte offset of the second.
+        position: u64,
+        /// The node and its two places.
+        problem: String,
+    },
     /// An element lacks a required attribute or has a bad value.
     #[error("{path}: at byte {position}: <{element}> has {problem}")]
     BadElement {
@@ -392,13 +402,10 @@ pub fn read_xml<R: BufRead>(input: R, path: &Path) -> Result<OsmData, OsmError> 
                     return Err(er.bad("node", format!("coordinates out of range ({lat}, {lon})")));
                 }
                 let at = (nanodegrees(lat), nanodegrees(lon));
-                data.add_node(id, at).map_err(|first| {
-                    let why = format!(
-                        "an id given before at another place: node {id} at {}, before at {}",
-                        degrees(at),
-                        degrees(first)
-                    );
-                    er.bad("node", why)
+                data.add_node(id, at).map_err(|first| OsmError::NodeTwice {
+                    path: er.path.to_path_buf(),
+                    position: er.position,
+                    problem: node_twice(id, first, at),
                 })?;
                 if !is_empty {
                     open = Open::Node;
@@ -529,8 +536,8 @@ mod tests {
         let e = read_xml(twice("49.0000001").as_bytes(), Path::new("t.osm")).unwrap_err();
         assert_eq!(
             e.to_string(),
-            "t.osm: at byte 86: <node> has an id given before at another place: node 1 at \
-             (49.0000001, 8), before at (49, 8)"
+            "t.osm: at byte 86: node 1 appears twice, at (49, 8) and at (49.0000001, 8) (an \
+             OSM file holds each node once)"
         );
         let mut a = read_xml(twice("49").as_bytes(), Path::new("a.osm")).unwrap();
         let mut b = OsmData::default();
