@@ -33,15 +33,34 @@ pub struct Paired {
     pub pairs: Vec<(usize, usize)>,
 }
 
-/// Pairs `est` with `gt`: by timestamp (within 10 ms) when both have them, else by index (then
-/// they must be as long).
+/// The largest difference (seconds) between the stamps of a ground-truth and an estimated pose
+/// that pair, unless told otherwise: evo's `--t_max_diff`.
+pub const DEFAULT_MAX_DT_S: f64 = 0.01;
+
+/// Longest pairing tolerance (seconds): beyond an hour, stamps pair with poses of another drive.
+pub const MAX_MAX_DT_S: f64 = 3600.0;
+
+/// `max_dt_s` if it is a pairing tolerance: above 0 and at most [`MAX_MAX_DT_S`] seconds.
+pub fn checked_max_dt_s(max_dt_s: f64) -> Result<f64, String> {
+    if max_dt_s > 0.0 && max_dt_s <= MAX_MAX_DT_S {
+        Ok(max_dt_s)
+    } else {
+        Err(format!(
+            "must be a number of seconds above 0 and at most {MAX_MAX_DT_S}"
+        ))
+    }
+}
+
+/// Pairs `est` with `gt`: by timestamp (within `max_dt_s` seconds) when both have them, else by
+/// index (then they must be as long).
 pub fn pair(
     gt: &Trajectory,
     est: &Trajectory,
     frame: AxisConvention,
+    max_dt_s: f64,
 ) -> Result<Paired, MetricsError> {
     let pairs: Vec<(usize, usize)> = match (&gt.stamps, &est.stamps) {
-        (Some(ts_gt), Some(ts_est)) => associate_by_time(ts_gt, ts_est, 0.01),
+        (Some(ts_gt), Some(ts_est)) => associate_by_time(ts_gt, ts_est, max_dt_s)?,
         _ if gt.poses.len() == est.poses.len() => (0..gt.poses.len()).map(|i| (i, i)).collect(),
         _ => {
             return Err(MetricsError::LengthMismatch {

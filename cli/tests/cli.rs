@@ -68,6 +68,80 @@ fn eval_equals_evo_on_kitti_00() {
     }
 }
 
+/// Paired by time, `eval` says how many of the estimate's poses it left out, names where both
+/// files' stamps lie when none pair, and takes evo's `--t_max_diff` and `--t_offset` as
+/// `--max-dt` and `--t-offset`: an estimate 0.5 m beside the truth whose clock runs 60 ms late,
+/// 300 poses against 200 of ground truth.
+#[test]
+fn eval_pairs_stamps_as_told_and_says_what_it_left_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let tum = |name: &str, poses: usize, late_s: f64, y: f64| {
+        let path = dir.path().join(name);
+        let lines: String = (0..poses)
+            .map(|i| format!("{} {i} {y} 0 0 0 0 1\n", 1000.0 + 0.1 * i as f64 + late_s))
+            .collect();
+        std::fs::write(&path, lines).unwrap();
+        path
+    };
+    let (gt, est) = (tum("gt.tum", 200, 0.0, 0.0), tum("est.tum", 300, 0.06, 0.5));
+    let eval = |extra: &[&str]| {
+        let base = [
+            "eval",
+            "--format",
+            "tum",
+            "--json",
+            "--gt",
+            s(&gt),
+            "--est",
+            s(&est),
+        ];
+        let out = lanealign(&[&base[..], extra].concat());
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
+        (out.status.code(), json, err)
+    };
+    let (code, _, err) = eval(&[]);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains(
+            "no estimate stamp lies within 0.01 s of a ground-truth stamp: the ground truth's 200 \
+             stamps run from 1000.000 to 1019.900 s, the estimate's 300 stamps run from 1000.060 \
+             to 1029.960 s"
+        ) && err.contains("--t-offset shifts the estimate's stamps"),
+        "{err}"
+    );
+    let (code, json, err) = eval(&["--t-offset", "-0.06"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert_eq!(json["poses"], 200, "{json}");
+    assert!(
+        (json["ape2d_mean_m"].as_f64().unwrap_or(f64::NAN) - 0.5).abs() < 1e-9,
+        "{json}"
+    );
+    assert!(
+        err.contains(
+            "200 of the estimate's 300 poses paired with a ground-truth pose within 0.01 s"
+        ),
+        "{err}"
+    );
+    // Wide enough for the late clock, each estimated pose pairs with the truth 40 ms after it.
+    let (code, json, _) = eval(&["--max-dt", "0.05"]);
+    assert_eq!(code, Some(0));
+    assert_eq!(json["poses"], 199, "{json}");
+    assert!(
+        (json["ape2d_mean_m"].as_f64().unwrap_or(f64::NAN) - 1.25f64.sqrt()).abs() < 1e-9,
+        "{json}"
+    );
+    for bad in ["0", "-1", "nan", "inf", "3601"] {
+        let (code, _, err) = eval(&["--max-dt", bad]);
+        assert_eq!(code, Some(2), "--max-dt {bad}: {err}");
+    }
+    let kitti = lanealign(&["eval", "--gt", s(&gt), "--est", s(&gt), "--max-dt", "0.1"]);
+    assert!(
+        String::from_utf8_lossy(&kitti.stderr).contains("only with --format tum"),
+        "{kitti:?}"
+    );
+}
+
 /// `--method paper` keeps the corrector issue's figures (docs/results.md, KITTI 00, lidar,
 /// kiss-icp, OSM lanes): APE-2D 1.660 m after 4392 match attempts, 3384 accepted, 0 resets; the
 /// default (robust) method does better on the same input.
@@ -526,7 +600,8 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     let err = String::from_utf8_lossy(&refused.stderr);
     assert_eq!(refused.status.code(), Some(1), "{err}");
     assert!(
-        err.contains("--gt ") && err.contains("no pose pairs to compare"),
+        err.contains("--gt ")
+            && err.contains("no estimate stamp lies within 0.01 s of a ground-truth stamp"),
         "{err}"
     );
     let runs = std::fs::read_dir(&results).unwrap().count();

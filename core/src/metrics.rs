@@ -42,6 +42,19 @@ pub enum MetricsError {
     /// Nothing to compare.
     #[error("no pose pairs to compare")]
     Empty,
+    /// Paired by time, no estimate stamp lies near a ground-truth stamp.
+    #[error(
+        "no estimate stamp lies within {max_dt_s} s of a ground-truth stamp: the ground truth's \
+         {gt}, the estimate's {est} (a clock offset between them, or stamps of another time base?)"
+    )]
+    NoStampPairs {
+        /// The largest difference a pair may have (seconds).
+        max_dt_s: f64,
+        /// The ground truth's stamps.
+        gt: StampSpan,
+        /// The estimate's stamps.
+        est: StampSpan,
+    },
     /// A pose is not finite, so no figure would be either.
     #[error("pose pair {index} is not finite: no figure can be computed")]
     NotFinite {
@@ -480,14 +493,47 @@ pub fn scaled_steps(raw: &[Pose3], scale_after: &[f64]) -> Vec<Pose3> {
         .collect()
 }
 
+/// How many stamps a trajectory has and the time they span (seconds).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StampSpan {
+    /// Stamps.
+    pub count: usize,
+    /// The first stamp (seconds).
+    pub first_s: f64,
+    /// The last stamp (seconds).
+    pub last_s: f64,
+}
+
+impl StampSpan {
+    /// The span of `stamps` (sorted), `None` when there are none.
+    pub fn of(stamps: &[f64]) -> Option<StampSpan> {
+        Some(StampSpan {
+            count: stamps.len(),
+            first_s: *stamps.first()?,
+            last_s: *stamps.last()?,
+        })
+    }
+}
+
+impl std::fmt::Display for StampSpan {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} stamps run from {:.3} to {:.3} s",
+            self.count, self.first_s, self.last_s
+        )
+    }
+}
+
 /// Pairs two timestamped trajectories: for each estimate stamp, the ground-truth pose with the
 /// nearest stamp if it is within `max_dt` seconds (each ground-truth pose used at most once, as
-/// evo's association does). Both stamp lists must be sorted. Returns `(gt index, est index)`.
+/// evo's association does). Both stamp lists must be sorted. Returns `(gt index, est index)`;
+/// when both have stamps and none pair, [`MetricsError::NoStampPairs`] says where each lies.
 pub fn associate_by_time(
     gt_stamps: &[f64],
     est_stamps: &[f64],
     max_dt: f64,
-) -> Vec<(usize, usize)> {
+) -> Result<Vec<(usize, usize)>, MetricsError> {
     let mut pairs = Vec::new();
     let mut used = vec![false; gt_stamps.len()];
     for (j, &t) in est_stamps.iter().enumerate() {
@@ -506,7 +552,18 @@ pub fn associate_by_time(
             pairs.push((i, j));
         }
     }
-    pairs
+    match (
+        pairs.is_empty(),
+        StampSpan::of(gt_stamps),
+        StampSpan::of(est_stamps),
+    ) {
+        (true, Some(gt), Some(est)) => Err(MetricsError::NoStampPairs {
+            max_dt_s: max_dt,
+            gt,
+            est,
+        }),
+        _ => Ok(pairs),
+    }
 }
 
 #[cfg(test)]
@@ -694,6 +751,21 @@ mod tests {
     #[test]
     fn association_pairs_nearest_stamps_once() {
         let pairs = associate_by_time(&[0.0, 0.1, 0.2, 0.3], &[0.09, 0.11, 0.31, 0.5], 0.02);
-        assert_eq!(pairs, vec![(1, 0), (3, 2)]);
+        assert_eq!(pairs, Ok(vec![(1, 0), (3, 2)]));
+    }
+
+    #[test]
+    fn stamps_that_pair_nowhere_are_told_where_each_lies() {
+        let gt = [100.0, 100.1, 100.2];
+        let late = [100.05, 100.15];
+        let e = associate_by_time(&gt, &late, 0.01).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "no estimate stamp lies within 0.01 s of a ground-truth stamp: the ground truth's 3 \
+             stamps run from 100.000 to 100.200 s, the estimate's 2 stamps run from 100.050 to \
+             100.150 s (a clock offset between them, or stamps of another time base?)"
+        );
+        assert_eq!(associate_by_time(&gt, &late, 0.05).map(|p| p.len()), Ok(2));
+        assert_eq!(associate_by_time(&gt, &[], 0.01), Ok(vec![]));
     }
 }

@@ -128,12 +128,15 @@ def eval(  # noqa: A001
     anchor_yaw: Optional[float] = None,
     gt_stamps: Optional[np.ndarray] = None,
     est_stamps: Optional[np.ndarray] = None,
+    max_dt: float = 0.01,
 ) -> dict:
     """APE-2D of ``est`` against ``gt`` (no alignment), as ``lanealign eval``. Each is
     (N, 3, 4), (N, 4, 4), (N, 12) or planar (N, 3), as ``correct`` takes them. They are paired by
     index (then as long as each other), or, given ``gt_stamps`` and ``est_stamps`` (seconds, one
     per pose, finite and increasing), by time as ``lanealign eval`` pairs two TUM files: each
-    estimated pose with the ground truth within 10 ms of it, each pose in one pair at most.
+    estimated pose with the ground truth within ``max_dt`` seconds of it (``--max-dt``, 10 ms
+    unless told), each pose in one pair at most; ``poses`` says how many paired, and stamps of
+    which none pair are a ``ValueError`` saying where each lies.
 
     Returns ``ape2d_mean_m``, ``rmse_m``, ``lateral_rmse_m``, ``heading_mean_deg``, ``max_m``
     and ``poses``. With ``covariance`` (N, 3, 3) and ``anchor_yaw`` (``Corrected.covariance``
@@ -155,6 +158,7 @@ def eval(  # noqa: A001
         anchor_yaw=anchor_yaw,
         gt_stamps=_floats(gt_stamps),
         est_stamps=_floats(est_stamps),
+        max_dt=max_dt,
     )
 
 

@@ -357,11 +357,12 @@ fn correct<'py>(
     ))
 }
 
-/// APE-2D of `est` against `gt` (paired by index), as `lanealign eval --json` reports it; with
+/// APE-2D of `est` against `gt` (paired by index, or given both stamps by time within `max_dt`
+/// seconds), as `lanealign eval --json` reports it; with
 /// `covariance` ((N, 3, 3), the map plane's, as `correct` returns it) and `anchor_yaw` (radians,
 /// the map plane's rotation from the odometry frame) also its calibration, as `eval --status`.
 #[pyfunction]
-#[pyo3(signature = (gt, est, *, frame="flu", covariance=None, anchor_yaw=None, gt_stamps=None, est_stamps=None))]
+#[pyo3(signature = (gt, est, *, frame="flu", covariance=None, anchor_yaw=None, gt_stamps=None, est_stamps=None, max_dt=evaluation::DEFAULT_MAX_DT_S))]
 #[allow(clippy::too_many_arguments)]
 fn eval<'py>(
     py: Python<'py>,
@@ -372,8 +373,11 @@ fn eval<'py>(
     anchor_yaw: Option<f64>,
     gt_stamps: Option<PyReadonlyArray1<'py, f64>>,
     est_stamps: Option<PyReadonlyArray1<'py, f64>>,
+    max_dt: f64,
 ) -> PyResult<Bound<'py, PyDict>> {
     let frame: AxisConvention = parsed("frame", frame)?;
+    evaluation::checked_max_dt_s(max_dt)
+        .map_err(|e| PyValueError::new_err(format!("max_dt: {max_dt} {e}")))?;
     if gt_stamps.is_some() != est_stamps.is_some() {
         return Err(PyValueError::new_err(
             "gt_stamps= and est_stamps= go together (pairing by time needs both)",
@@ -388,8 +392,13 @@ fn eval<'py>(
         Ok(Trajectory { stamps, poses })
     };
     let est = trajectory("est", &est, est_stamps.as_ref())?;
-    let paired = evaluation::pair(&trajectory("gt", &gt, gt_stamps.as_ref())?, &est, frame)
-        .map_err(error)?;
+    let paired = evaluation::pair(
+        &trajectory("gt", &gt, gt_stamps.as_ref())?,
+        &est,
+        frame,
+        max_dt,
+    )
+    .map_err(error)?;
     let m = ape_2d(&paired.gt, &paired.est).map_err(error)?;
     let check = match (covariance, anchor_yaw) {
         (None, None) => None,

@@ -223,6 +223,21 @@ def test_eval_pairs_by_time_as_the_command_line_pairs_tum_files(tmp_path):
     backwards[7] = 0.0
     with pytest.raises(ValueError, match=re.escape("gt_stamps[7]: timestamp 0 does not follow")):
         lanealign.eval(truth, corrected.poses, gt_stamps=backwards, est_stamps=est_stamps)
+    # A clock 20 ms late pairs nowhere within 10 ms, and within 25 ms as --max-dt 0.025 pairs it.
+    late = est_stamps + 0.02
+    with pytest.raises(ValueError, match=re.escape(
+            "no estimate stamp lies within 0.01 s of a ground-truth stamp: the ground truth's 400 "
+            "stamps run from 0.000 to 19.950 s, the estimate's 200 stamps run from 0.023 to")):
+        lanealign.eval(truth, corrected.poses, gt_stamps=gt_stamps, est_stamps=late)
+    write_tum(tmp_path / "late.tum", late, corrected.poses)
+    expected = json.loads(cli("eval", "--gt", gt_file, "--est", tmp_path / "late.tum", "--format",
+                              "tum", "--max-dt", "0.025", "--json"))
+    got = lanealign.eval(truth, corrected.poses, gt_stamps=gt_stamps, est_stamps=late, max_dt=0.025)
+    assert got["poses"] == expected["poses"] == len(poses)
+    assert math.isclose(got["ape2d_mean_m"], expected["ape2d_mean_m"], rel_tol=1e-9)
+    for bad in (0.0, -1.0, math.nan, math.inf, 3601.0):
+        with pytest.raises(ValueError, match="max_dt: .* must be a number of seconds above 0"):
+            lanealign.eval(truth, corrected.poses, gt_stamps=gt_stamps, est_stamps=late, max_dt=bad)
 
 
 def test_errors_are_value_errors_with_the_command_lines_messages(tmp_path):

@@ -255,8 +255,8 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     let gt = match &args.gt {
         Some(path) => {
             let gt = trajectory::read(path, args.format)?;
-            let paired =
-                evaluation::pair(&gt, &input, args.frame).and_then(|p| ape_2d(&p.gt, &p.est));
+            let paired = evaluation::pair(&gt, &input, args.frame, evaluation::DEFAULT_MAX_DT_S)
+                .and_then(|p| ape_2d(&p.gt, &p.est));
             paired.with_context(|| {
                 format!("--gt {} against {}", path.display(), args.input.display())
             })?;
@@ -415,8 +415,8 @@ fn write_comparison(
     anchored_from_odom: &Se2,
     frame: AxisConvention,
 ) -> anyhow::Result<()> {
-    let raw_pairs = evaluation::pair(gt, raw, frame)?;
-    let corrected_pairs = evaluation::pair(gt, corrected, frame)?;
+    let raw_pairs = evaluation::pair(gt, raw, frame, evaluation::DEFAULT_MAX_DT_S)?;
+    let corrected_pairs = evaluation::pair(gt, corrected, frame, evaluation::DEFAULT_MAX_DT_S)?;
     let (raw_m, corrected_m) = (
         ape_2d(&raw_pairs.gt, &raw_pairs.est)?,
         ape_2d(&corrected_pairs.gt, &corrected_pairs.est)?,
