@@ -24,7 +24,9 @@ use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
 use lanealign_core::pose::{AxisConvention, Pose3};
-use lanealign_core::trajectory::{read, Format};
+use lanealign_core::trajectory::{
+    quaternion_from_rotation, read, rotation_from_quaternion, Format,
+};
 use lanealign_service::cpu_latency;
 use lanealign_tests::shared_data;
 use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode};
@@ -369,7 +371,9 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
 /// once it has gone 60 m, naming the frame that fits; in the plane it stands still, so no
 /// alignment is tried), and the drive 5 km beside the map (no correction accepted in the first
 /// 100 attempts, told once, while it runs; a session that ends before 100 attempts is told when
-/// it ends). The drive as it is tells neither. The answers are offline's throughout.
+/// it ends). The drive as it is tells neither. The answers are offline's throughout. Last, the
+/// drive with its rotations made from quaternions read scalar first (`qw qx qy qz`): upside down,
+/// told once its first 300 m are judged, naming the quaternion order.
 #[test]
 fn a_session_set_up_wrongly_is_told_in_the_log() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -383,19 +387,32 @@ fn a_session_set_up_wrongly_is_told_in_the_log() {
         .map(|p| AxisConvention::KittiCamera.from_planar(&setup.convention.to_planar(p)))
         .collect();
     let far = moved(&setup, drive, [5000.0, 5000.0]);
+    let scalar_first: Vec<Pose3> = drive
+        .iter()
+        .map(|p| {
+            let [x, y, z, w] = quaternion_from_rotation(&p.rotation);
+            Pose3 {
+                rotation: rotation_from_quaternion([w, x, y, z]),
+                ..*p
+            }
+        })
+        .collect();
     let count = |what: &str| daemon.log().matches(what).count();
     let axes = "the poses probably use another axis convention; try --frame kitti-camera";
     let refused = "no correction was accepted in";
+    let tilted = "were these written qw qx qy qz?";
     let runs = [
-        (drive, 0, 0),
-        (&camera[..], 1, 0),
-        (&far[..], 1, 1),
-        (&far[..150], 1, 2),
+        (drive, 0, 0, 0),
+        (&camera[..], 1, 0, 0),
+        (&far[..], 1, 1, 0),
+        (&far[..150], 1, 2, 0),
+        (&scalar_first[..], 1, 2, 1),
     ];
-    for (i, (poses, told_axes, told_refused)) in runs.into_iter().enumerate() {
+    for (i, (poses, told_axes, told_refused, told_tilted)) in runs.into_iter().enumerate() {
         closed(replayed_as_offline(&setup, &name, poses), &daemon, i);
         assert_eq!(count(axes), told_axes, "{}", daemon.log());
         assert_eq!(count(refused), told_refused, "{}", daemon.log());
+        assert_eq!(count(tilted), told_tilted, "{}", daemon.log());
     }
     assert_eq!(
         count("no correction was accepted in 100 attempts over "),

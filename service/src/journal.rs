@@ -64,7 +64,11 @@ const SESSION_MAGIC: &[u8; 8] = b"LASESS02";
 /// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
 /// records cannot be appended to, so their sessions are not restored (they start afresh).
 const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP09";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP10";
+/// Snapshots before the session's watch followed how far the poses drove tilted (read with
+/// none so far: a session restored while its first 300 m are followed judges its tilt on the
+/// path after the restore only).
+const SNAPSHOT_MAGIC_V9: &[u8; 8] = b"LASNAP09";
 /// Snapshots before the session's watch for the daemon's warnings was kept (read with none: it
 /// starts afresh after the replay, as it then did).
 const SNAPSHOT_MAGIC_V8: &[u8; 8] = b"LASNAP08";
@@ -401,7 +405,8 @@ impl Snapshot {
         let magic = body.get(..8)?;
         // Each format kept what the one before did and added a part.
         let version = match magic {
-            m if m == SNAPSHOT_MAGIC => 9,
+            m if m == SNAPSHOT_MAGIC => 10,
+            m if m == SNAPSHOT_MAGIC_V9 => 9,
             m if m == SNAPSHOT_MAGIC_V8 => 8,
             m if m == SNAPSHOT_MAGIC_V7 => 7,
             m if m == SNAPSHOT_MAGIC_V6 => 6,
@@ -418,6 +423,7 @@ impl Snapshot {
         let has_scale = version >= 7;
         let has_stall = version >= 8;
         let has_watch = version >= 9;
+        let has_tilt = version >= 10;
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -476,7 +482,7 @@ impl Snapshot {
             None
         };
         let watch = if has_watch && flag(d.u32()?)? {
-            Some(decode_watch(&mut d)?)
+            Some(decode_watch(&mut d, has_tilt)?)
         } else {
             None
         };
@@ -674,6 +680,7 @@ fn encode_watch(e: &mut Encoder, watch: &SessionWatchState) {
             for &(vertical, path) in &axes.vertical_and_path_m {
                 e.f64(vertical).f64(path);
             }
+            e.f64s(&axes.tilted_m);
         }
         None => {
             e.u32(0);
@@ -697,9 +704,10 @@ fn encode_watch(e: &mut Encoder, watch: &SessionWatchState) {
         .u64(watch.corrected_poses as u64);
 }
 
-/// A session watch's state ([`encode_watch`]); `None` unless every part is there and every
-/// number but a stamp (any number a client sent) is finite.
-fn decode_watch(d: &mut Decoder<'_>) -> Option<SessionWatchState> {
+/// A session watch's state ([`encode_watch`]; without the tilted path unless `has_tilt`, as
+/// before format 10); `None` unless every part is there and every number but a stamp (any
+/// number a client sent) is finite.
+fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool) -> Option<SessionWatchState> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
     let axes = if flag(d.u32()?)? {
@@ -709,9 +717,14 @@ fn decode_watch(d: &mut Decoder<'_>) -> Option<SessionWatchState> {
             *pair = (d.f64()?, d.f64()?);
             finite(&[pair.0, pair.1]).then_some(())?;
         }
+        let tilted_m = match has_tilt {
+            true => d.f64s().filter(|t| finite(t))?,
+            false => Default::default(),
+        };
         Some(AxisMotion {
             last: flag(last.0)?.then(|| Pose3::from_row_major(&last.1)),
             vertical_and_path_m,
+            tilted_m,
         })
     } else {
         None
@@ -1202,6 +1215,7 @@ mod tests {
                     axes: Some(AxisMotion {
                         last: Some(Pose3::planar(310.5, -20.25, 0.3, 2.0)),
                         vertical_and_path_m: [(3.5, 250.25), (240.0, 250.5)],
+                        tilted_m: [12.5, 250.5],
                     }),
                     stamps_s: vec![f64::NAN, 1.5],
                     held: vec![[1.0, 2.0], [3.0, 4.5]],
@@ -1277,9 +1291,20 @@ mod tests {
             v
         };
         let tail = window_at..bytes.len() - 8;
-        // The format before: no session watch, read as none (it starts afresh after the
-        // replay).
+        // The format before: the session watch's axes without the tilted path, read as none so
+        // far. Its flag, the axes' flag, the last pose's (its flag and 12 numbers) and the
+        // vertical and whole path in both conventions come before.
+        let tilted_at = watch_at + 4 + 4 + 4 + 96 + 32;
+        let v9 = frame(
+            SNAPSHOT_MAGIC_V9,
+            &[8..tilted_at, tilted_at + 16..bytes.len() - 8],
+        );
         let mut old = snap.clone();
+        let axes = old.watch.as_mut().and_then(|w| w.source.axes.as_mut());
+        axes.expect("the example has axes").tilted_m = [0.0; 2];
+        let decoded_v9 = Snapshot::decode(&v9).expect("the format before decodes");
+        assert_eq!(without_stamps(decoded_v9), without_stamps(old.clone()));
+        // The one before: no session watch, read as none (it starts afresh after the replay).
         old.watch = None;
         let v8 = frame(SNAPSHOT_MAGIC_V8, &[8..watch_at, tail.clone()]);
         assert_eq!(Snapshot::decode(&v8), Some(old.clone()));

@@ -1,4 +1,4 @@
-//! Whether poses move as a vehicle does in their set axis convention.
+//! Whether poses move and stand as a vehicle does in their set axis convention.
 
 use crate::pose::{AxisConvention, Pose3};
 
@@ -8,37 +8,72 @@ use crate::pose::{AxisConvention, Pose3};
 /// height drifts), 41 to 100 % read in the other one.
 pub const MAX_VERTICAL_SHARE: f64 = 0.33;
 
-/// Shortest 3D path (metres) the axis check judges: standing still proves nothing.
-pub(super) const MIN_PATH_FOR_AXIS_CHECK_M: f64 = 10.0;
+/// Shortest 3D path (metres) the axis and tilt checks judge: standing still proves nothing.
+const MIN_PATH_FOR_AXIS_CHECK_M: f64 = 10.0;
+
+/// Tilt from upright (degrees) beyond which a pose is not a road vehicle's. Measured on the 30
+/// shared KITTI trajectories (ground truth and both odometry runs): at most 10 degrees, but 42 for
+/// the stereo VO of sequence 01, whose attitude drifts where it loses track; every pose of them
+/// read from quaternions written `qw qx qy qz` is tilted 138-180 degrees.
+pub const MAX_TILT_DEG: f64 = 60.0;
+
+/// Largest share of a run's path length driven tilted beyond [`MAX_TILT_DEG`] before the
+/// rotations are suspect. A vehicle's quaternions read in the wrong order tilt it by 180 degrees
+/// less its heading (in `flu`), so a drive in every direction is tilted beyond 60 degrees on two
+/// thirds of its path; in `kitti-camera` it is upside down throughout.
+pub const MAX_TILTED_SHARE: f64 = 0.5;
 
 /// A warning when the motion of `poses` looks like the other axis convention.
 pub fn axis_convention_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
-    let mut motion = AxisMotion::default();
-    poses.iter().for_each(|p| motion.observe(p));
-    motion.warning(convention)
+    AxisMotion::of(poses).warning(convention)
 }
 
-/// The path length of a stream of poses, and how much of it goes along the vertical axis, in
-/// every axis convention, pose by pose. Its fields are what it has seen, to continue from
-/// later (a daemon's snapshot of a session).
+/// A warning when `poses` (in `convention`) are tilted beyond [`MAX_TILT_DEG`] over more than
+/// [`MAX_TILTED_SHARE`] of their path: their rotations are not a road vehicle's, most often
+/// because quaternions were written scalar first (TUM's order is `qx qy qz qw`). `None` while
+/// the path is shorter than 10 m. The corrector moves the positions, so its corrections hardly
+/// change; the output's rotations are then wrong. Poses in the other axis convention are tilted
+/// too: [`axis_convention_warning`] says why.
+pub fn tilt_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
+    AxisMotion::of(poses).tilt_warning(convention)
+}
+
+/// The path length of a stream of poses, how much of it goes along the vertical axis and how
+/// much of it is driven tilted beyond [`MAX_TILT_DEG`], in every axis convention, pose by pose.
+/// Its fields are what it has seen, to continue from later (a daemon's snapshot of a session).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct AxisMotion {
     /// The last pose observed (in the set axis convention, metres).
     pub last: Option<Pose3>,
     /// Per convention of [`AxisConvention::ALL`]: metres along the vertical, metres in all.
     pub vertical_and_path_m: [(f64, f64); AxisConvention::ALL.len()],
+    /// Per convention of [`AxisConvention::ALL`]: metres driven tilted beyond [`MAX_TILT_DEG`]
+    /// (each step counted with the tilt of the pose it ends at).
+    pub tilted_m: [f64; AxisConvention::ALL.len()],
 }
 
 impl AxisMotion {
+    /// The motion of a whole run of poses.
+    fn of(poses: &[Pose3]) -> AxisMotion {
+        let mut motion = AxisMotion::default();
+        poses.iter().for_each(|p| motion.observe(p));
+        motion
+    }
+
     pub(super) fn observe(&mut self, pose: &Pose3) {
-        if let Some(last) = self.last.replace(*pose) {
-            for (c, (vertical, path)) in AxisConvention::ALL
-                .iter()
-                .zip(&mut self.vertical_and_path_m)
-            {
-                let d = c.to_planar(pose).translation - c.to_planar(&last).translation;
-                *vertical += d.z.abs();
-                *path += d.norm();
+        let Some(last) = self.last.replace(*pose) else {
+            return;
+        };
+        let min_cos = MAX_TILT_DEG.to_radians().cos();
+        let per_convention = self.vertical_and_path_m.iter_mut().zip(&mut self.tilted_m);
+        for (c, ((vertical, path), tilted)) in AxisConvention::ALL.iter().zip(per_convention) {
+            let planar = c.to_planar(pose);
+            let d = planar.translation - c.to_planar(&last).translation;
+            *vertical += d.z.abs();
+            *path += d.norm();
+            // The cosine of the tilt: how far the body's up axis points up in the world.
+            if planar.rotation[(2, 2)] < min_cos {
+                *tilted += d.norm();
             }
         }
     }
@@ -54,6 +89,27 @@ impl AxisMotion {
         let k = AxisConvention::ALL.iter().position(|&c| c == convention)?;
         let (vertical, path) = self.vertical_and_path_m[k];
         (path.is_finite() && path >= MIN_PATH_FOR_AXIS_CHECK_M).then(|| vertical / path)
+    }
+
+    /// A warning when the poses in `convention` are tilted as no road vehicle drives, over more
+    /// than [`MAX_TILTED_SHARE`] of the path ([`tilt_warning`]).
+    pub(super) fn tilt_warning(&self, convention: AxisConvention) -> Option<String> {
+        let k = AxisConvention::ALL.iter().position(|&c| c == convention)?;
+        let (_, path) = self.vertical_and_path_m[k];
+        let share = self.tilted_m[k] / path;
+        (path.is_finite() && path >= MIN_PATH_FOR_AXIS_CHECK_M && share > MAX_TILTED_SHARE).then(
+            || {
+                format!(
+                    "the poses are tilted more than {MAX_TILT_DEG:.0} degrees from upright on \
+                     {:.0}% of their path in the {} convention, as no road vehicle drives: if \
+                     their rotations come from quaternions, were these written qw qx qy qz? \
+                     (TUM's order is qx qy qz qw; the corrections hardly depend on the \
+                     rotations, but the output's are the input's turned by them)",
+                    share * 100.0,
+                    convention.name()
+                )
+            },
+        )
     }
 
     /// A warning when the motion looks like another convention than `convention`.
@@ -89,6 +145,7 @@ impl AxisMotion {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::trajectory::{quaternion_from_rotation, rotation_from_quaternion};
 
     fn straight(convention: AxisConvention) -> Vec<Pose3> {
         (0..100)
@@ -108,5 +165,54 @@ mod tests {
         let flu = straight(AxisConvention::Flu);
         assert!(axis_convention_warning(&flu, AxisConvention::Flu).is_none());
         assert!(axis_convention_warning(&flu[..3], AxisConvention::KittiCamera).is_none());
+    }
+
+    /// A drive around a circle of 50 m radius, every heading once, in `convention`.
+    fn circle(convention: AxisConvention) -> Vec<Pose3> {
+        (0..360)
+            .map(|deg| {
+                let heading = f64::from(deg).to_radians();
+                let (x, y) = (50.0 * heading.sin(), 50.0 - 50.0 * heading.cos());
+                convention.from_planar(&Pose3::planar(x, y, heading, 0.0))
+            })
+            .collect()
+    }
+
+    /// `pose` as read from a TUM line whose quaternion was written `qw qx qy qz`.
+    fn scalar_first(pose: &Pose3) -> Pose3 {
+        let [x, y, z, w] = quaternion_from_rotation(&pose.rotation);
+        Pose3 {
+            rotation: rotation_from_quaternion([w, x, y, z]),
+            translation: pose.translation,
+        }
+    }
+
+    #[test]
+    fn quaternions_written_scalar_first_are_noticed_in_either_convention() {
+        for convention in AxisConvention::ALL {
+            let upright = circle(convention);
+            assert!(tilt_warning(&upright, convention).is_none());
+            let misread: Vec<Pose3> = upright.iter().map(scalar_first).collect();
+            let w = tilt_warning(&misread, convention)
+                .unwrap_or_else(|| panic!("no warning in {}", convention.name()));
+            assert!(w.contains("written qw qx qy qz"), "{w}");
+            // Too short a path proves nothing.
+            assert!(tilt_warning(&misread[..5], convention).is_none());
+        }
+    }
+
+    #[test]
+    fn a_steep_street_is_no_tilt() {
+        // 25 degrees of pitch (a 47 % grade, steeper than any street) all the way.
+        let pitch = 25f64.to_radians();
+        let poses: Vec<Pose3> = (0..100)
+            .map(|i| {
+                let mut p = Pose3::planar(f64::from(i), 0.0, 0.0, 0.0);
+                p.rotation = nalgebra::Rotation3::from_euler_angles(0.0, -pitch, 0.0).into_inner();
+                p.translation.z = f64::from(i) * pitch.tan();
+                p
+            })
+            .collect();
+        assert!(tilt_warning(&poses, AxisConvention::Flu).is_none());
     }
 }

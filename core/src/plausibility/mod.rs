@@ -3,22 +3,23 @@
 //! carry on (the run's output is still what the corrector computed). By what they look at:
 //! - a run's setup (`setup`): its anchor against the map, whether any correction was accepted,
 //!   the odometry's jumps;
-//! - the poses' axes (`axes`): whether they move as a vehicle does in the set convention;
-//! - the poses' attitude (`attitude`): whether they stand upright as a vehicle does;
+//! - the poses' axes (`axes`): whether they move and stand as a vehicle does in the set
+//!   convention;
 //! - the odometry's speed (`speed`): changes no car makes, where it lost track;
 //! - the poses' stamps (`rate`): the rate the source runs at against the corrector's;
 //! - a stream of poses as it comes (`source_watch`): the axes, the rate and the speed, pose by
 //!   pose, for a daemon session.
 
-mod attitude;
 mod axes;
 mod rate;
 mod setup;
 mod source_watch;
 mod speed;
 
-pub use attitude::{tilt_warning, MAX_TILTED_SHARE, MAX_TILT_DEG};
-pub use axes::{axis_convention_warning, AxisMotion, MAX_VERTICAL_SHARE};
+pub use axes::{
+    axis_convention_warning, tilt_warning, AxisMotion, MAX_TILTED_SHARE, MAX_TILT_DEG,
+    MAX_VERTICAL_SHARE,
+};
 pub use rate::{rate_from_stamps, rate_warning, MAX_RATE_RATIO};
 pub use setup::{
     anchor_warning, distance_to_lanes, no_correction_warning, odometry_jump_warning,

@@ -22,7 +22,9 @@ pub const AXIS_JUDGED_UNTIL_M: f64 = 300.0;
 /// What a stream of stamped poses (a daemon session's) says of its source as the poses come,
 /// as `correct` judges a file: whether they move as the set axis convention says (told once,
 /// between [`AXIS_JUDGED_FROM_M`] and [`AXIS_JUDGED_UNTIL_M`] of path, as
-/// [`axis_convention_warning`](super::axis_convention_warning) tells it); the rate its first
+/// [`axis_convention_warning`](super::axis_convention_warning) tells it), and else whether they
+/// stand upright over their first [`AXIS_JUDGED_UNTIL_M`] ([`tilt_warning`](super::tilt_warning),
+/// told once); the rate its first
 /// [`SourceWatch::STAMPS`] stamps say ([`rate_from_stamps`]), told once; and the changes of speed
 /// no car makes ([`SpeedWatch`]) judged at that rate, or at the rate the corrector is set for
 /// where the stamps say none. Until the stamps tell the rate, it holds the positions, and then
@@ -65,8 +67,8 @@ pub struct SourceNews {
     /// The rate (Hz) the stamps say, with the pose that completed the first
     /// [`SourceWatch::STAMPS`] of them (never again, nor when they say none).
     pub rate_hz: Option<f64>,
-    /// A warning when the poses move as no vehicle does in the set axis convention, with the
-    /// pose that judged them.
+    /// A warning when the poses move or stand as no vehicle does in the set axis convention,
+    /// with the pose that judged them (or where the stream ends).
     pub axis_warning: Option<String>,
     /// The changes of speed no car makes that ended with this pose (or, with the pose that
     /// told the rate, among the poses held until then), oldest first.
@@ -142,21 +144,29 @@ impl SourceWatch {
         news
     }
 
-    /// Where the stream ends: a change of speed still under way, and for a stream shorter than
-    /// [`SourceWatch::STAMPS`] poses what its stamps and positions say at all (a stream shorter
-    /// than [`AXIS_JUDGED_FROM_M`] is not judged for its axes).
+    /// Where the stream ends: a change of speed still under way, for a stream shorter than
+    /// [`SourceWatch::STAMPS`] poses what its stamps and positions say at all, and for one shorter
+    /// than [`AXIS_JUDGED_UNTIL_M`] its tilt (a stream shorter than [`AXIS_JUDGED_FROM_M`] is
+    /// not judged for its axes).
     pub fn finish(&mut self) -> SourceNews {
         let mut news = match self.speed {
             Some(_) => SourceNews::default(),
             None => self.judge_held(),
         };
+        news.axis_warning = self
+            .axes
+            .take()
+            .filter(|motion| motion.path_m() >= AXIS_JUDGED_FROM_M)
+            .and_then(|motion| motion.tilt_warning(self.convention));
         news.speed_changes
             .extend(self.speed.as_mut().and_then(|(s, _)| s.finish()));
         news
     }
 
     /// Follows the motion until its axes are told wrong (from [`AXIS_JUDGED_FROM_M`] of path on)
-    /// or [`AXIS_JUDGED_UNTIL_M`] of path have not told them so.
+    /// or [`AXIS_JUDGED_UNTIL_M`] of path have not told them so; then tells whether the poses
+    /// were tilted as no vehicle drives ([`tilt_warning`](super::tilt_warning)). Poses in the
+    /// other convention are tilted too, so the tilt waits for the axes to be judged right.
     fn follow_axes(&mut self, pose: &Pose3) -> Option<String> {
         let motion = self.axes.as_mut()?;
         motion.observe(pose);
@@ -164,8 +174,13 @@ impl SourceWatch {
         if path_m < AXIS_JUDGED_FROM_M {
             return None;
         }
-        let warning = motion.warning(self.convention);
-        if warning.is_some() || path_m >= AXIS_JUDGED_UNTIL_M {
+        let judged = path_m >= AXIS_JUDGED_UNTIL_M;
+        let warning = motion.warning(self.convention).or_else(|| {
+            judged
+                .then(|| motion.tilt_warning(self.convention))
+                .flatten()
+        });
+        if warning.is_some() || judged {
             self.axes = None;
         }
         warning
@@ -383,5 +398,54 @@ mod tests {
                 assert_eq!(watch.finish().axis_warning, None);
             }
         }
+    }
+
+    /// A session's rotations read from quaternions written scalar first (`qw qx qy qz`) put the
+    /// vehicle upside down: told once, when its first 300 m are judged in the right axes, or
+    /// where a shorter stream ends; upright poses never are, and a camera's poses watched as
+    /// `flu` (tilted too) are told their axes only.
+    #[test]
+    fn a_session_whose_poses_stand_as_no_vehicle_does_is_told_once() {
+        use crate::trajectory::{quaternion_from_rotation, rotation_from_quaternion};
+        let upright = along_x(&drive(499, |_| 10.0));
+        let scalar_first: Vec<Pose3> = upright
+            .iter()
+            .map(|p| {
+                let [x, y, z, w] = quaternion_from_rotation(&p.rotation);
+                Pose3 {
+                    rotation: rotation_from_quaternion([w, x, y, z]),
+                    ..*p
+                }
+            })
+            .collect();
+        let camera: Vec<Pose3> = upright
+            .iter()
+            .map(|p| AxisConvention::KittiCamera.from_planar(p))
+            .collect();
+        let told = |poses: &[Pose3]| {
+            let mut watch = SourceWatch::new(10.0, AxisConvention::Flu);
+            let during: Vec<(usize, String)> = poses
+                .iter()
+                .enumerate()
+                .filter_map(|(i, p)| Some((i, watch.observe(0.1 * i as f64, p).axis_warning?)))
+                .collect();
+            (during, watch.finish().axis_warning)
+        };
+        let (during, end) = told(&scalar_first);
+        assert_eq!(during.len(), 1, "{during:?}");
+        assert_eq!(during[0].0, 300, "at 300 m");
+        assert!(
+            during[0].1.contains("were these written qw qx qy qz?"),
+            "{during:?}"
+        );
+        assert_eq!(end, None);
+        assert_eq!(told(&upright), (vec![], None));
+        let (during, end) = told(&scalar_first[..101]);
+        assert!(during.is_empty(), "{during:?}");
+        assert!(end.is_some_and(|w| w.contains("100% of their path")));
+        let (during, end) = told(&camera);
+        assert_eq!(during.len(), 1, "{during:?}");
+        assert!(during[0].1.contains("--frame kitti-camera"), "{during:?}");
+        assert_eq!(end, None);
     }
 }
