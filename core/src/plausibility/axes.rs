@@ -91,25 +91,50 @@ impl AxisMotion {
         (path.is_finite() && path >= MIN_PATH_FOR_AXIS_CHECK_M).then(|| vertical / path)
     }
 
-    /// A warning when the poses in `convention` are tilted as no road vehicle drives, over more
-    /// than [`MAX_TILTED_SHARE`] of the path ([`tilt_warning`]).
-    pub(super) fn tilt_warning(&self, convention: AxisConvention) -> Option<String> {
+    /// The share of the path driven tilted beyond [`MAX_TILT_DEG`] in `convention`; `None` while
+    /// the path is too short to tell.
+    fn tilted_share(&self, convention: AxisConvention) -> Option<f64> {
         let k = AxisConvention::ALL.iter().position(|&c| c == convention)?;
         let (_, path) = self.vertical_and_path_m[k];
-        let share = self.tilted_m[k] / path;
-        (path.is_finite() && path >= MIN_PATH_FOR_AXIS_CHECK_M && share > MAX_TILTED_SHARE).then(
-            || {
-                format!(
-                    "the poses are tilted more than {MAX_TILT_DEG:.0} degrees from upright on \
-                     {:.0}% of their path in the {} convention, as no road vehicle drives: if \
-                     their rotations come from quaternions, were these written qw qx qy qz? \
+        (path.is_finite() && path >= MIN_PATH_FOR_AXIS_CHECK_M).then(|| self.tilted_m[k] / path)
+    }
+
+    /// A warning when the poses in `convention` are tilted as no road vehicle drives, over more
+    /// than [`MAX_TILTED_SHARE`] of the path ([`tilt_warning`]). Where another convention has
+    /// them move and stand as a vehicle does, that is named (a camera's poses whose first metres
+    /// rise as they go); else the quaternions' order is suspect.
+    pub(super) fn tilt_warning(&self, convention: AxisConvention) -> Option<String> {
+        let share = self.tilted_share(convention)?;
+        if share <= MAX_TILTED_SHARE {
+            return None;
+        }
+        let better = AxisConvention::ALL
+            .into_iter()
+            .filter(|&c| c != convention)
+            .find(|&c| {
+                self.vertical_share(c)
+                    .is_some_and(|s| s <= MAX_VERTICAL_SHARE)
+                    && self.tilted_share(c).is_some_and(|s| s <= MAX_TILTED_SHARE)
+            });
+        let advice = match better {
+            Some(c) => format!(
+                "in the {} convention they stand and move as a vehicle's: try --frame {} (frame \
+                 = \"{}\" in a config)",
+                c.name(),
+                c.name(),
+                c.name()
+            ),
+            None => "if their rotations come from quaternions, were these written qw qx qy qz? \
                      (TUM's order is qx qy qz qw; the corrections hardly depend on the \
-                     rotations, but the output's are the input's turned by them)",
-                    share * 100.0,
-                    convention.name()
-                )
-            },
-        )
+                     rotations, but the output's are the input's turned by them)"
+                .to_string(),
+        };
+        Some(format!(
+            "the poses are tilted more than {MAX_TILT_DEG:.0} degrees from upright on {:.0}% of \
+             their path in the {} convention, as no road vehicle drives: {advice}",
+            share * 100.0,
+            convention.name()
+        ))
     }
 
     /// A warning when the motion looks like another convention than `convention`.
@@ -199,6 +224,10 @@ mod tests {
             // Too short a path proves nothing.
             assert!(tilt_warning(&misread[..5], convention).is_none());
         }
+        // A camera's poses read as `flu` are tilted too, and upright in their own axes.
+        let camera = circle(AxisConvention::KittiCamera);
+        let w = tilt_warning(&camera, AxisConvention::Flu).unwrap_or_default();
+        assert!(w.contains("try --frame kitti-camera"), "{w}");
     }
 
     #[test]
