@@ -601,7 +601,8 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     assert_eq!(refused.status.code(), Some(1), "{err}");
     assert!(
         err.contains("--gt ")
-            && err.contains("no estimate stamp lies within 0.01 s of a ground-truth stamp"),
+            && err.contains("no estimate stamp lies within 0.01 s of a ground-truth stamp")
+            && err.contains("--t-offset shifts the estimate's stamps"),
         "{err}"
     );
     let runs = std::fs::read_dir(&results).unwrap().count();
@@ -681,6 +682,45 @@ fn correct_keeps_a_results_folder_with_parameters_metrics_and_plots() {
     ] {
         assert!(plot.starts_with("<svg") && plot.contains("distance driven (m)"));
     }
+
+    // The ground truth whose clock is 1000 s ahead pairs as `eval --t-offset 1000` pairs it.
+    let mut args = vec!["correct", "--lanes", s(&lanes), "--format", "tum"];
+    args.extend(flags);
+    args.extend([s(&input), "--results", s(&results), "--gt", s(&elsewhere)]);
+    args.extend(["--t-offset", "1000"]);
+    let out = lanealign(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(latest.join("metrics.json")).unwrap())
+            .unwrap();
+    assert_eq!(metrics["raw"]["poses"], 200, "{metrics}");
+    assert!((metrics["raw"]["ape2d_mean_m"].as_f64().unwrap_or(f64::NAN) - 0.8).abs() < 1e-9);
+    let out = lanealign(&[
+        "eval",
+        "--gt",
+        s(&elsewhere),
+        "--est",
+        s(&latest.join("corrected.tum")),
+        "--format",
+        "tum",
+        "--t-offset",
+        "1000",
+        "--json",
+    ]);
+    let eval: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
+    assert_eq!(
+        metrics["corrected"]["ape2d_mean_m"], eval["ape2d_mean_m"],
+        "{eval}"
+    );
+    // Without --gt there is nothing to pair.
+    let mut args = vec!["correct", "--lanes", s(&lanes), "--format", "tum"];
+    args.extend(flags);
+    args.extend([s(&input), "--results", s(&results), "--t-offset", "1000"]);
+    assert_eq!(lanealign(&args).status.code(), Some(2));
 }
 
 /// `lanealign --version` and `lanealignd --version` say their wire version, so that an operator

@@ -396,7 +396,10 @@ fn eval<'py>(
         &trajectory("gt", &gt, gt_stamps.as_ref())?,
         &est,
         frame,
-        max_dt,
+        evaluation::Pairing {
+            max_dt_s: max_dt,
+            est_offset_s: 0.0,
+        },
     )
     .map_err(error)?;
     let m = ape_2d(&paired.gt, &paired.est).map_err(error)?;

@@ -5,8 +5,9 @@ use std::sync::Arc;
 
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
+use lanealign_cli::evaluation::{self, Pairing};
 use lanealign_cli::maps::MapSource;
-use lanealign_cli::{evaluation, plots, report, results, status_file};
+use lanealign_cli::{plots, report, results, status_file};
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::grid::{Grid, LoadPolicy};
@@ -175,6 +176,9 @@ pub struct CorrectArgs {
     /// and plots.
     #[arg(long, requires = "results")]
     gt: Option<PathBuf>,
+    /// How the ground truth's poses pair with TUM input's.
+    #[command(flatten)]
+    pairing: evaluation::PairingArgs,
 }
 
 /// What `params.toml` of a results folder holds: the run, then the effective configuration.
@@ -252,11 +256,13 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
     }
     // Checked before anything is corrected or written: a ground truth that does not pair with
     // the run made a results folder without metrics, `latest` pointing at it, and exit 1.
+    let pairing = args.pairing.pairing(args.format)?;
     let gt = match &args.gt {
         Some(path) => {
             let gt = trajectory::read(path, args.format)?;
-            let paired = evaluation::pair(&gt, &input, args.frame, evaluation::DEFAULT_MAX_DT_S)
-                .and_then(|p| ape_2d(&p.gt, &p.est));
+            let paired = evaluation::pair(&gt, &input, args.frame, pairing)
+                .map_err(evaluation::with_pairing_advice)
+                .and_then(|p| Ok(ape_2d(&p.gt, &p.est)?));
             paired.with_context(|| {
                 format!("--gt {} against {}", path.display(), args.input.display())
             })?;
@@ -353,7 +359,7 @@ pub fn run(args: &CorrectArgs) -> anyhow::Result<()> {
             };
             write_comparison(
                 &dir,
-                gt,
+                (gt, pairing),
                 &input,
                 &output,
                 &run,
@@ -407,7 +413,7 @@ fn lanes_along(
 #[allow(clippy::too_many_arguments)]
 fn write_comparison(
     dir: &Path,
-    gt: &Trajectory,
+    (gt, pairing): (&Trajectory, Pairing),
     raw: &Trajectory,
     corrected: &Trajectory,
     run: &[CorrectedPose],
@@ -415,8 +421,8 @@ fn write_comparison(
     anchored_from_odom: &Se2,
     frame: AxisConvention,
 ) -> anyhow::Result<()> {
-    let raw_pairs = evaluation::pair(gt, raw, frame, evaluation::DEFAULT_MAX_DT_S)?;
-    let corrected_pairs = evaluation::pair(gt, corrected, frame, evaluation::DEFAULT_MAX_DT_S)?;
+    let raw_pairs = evaluation::pair(gt, raw, frame, pairing)?;
+    let corrected_pairs = evaluation::pair(gt, corrected, frame, pairing)?;
     let (raw_m, corrected_m) = (
         ape_2d(&raw_pairs.gt, &raw_pairs.est)?,
         ape_2d(&corrected_pairs.gt, &corrected_pairs.est)?,

@@ -2,11 +2,11 @@
 
 use std::path::PathBuf;
 
-use anyhow::{anyhow, bail, Context};
+use anyhow::{bail, Context};
 use clap::Args;
 use lanealign_cli::{evaluation, plots, status_file};
 use lanealign_core::input;
-use lanealign_core::metrics::{ape_2d, calibration, MetricsError};
+use lanealign_core::metrics::{ape_2d, calibration};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::trajectory::{self, Format};
 
@@ -39,33 +39,9 @@ pub struct EvalArgs {
     /// Also draw the position error over the distance driven into this SVG file.
     #[arg(long)]
     plot: Option<PathBuf>,
-    /// With --format tum: the largest difference (seconds) between the stamps of a ground-truth
-    /// and an estimated pose that pair (as evo's --t_max_diff) [default: 0.01].
-    #[arg(long, value_parser = max_dt_s)]
-    max_dt: Option<f64>,
-    /// With --format tum: seconds added to the estimate's stamps before pairing, for clocks
-    /// apart by a known offset (as evo's --t_offset).
-    #[arg(long, value_parser = t_offset_s, allow_negative_numbers = true)]
-    t_offset: Option<f64>,
-}
-
-/// Largest `--t-offset` (seconds, either way): 300 years, more than between any two time bases
-/// a pose file's stamps are in (Unix seconds are 1.7e9 today).
-const MAX_T_OFFSET_S: f64 = 1e10;
-
-/// `--max-dt`: a number of seconds [`evaluation::checked_max_dt_s`] takes.
-fn max_dt_s(text: &str) -> Result<f64, String> {
-    evaluation::checked_max_dt_s(text.parse::<f64>().unwrap_or(f64::NAN))
-}
-
-/// `--t-offset`: a number of seconds, at most [`MAX_T_OFFSET_S`] either way.
-fn t_offset_s(text: &str) -> Result<f64, String> {
-    text.parse::<f64>()
-        .ok()
-        .filter(|t| t.abs() <= MAX_T_OFFSET_S)
-        .ok_or_else(|| {
-            format!("must be a number of seconds from -{MAX_T_OFFSET_S} to {MAX_T_OFFSET_S}")
-        })
+    /// How TUM files' poses pair.
+    #[command(flatten)]
+    pairing: evaluation::PairingArgs,
 }
 
 /// Runs `lanealign eval`.
@@ -74,29 +50,20 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         &[args.plot.as_deref()],
         &[Some(&args.gt), Some(&args.est), args.status.as_deref()],
     )?;
-    if args.format != Format::Tum && (args.max_dt.is_some() || args.t_offset.is_some()) {
-        bail!("--max-dt and --t-offset pair poses by their stamps: only with --format tum");
-    }
-    let max_dt_s = args.max_dt.unwrap_or(evaluation::DEFAULT_MAX_DT_S);
+    let pairing = args.pairing.pairing(args.format)?;
     let gt = trajectory::read(&args.gt, args.format)?;
-    let mut est = trajectory::read(&args.est, args.format)?;
-    if let (Some(stamps), Some(offset)) = (&mut est.stamps, args.t_offset) {
-        stamps.iter_mut().for_each(|t| *t += offset);
-    }
-    let paired = evaluation::pair(&gt, &est, args.frame, max_dt_s).map_err(|e| match e {
-        MetricsError::NoStampPairs { .. } => {
-            anyhow!("{e}; --t-offset shifts the estimate's stamps, --max-dt widens the tolerance")
-        }
-        e => e.into(),
-    })?;
+    let est = trajectory::read(&args.est, args.format)?;
+    let paired = evaluation::pair(&gt, &est, args.frame, pairing)
+        .map_err(evaluation::with_pairing_advice)?;
     let (g, e, pairs) = (&paired.gt, &paired.est, &paired.pairs);
     if pairs.len() < est.poses.len() {
         // Paired by time, the figures leave out the estimate's poses without ground truth.
         eprintln!(
-            "{} of the estimate's {} poses paired with a ground-truth pose within {max_dt_s} s: \
-             the figures are over those",
+            "{} of the estimate's {} poses paired with a ground-truth pose within {} s: the \
+             figures are over those",
             pairs.len(),
             est.poses.len(),
+            pairing.max_dt_s,
         );
     }
     let m = ape_2d(g, e)?;
