@@ -57,6 +57,11 @@ class Drive:
     #: another length, a pose that is no pose). A file that cannot be read fails the task, after
     #: the corrected poses are written.
     gt: Optional[str] = None
+    #: With TUM files: the largest difference (seconds) of the stamps of a ground-truth and a
+    #: drive's pose that pair (``--max-dt``), and seconds added to the drive's stamps before they
+    #: pair (``--t-offset``, for a ground truth on another clock).
+    gt_max_dt: float = 0.01
+    gt_offset: float = 0.0
     #: The format of ``poses``, ``gt`` and ``output``: ``"kitti"`` (12 numbers a line) or
     #: ``"tum"`` (stamped: the corrector reads the odometry's rate from the stamps), read and
     #: written as ``lanealign correct --format`` reads and writes them.
@@ -105,7 +110,10 @@ def correct_drive(drive: Drive) -> dict:
     }
     if drive.gt is not None:
         gt, gt_stamps = read_trajectory(drive.gt, format=drive.format)
-        paired = {} if stamps is None else {"gt_stamps": gt_stamps, "est_stamps": stamps}
+        paired = {} if stamps is None else {
+            "gt_stamps": gt_stamps, "est_stamps": stamps + drive.gt_offset,
+            "max_dt": drive.gt_max_dt,
+        }
         summary["raw"] = _evaluated(gt, poses, frame=drive.frame, **paired)
         summary["corrected"] = _evaluated(gt, result.poses, frame=drive.frame,
                                           covariance=result.covariance,

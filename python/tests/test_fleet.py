@@ -265,6 +265,19 @@ def test_tum_drives_are_read_corrected_and_written_as_the_command_line_does(tmp_
             else:
                 assert math.isclose(got[name], value, rel_tol=1e-9, abs_tol=1e-12), (key, name)
 
+    # A truth logged on a clock 5.05 s ahead pairs nowhere within 10 ms (its stamps fall between
+    # the drive's), unless the drive says the offset, or a tolerance of 60 ms takes the nearest.
+    ahead = tmp_path / "ahead.tum"
+    ahead.write_text(lanealign.format_trajectory(gt, format="tum", stamps=stamps + 5.052))
+    unpaired = fleet.correct_drive(replace(drive, gt=str(ahead)))
+    assert "no estimate stamp lies within 0.01 s" in unpaired["raw"]["error"], unpaired
+    paired = fleet.correct_drive(replace(drive, gt=str(ahead), gt_offset=5.05))
+    for key in ("raw", "corrected"):
+        assert math.isclose(paired[key]["ape2d_mean_m"], summary[key]["ape2d_mean_m"],
+                            rel_tol=1e-9), key
+    loose = fleet.correct_drive(replace(drive, gt=str(ahead), gt_max_dt=0.06))
+    assert len(poses) - 60 <= loose["raw"]["poses"] < len(poses), loose
+
 
 # KITTI's 10 Hz said to be 20 Hz doubles its accelerations, and the corrector says so.
 @pytest.mark.filterwarnings("ignore:the odometry's speed changes")
