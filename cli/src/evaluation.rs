@@ -66,17 +66,8 @@ pub struct Pairing {
     pub est_offset_s: f64,
 }
 
-impl Default for Pairing {
-    fn default() -> Self {
-        Pairing {
-            max_dt_s: DEFAULT_MAX_DT_S,
-            est_offset_s: 0.0,
-        }
-    }
-}
-
 /// The command line's pairing options (`eval`, `correct --gt`).
-#[derive(clap::Args, Clone, Copy, Debug, Default)]
+#[derive(clap::Args, Clone, Copy, Debug)]
 pub struct PairingArgs {
     /// With --format tum: the largest difference (seconds) between the stamps of a ground-truth
     /// and an estimated pose that pair (as evo's --t_max_diff) [default: 0.01].

@@ -29,11 +29,12 @@ pub fn axis_convention_warning(poses: &[Pose3], convention: AxisConvention) -> O
 }
 
 /// A warning when `poses` (in `convention`) are tilted beyond [`MAX_TILT_DEG`] over more than
-/// [`MAX_TILTED_SHARE`] of their path: their rotations are not a road vehicle's, most often
-/// because quaternions were written scalar first (TUM's order is `qx qy qz qw`). `None` while
-/// the path is shorter than 10 m. The corrector moves the positions, so its corrections hardly
-/// change; the output's rotations are then wrong. Poses in the other axis convention are tilted
-/// too: [`axis_convention_warning`] says why.
+/// [`MAX_TILTED_SHARE`] of their path: their rotations are not a road vehicle's. It names the
+/// axis convention in which they stand and move as a vehicle's, where one does (poses in the
+/// other convention are tilted too, and [`axis_convention_warning`] misses those whose first
+/// metres rise), and else quaternions written scalar first (TUM's order is `qx qy qz qw`).
+/// `None` while the path is shorter than 10 m. The corrector moves the positions, so its
+/// corrections hardly change; the output's rotations are then wrong.
 pub fn tilt_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
     AxisMotion::of(poses).tilt_warning(convention)
 }
