@@ -112,7 +112,7 @@ impl LoadedMap {
                         &convention.to_planar(first),
                     )
                 }),
-            plausibility::no_correction_warning(
+            plausibility::refusals_warning(
                 run.len(),
                 counts.attempts,
                 counts.accepted,

@@ -101,7 +101,9 @@ fn outputs_appear_only_when_the_whole_run_succeeded() {
     assert!(
         err.contains("WARN no correction was accepted in ")
             && err.contains(" attempts over 300 poses")
-            && err.contains("check the anchor, --frame"),
+            && err.contains(
+                "check the anchor (YAW_DEG in degrees from East, counter-clockwise), --frame"
+            ),
         "{err}"
     );
 }

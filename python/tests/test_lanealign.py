@@ -119,7 +119,8 @@ def test_correct_equals_the_command_line_without_data(tmp_path):
     # Read in the camera's axes the drive goes down: every alignment is refused, and Python says
     # what to check as the command line does.
     camera = dict(lanes=str(lanes), preset="kiss-icp", frame="kitti-camera")
-    refused = "no correction was accepted in 51 attempts over 200 poses, .*: check the anchor, --frame"
+    refused = ("no correction was accepted in 51 attempts over 200 poses, .*: check the anchor "
+               r"\(YAW_DEG in degrees from East, counter-clockwise\), --frame")
     with pytest.warns(UserWarning, match=refused):
         assert np.array_equal(lanealign.correct(poses.reshape(200, 12), **camera).poses,
                               lanealign.correct(poses, **camera).poses.reshape(200, 12))

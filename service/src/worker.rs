@@ -16,7 +16,7 @@ use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
 use lanealign_core::plausibility::{
-    no_correction_warning, rate_warning, SourceNews, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
+    rate_warning, refusals_warning, SourceNews, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
 };
 use lanealign_core::report::error_line;
 use lanealign_core::source_corrector::Counts;
@@ -187,10 +187,11 @@ pub fn quiet_after(params: &Params) -> Duration {
     Duration::from_secs_f64((3.0 / params.odometry_rate_hz).max(1.0))
 }
 
-/// How many alignments a session tries, all refused, before the daemon warns that none was
+/// How many alignments a session tries before the daemon warns that none, or fewer than one in
+/// ten ([`MIN_ACCEPTED_SHARE`](lanealign_core::plausibility::MIN_ACCEPTED_SHARE)), were
 /// accepted (the robust presets try one per metre of road: 100 m of driving; a session that
-/// ends sooner is told when it ends).
-const REFUSALS_TOLD: usize = 100;
+/// ends sooner is told when it ends, if none was).
+const REFUSALS_TOLD: usize = lanealign_core::plausibility::MIN_ATTEMPTS_JUDGED;
 
 struct Worker {
     name: String,
@@ -522,12 +523,12 @@ fn tell(source: &str, session: u64, watch: &SessionWatch, news: SourceNews, para
 }
 
 /// Logs that session `session` (`watch`) of source `source` had none of its alignments
-/// accepted, if it tried any.
+/// accepted, if it tried any, or few of at least [`REFUSALS_TOLD`].
 fn tell_refusals(source: &str, session: u64, watch: &SessionWatch) {
     let Counts {
         attempts, accepted, ..
     } = watch.alignments();
-    let warning = no_correction_warning(
+    let warning = refusals_warning(
         watch.corrected_poses(),
         attempts,
         accepted,

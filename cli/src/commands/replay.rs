@@ -9,7 +9,7 @@ use lanealign_cli::replay::{replay, waited_for_place_warning, Rate};
 use lanealign_cli::status_file;
 use lanealign_client::Connection;
 use lanealign_core::input;
-use lanealign_core::plausibility::{first_few, no_correction_warning, plural};
+use lanealign_core::plausibility::{first_few, plural, refusals_warning};
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
@@ -75,7 +75,7 @@ fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
     let accepted = with(StatusCode::Accepted).count();
     let attempts = accepted + with(StatusCode::Rejected).count() + with(StatusCode::Reset).count();
     let jumps: Vec<u64> = with(StatusCode::OdometryJump).map(|a| a.seq).collect();
-    let no_correction = no_correction_warning(
+    let no_correction = refusals_warning(
         answers.len() - with(StatusCode::PassThrough).count(),
         attempts,
         accepted,

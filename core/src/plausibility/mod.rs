@@ -1,8 +1,8 @@
 //! Checks that catch a run set up wrongly: everything parses and nothing is invalid, but the
 //! answer would mislead. Each check returns a warning that says what to try; callers print it and
 //! carry on (the run's output is still what the corrector computed). By what they look at:
-//! - a run's setup (`setup`): its anchor against the map, whether any correction was accepted,
-//!   the odometry's jumps;
+//! - a run's setup (`setup`): its anchor against the map, whether enough corrections were
+//!   accepted, the odometry's jumps;
 //! - the poses' axes (`axes`): whether they move and stand as a vehicle does in the set
 //!   convention;
 //! - the odometry's speed (`speed`): changes no car makes, where it lost track;
@@ -22,8 +22,8 @@ pub use axes::{
 };
 pub use rate::{rate_from_stamps, rate_warning, MAX_RATE_RATIO};
 pub use setup::{
-    anchor_warning, distance_to_lanes, no_correction_warning, odometry_jump_warning,
-    too_far_from_lanes, CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M,
+    anchor_warning, distance_to_lanes, odometry_jump_warning, refusals_warning, too_far_from_lanes,
+    CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M, MIN_ACCEPTED_SHARE, MIN_ATTEMPTS_JUDGED,
 };
 pub use source_watch::{
     SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,
