@@ -98,6 +98,12 @@ impl LoadedMap {
             Some(_) => None,
             None => plausibility::tilt_warning(poses, convention),
         };
+        // A speed beyond any vehicle's (other units, another rate) changes beyond a car's too:
+        // that warning says why.
+        let rate_hz = stamped_rate.unwrap_or(params.odometry_rate_hz);
+        let speed =
+            plausibility::median_speed_warning(poses, convention, rate_hz, params.max_speed_mps)
+                .or_else(|| plausibility::speed_change_warning(poses, convention, rate_hz));
         [
             axes,
             tilt,
@@ -120,11 +126,7 @@ impl LoadedMap {
             ),
             plausibility::odometry_jump_warning(run, params),
             stamped_rate.and_then(|rate| plausibility::rate_warning(rate, params)),
-            plausibility::speed_change_warning(
-                poses,
-                convention,
-                stamped_rate.unwrap_or(params.odometry_rate_hz),
-            ),
+            speed,
         ]
         .into_iter()
         .flatten()

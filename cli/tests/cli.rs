@@ -197,6 +197,71 @@ fn an_anchor_given_wrongly_is_told() {
     }
 }
 
+/// An odometry whose positions are not in metres is told: KITTI 00's LiDAR run in centimetres
+/// moves at 849 m/s (none of its alignments is accepted), in feet 24 of 3348 alignments are
+/// accepted; both exited 0 with at most a list of speed changes before.
+#[test]
+fn an_odometry_in_other_units_is_told() {
+    let Some(d) = shared_data() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let metres = std::fs::read_to_string(d.join("odometry/lidar/00.txt")).unwrap();
+    let warned = |per_metre: f64| {
+        let scaled: String = metres
+            .lines()
+            .map(|line| {
+                let row: Vec<String> = line
+                    .split_whitespace()
+                    .enumerate()
+                    .map(|(i, v)| {
+                        let v: f64 = v.parse().unwrap();
+                        (if i % 4 == 3 { v * per_metre } else { v }).to_string()
+                    })
+                    .collect();
+                row.join(" ") + "\n"
+            })
+            .collect();
+        let input = dir.path().join("scaled.txt");
+        std::fs::write(&input, scaled).unwrap();
+        let out = lanealign(&[
+            "correct",
+            "--osm",
+            s(&d.join("osm/kitti_00.osm")),
+            "--anchor",
+            "48.9825452359,8.3903661,59.5584,0.806,0.365",
+            "--projection",
+            "kitti",
+            "--preset",
+            "kiss-icp",
+            "--frame",
+            "kitti-camera",
+            s(&input),
+            "-o",
+            s(&dir.path().join("out.txt")),
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err.lines()
+            .filter(|l| l.starts_with("WARN "))
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(warned(1.0), Vec::<String>::new());
+    let centimetres = warned(100.0);
+    assert_eq!(centimetres.len(), 2, "{centimetres:?}");
+    assert!(centimetres[0].contains("no correction was accepted in 209 attempts"));
+    assert!(
+        centimetres[1].starts_with("WARN the odometry moves at 849 m/s")
+            && centimetres[1].contains("are its positions in metres"),
+        "{centimetres:?}"
+    );
+    let feet = warned(3.28084);
+    assert!(
+        feet[0].contains("only 24 of 3348 alignments")
+            && feet[0].contains("that the poses are in metres"),
+        "{feet:?}"
+    );
+}
+
 /// `--method paper` keeps the corrector issue's figures (docs/results.md, KITTI 00, lidar,
 /// kiss-icp, OSM lanes): APE-2D 1.660 m after 4392 match attempts, 3384 accepted, 0 resets; the
 /// default (robust) method does better on the same input.

@@ -29,8 +29,8 @@ pub use source_watch::{
     SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,
 };
 pub use speed::{
-    speed_change_warning, speed_changes, SpeedChange, SpeedHistory, SpeedWatch,
-    MAX_ACCELERATION_MPS2, MAX_REPEATS, SPEED_SPAN_S,
+    median_speed_warning, speed_change_warning, speed_changes, SpeedChange, SpeedHistory,
+    SpeedWatch, MAX_ACCELERATION_MPS2, MAX_REPEATS, SPEED_SPAN_S,
 };
 
 /// `"s"` unless `count` is one.

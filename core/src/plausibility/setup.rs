@@ -49,8 +49,8 @@ pub fn anchor_warning(map: &LaneMap, anchored_from_odom: &Se2, first: &Pose3) ->
 
 /// What `lanealign correct` asks to check when no correction, or few, were accepted.
 pub const CHECK_CORRECT_SETUP: &str =
-    "the anchor (YAW_DEG in degrees from East, counter-clockwise), --frame and that the map \
-     covers the drive";
+    "the anchor (YAW_DEG in degrees from East, counter-clockwise), --frame, that the poses are \
+     in metres and that the map covers the drive";
 
 /// Fewest alignments over which [`refusals_warning`] judges the share accepted.
 pub const MIN_ATTEMPTS_JUDGED: usize = 100;
