@@ -142,6 +142,35 @@ fn eval_pairs_stamps_as_told_and_says_what_it_left_out() {
     );
 }
 
+/// Where `kitti/georef.csv` places KITTI 00's odometry frame (`--anchor`).
+const ANCHOR_00: &str = "48.9825452359,8.3903661,59.5584,0.806,0.365";
+
+/// The `WARN` lines of `lanealign correct` of `odometry` (KITTI 00, camera axes, the kiss-icp
+/// preset) against KITTI 00's OSM placed by `anchor`, which must succeed; its output goes to
+/// `dir`.
+fn warnings_correcting_00(d: &Path, odometry: &Path, anchor: &str, dir: &Path) -> Vec<String> {
+    let out = lanealign(&[
+        "correct",
+        "--osm",
+        s(&d.join("osm/kitti_00.osm")),
+        "--anchor",
+        anchor,
+        "--projection",
+        "kitti",
+        "--preset",
+        "kiss-icp",
+        "--frame",
+        "kitti-camera",
+        s(odometry),
+        "-o",
+        s(&dir.join("out.txt")),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{err}");
+    let warnings = err.lines().filter(|l| l.starts_with("WARN "));
+    warnings.map(str::to_string).collect()
+}
+
 /// An anchor given wrongly, so that a few alignments are accepted but not the rest, is told: on
 /// KITTI 00's LiDAR run its yaw in radians, of the other sign, measured clockwise from North, or
 /// the anchor 50 m east (0.5-7.4 % accepted, against 100 % with the right anchor and at least
@@ -150,37 +179,9 @@ fn eval_pairs_stamps_as_told_and_says_what_it_left_out() {
 fn an_anchor_given_wrongly_is_told() {
     let Some(d) = shared_data() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let osm = d.join("osm/kitti_00.osm");
     let odometry = d.join("odometry/lidar/00.txt");
-    let output = dir.path().join("out.txt");
-    let warned = |anchor: &str| {
-        let out = lanealign(&[
-            "correct",
-            "--osm",
-            s(&osm),
-            "--anchor",
-            anchor,
-            "--projection",
-            "kitti",
-            "--preset",
-            "kiss-icp",
-            "--frame",
-            "kitti-camera",
-            s(&odometry),
-            "-o",
-            s(&output),
-        ]);
-        let err = String::from_utf8_lossy(&out.stderr).to_string();
-        assert!(out.status.success(), "{err}");
-        err.lines()
-            .filter(|l| l.starts_with("WARN "))
-            .map(str::to_string)
-            .collect::<Vec<_>>()
-    };
-    assert_eq!(
-        warned("48.9825452359,8.3903661,59.5584,0.806,0.365"),
-        Vec::<String>::new()
-    );
+    let warned = |anchor: &str| warnings_correcting_00(&d, &odometry, anchor, dir.path());
+    assert_eq!(warned(ANCHOR_00), Vec::<String>::new());
     for (yaw_east_north, accepted) in [
         ("1.0395,0.806,0.365", "only 40 of 4332 alignments"),
         ("-59.5584,0.806,0.365", "only 20 of 4371 alignments"),
@@ -222,28 +223,7 @@ fn an_odometry_in_other_units_is_told() {
             .collect();
         let input = dir.path().join("scaled.txt");
         std::fs::write(&input, scaled).unwrap();
-        let out = lanealign(&[
-            "correct",
-            "--osm",
-            s(&d.join("osm/kitti_00.osm")),
-            "--anchor",
-            "48.9825452359,8.3903661,59.5584,0.806,0.365",
-            "--projection",
-            "kitti",
-            "--preset",
-            "kiss-icp",
-            "--frame",
-            "kitti-camera",
-            s(&input),
-            "-o",
-            s(&dir.path().join("out.txt")),
-        ]);
-        let err = String::from_utf8_lossy(&out.stderr).to_string();
-        assert!(out.status.success(), "{err}");
-        err.lines()
-            .filter(|l| l.starts_with("WARN "))
-            .map(str::to_string)
-            .collect::<Vec<_>>()
+        warnings_correcting_00(&d, &input, ANCHOR_00, dir.path())
     };
     assert_eq!(warned(1.0), Vec::<String>::new());
     let centimetres = warned(100.0);

@@ -92,6 +92,13 @@ impl AxisMotion {
         (path.is_finite() && path >= MIN_PATH_FOR_AXIS_CHECK_M).then(|| vertical / path)
     }
 
+    /// Whether the motion in `convention` goes along the vertical for at most
+    /// [`MAX_VERTICAL_SHARE`] of the path, as a vehicle's does.
+    fn moves_upright(&self, convention: AxisConvention) -> bool {
+        self.vertical_share(convention)
+            .is_some_and(|s| s <= MAX_VERTICAL_SHARE)
+    }
+
     /// The share of the path driven tilted beyond [`MAX_TILT_DEG`] in `convention`; `None` while
     /// the path is too short to tell.
     fn tilted_share(&self, convention: AxisConvention) -> Option<f64> {
@@ -109,21 +116,14 @@ impl AxisMotion {
         if share <= MAX_TILTED_SHARE {
             return None;
         }
-        let better = AxisConvention::ALL
-            .into_iter()
-            .filter(|&c| c != convention)
-            .find(|&c| {
-                self.vertical_share(c)
-                    .is_some_and(|s| s <= MAX_VERTICAL_SHARE)
-                    && self.tilted_share(c).is_some_and(|s| s <= MAX_TILTED_SHARE)
-            });
+        let better = other_convention(convention, |c| {
+            self.moves_upright(c) && self.tilted_share(c).is_some_and(|s| s <= MAX_TILTED_SHARE)
+        });
         let advice = match better {
             Some(c) => format!(
-                "in the {} convention they stand and move as a vehicle's: try --frame {} (frame \
-                 = \"{}\" in a config)",
+                "in the {} convention they stand and move as a vehicle's: {}",
                 c.name(),
-                c.name(),
-                c.name()
+                try_frame(c)
             ),
             None => "if their rotations come from quaternions, were these written qw qx qy qz? \
                      (TUM's order is qx qy qz qw; the corrections hardly depend on the \
@@ -144,19 +144,8 @@ impl AxisMotion {
         if share <= MAX_VERTICAL_SHARE {
             return None;
         }
-        let better = AxisConvention::ALL
-            .into_iter()
-            .filter(|&c| c != convention)
-            .find(|&c| {
-                self.vertical_share(c)
-                    .is_some_and(|s| s <= MAX_VERTICAL_SHARE)
-            });
-        let advice = match better {
-            Some(c) => format!(
-                "try --frame {} (frame = \"{}\" in a config)",
-                c.name(),
-                c.name()
-            ),
+        let advice = match other_convention(convention, |c| self.moves_upright(c)) {
+            Some(c) => try_frame(c),
             None => "check the poses' axis convention".to_string(),
         };
         Some(format!(
@@ -166,6 +155,25 @@ impl AxisMotion {
             convention.name()
         ))
     }
+}
+
+/// The first axis convention other than `convention` of which `fits` holds.
+fn other_convention(
+    convention: AxisConvention,
+    fits: impl Fn(AxisConvention) -> bool,
+) -> Option<AxisConvention> {
+    AxisConvention::ALL
+        .into_iter()
+        .find(|&c| c != convention && fits(c))
+}
+
+/// What to set to use axis convention `c`.
+fn try_frame(c: AxisConvention) -> String {
+    format!(
+        "try --frame {} (frame = \"{}\" in a config)",
+        c.name(),
+        c.name()
+    )
 }
 
 #[cfg(test)]
