@@ -92,21 +92,8 @@ impl LoadedMap {
         // The rate the stamps say the poses come at, where they say one.
         let stamped_rate = stamps_s.and_then(plausibility::rate_from_stamps);
         let counts = counts(run);
-        let axes = plausibility::axis_convention_warning(poses, convention);
-        // Read in the other axis convention, every pose is tilted too: that warning says why.
-        let tilt = match axes {
-            Some(_) => None,
-            None => plausibility::tilt_warning(poses, convention),
-        };
-        // A speed beyond any vehicle's (other units, another rate) changes beyond a car's too:
-        // that warning says why.
-        let rate_hz = stamped_rate.unwrap_or(params.odometry_rate_hz);
-        let speed =
-            plausibility::median_speed_warning(poses, convention, rate_hz, params.max_speed_mps)
-                .or_else(|| plausibility::speed_change_warning(poses, convention, rate_hz));
         [
-            axes,
-            tilt,
+            plausibility::axes_warning(poses, convention),
             // The first pose that is one: a pose of NaNs (answered `invalid_input`) is nowhere.
             poses
                 .iter()
@@ -126,7 +113,12 @@ impl LoadedMap {
             ),
             plausibility::odometry_jump_warning(run, params),
             stamped_rate.and_then(|rate| plausibility::rate_warning(rate, params)),
-            speed,
+            plausibility::speed_warning(
+                poses,
+                convention,
+                stamped_rate.unwrap_or(params.odometry_rate_hz),
+                params.max_speed_mps,
+            ),
         ]
         .into_iter()
         .flatten()

@@ -291,30 +291,28 @@ fn add_osm_lanes(
     Ok(report)
 }
 
-/// Appends to `lanes` the lanes of `derived` (one Lanelet2 input's) but those `taken` from an
-/// input before: the same id with the same points (tiles of one map share their borders'
-/// lanelets; a Lanelet2 map's ids are its own, so the same id elsewhere is another lanelet).
-/// `taken` holds the points of every lane taken, by id. Returns how many were taken before.
+/// Appends to `lanes` the lanes of `derived` (one Lanelet2 input's) but those an input before
+/// gave: the same id with the same points (tiles of one map share their borders' lanelets; a
+/// Lanelet2 map's ids are its own, so the same id elsewhere is another lanelet). `taken` holds
+/// where in `lanes` every Lanelet2 lane taken lies, by id. Returns how many were given before.
 fn add_untaken_lanes(
     derived: Vec<Lane>,
-    taken: &mut HashMap<u64, Vec<Vec<[f64; 2]>>>,
+    taken: &mut HashMap<u64, Vec<usize>>,
     lanes: &mut Vec<Lane>,
 ) -> usize {
     let mut again = 0;
-    let mut this_input = Vec::new();
+    let first_of_input = lanes.len();
     for lane in derived {
-        if taken
-            .get(&lane.id)
-            .is_some_and(|t| t.contains(&lane.points))
-        {
+        let earlier = taken.get(&lane.id).map_or(&[][..], Vec::as_slice);
+        if earlier.iter().any(|&k| lanes[k].points == lane.points) {
             again += 1;
         } else {
-            this_input.push((lane.id, lane.points.clone()));
             lanes.push(lane);
         }
     }
-    for (id, points) in this_input {
-        taken.entry(id).or_default().push(points);
+    // Taken after the input, so that its own lanes under one id are all kept.
+    for (k, lane) in lanes.iter().enumerate().skip(first_of_input) {
+        taken.entry(lane.id).or_default().push(k);
     }
     again
 }

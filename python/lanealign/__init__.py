@@ -102,7 +102,7 @@ def correct(
     jumped or lost track) comes as a ``UserWarning`` each, with the same text.
     """
     return Corrected(*_lanealign.correct(
-        np.ascontiguousarray(poses, dtype=np.float64),
+        _floats(poses),
         preset=preset,
         osm=osm,
         tile=tile,

@@ -23,20 +23,19 @@ pub const MAX_TILT_DEG: f64 = 60.0;
 /// thirds of its path; in `kitti-camera` it is upside down throughout.
 pub const MAX_TILTED_SHARE: f64 = 0.5;
 
-/// A warning when the motion of `poses` looks like the other axis convention.
-pub fn axis_convention_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
-    AxisMotion::of(poses).warning(convention)
-}
-
-/// A warning when `poses` (in `convention`) are tilted beyond [`MAX_TILT_DEG`] over more than
-/// [`MAX_TILTED_SHARE`] of their path: their rotations are not a road vehicle's. It names the
-/// axis convention in which they stand and move as a vehicle's, where one does (poses in the
-/// other convention are tilted too, and [`axis_convention_warning`] misses those whose first
-/// metres rise), and else quaternions written scalar first (TUM's order is `qx qy qz qw`).
-/// `None` while the path is shorter than 10 m. The corrector moves the positions, so its
-/// corrections hardly change; the output's rotations are then wrong.
-pub fn tilt_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
-    AxisMotion::of(poses).tilt_warning(convention)
+/// A warning when `poses` (in `convention`) move or stand as no vehicle does, from one walk over
+/// them: their motion looks like the other axis convention (more than [`MAX_VERTICAL_SHARE`] of
+/// it vertical), or else they are tilted beyond [`MAX_TILT_DEG`] over more than
+/// [`MAX_TILTED_SHARE`] of their path. A tilt names the axis convention in which they stand and
+/// move as a vehicle's, where one does (the motion misses a camera's poses whose first metres
+/// rise), and else quaternions written scalar first (TUM's order is `qx qy qz qw`). `None`
+/// while the path is shorter than 10 m. The corrector moves the positions, so a tilt hardly
+/// changes its corrections; the output's rotations are then wrong.
+pub fn axes_warning(poses: &[Pose3], convention: AxisConvention) -> Option<String> {
+    let motion = AxisMotion::of(poses);
+    motion
+        .warning(convention)
+        .or_else(|| motion.tilt_warning(convention))
 }
 
 /// The path length of a stream of poses, how much of it goes along the vertical axis and how
@@ -108,7 +107,7 @@ impl AxisMotion {
     }
 
     /// A warning when the poses in `convention` are tilted as no road vehicle drives, over more
-    /// than [`MAX_TILTED_SHARE`] of the path ([`tilt_warning`]). Where another convention has
+    /// than [`MAX_TILTED_SHARE`] of the path ([`axes_warning`]). Where another convention has
     /// them move and stand as a vehicle does, that is named (a camera's poses whose first metres
     /// rise as they go); else the quaternions' order is suspect.
     pub(super) fn tilt_warning(&self, convention: AxisConvention) -> Option<String> {
@@ -177,7 +176,7 @@ fn try_frame(c: AxisConvention) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::trajectory::{quaternion_from_rotation, rotation_from_quaternion};
 
@@ -193,12 +192,18 @@ mod tests {
     #[test]
     fn a_camera_file_read_as_flu_is_noticed_and_the_fix_named() {
         let camera = straight(AxisConvention::KittiCamera);
-        assert!(axis_convention_warning(&camera, AxisConvention::KittiCamera).is_none());
-        let w = axis_convention_warning(&camera, AxisConvention::Flu).unwrap();
+        assert!(AxisMotion::of(&camera)
+            .warning(AxisConvention::KittiCamera)
+            .is_none());
+        let w = AxisMotion::of(&camera)
+            .warning(AxisConvention::Flu)
+            .unwrap();
         assert!(w.contains("--frame kitti-camera"), "{w}");
         let flu = straight(AxisConvention::Flu);
-        assert!(axis_convention_warning(&flu, AxisConvention::Flu).is_none());
-        assert!(axis_convention_warning(&flu[..3], AxisConvention::KittiCamera).is_none());
+        assert!(AxisMotion::of(&flu).warning(AxisConvention::Flu).is_none());
+        assert!(AxisMotion::of(&flu[..3])
+            .warning(AxisConvention::KittiCamera)
+            .is_none());
     }
 
     /// A drive around a circle of 50 m radius, every heading once, in `convention`.
@@ -213,7 +218,7 @@ mod tests {
     }
 
     /// `pose` as read from a TUM line whose quaternion was written `qw qx qy qz`.
-    fn scalar_first(pose: &Pose3) -> Pose3 {
+    pub(in crate::plausibility) fn scalar_first(pose: &Pose3) -> Pose3 {
         let [x, y, z, w] = quaternion_from_rotation(&pose.rotation);
         Pose3 {
             rotation: rotation_from_quaternion([w, x, y, z]),
@@ -225,17 +230,22 @@ mod tests {
     fn quaternions_written_scalar_first_are_noticed_in_either_convention() {
         for convention in AxisConvention::ALL {
             let upright = circle(convention);
-            assert!(tilt_warning(&upright, convention).is_none());
+            assert!(AxisMotion::of(&upright).tilt_warning(convention).is_none());
             let misread: Vec<Pose3> = upright.iter().map(scalar_first).collect();
-            let w = tilt_warning(&misread, convention)
+            let w = AxisMotion::of(&misread)
+                .tilt_warning(convention)
                 .unwrap_or_else(|| panic!("no warning in {}", convention.name()));
             assert!(w.contains("written qw qx qy qz"), "{w}");
             // Too short a path proves nothing.
-            assert!(tilt_warning(&misread[..5], convention).is_none());
+            assert!(AxisMotion::of(&misread[..5])
+                .tilt_warning(convention)
+                .is_none());
         }
         // A camera's poses read as `flu` are tilted too, and upright in their own axes.
         let camera = circle(AxisConvention::KittiCamera);
-        let w = tilt_warning(&camera, AxisConvention::Flu).unwrap_or_default();
+        let w = AxisMotion::of(&camera)
+            .tilt_warning(AxisConvention::Flu)
+            .unwrap_or_default();
         assert!(w.contains("try --frame kitti-camera"), "{w}");
     }
 
@@ -251,6 +261,8 @@ mod tests {
                 p
             })
             .collect();
-        assert!(tilt_warning(&poses, AxisConvention::Flu).is_none());
+        assert!(AxisMotion::of(&poses)
+            .tilt_warning(AxisConvention::Flu)
+            .is_none());
     }
 }

@@ -16,10 +16,7 @@ mod setup;
 mod source_watch;
 mod speed;
 
-pub use axes::{
-    axis_convention_warning, tilt_warning, AxisMotion, MAX_TILTED_SHARE, MAX_TILT_DEG,
-    MAX_VERTICAL_SHARE,
-};
+pub use axes::{axes_warning, AxisMotion, MAX_TILTED_SHARE, MAX_TILT_DEG, MAX_VERTICAL_SHARE};
 pub use rate::{rate_from_stamps, rate_warning, MAX_RATE_RATIO};
 pub use setup::{
     anchor_warning, distance_to_lanes, odometry_jump_warning, refusals_warning, too_far_from_lanes,
@@ -29,8 +26,8 @@ pub use source_watch::{
     SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,
 };
 pub use speed::{
-    median_speed_warning, speed_change_warning, speed_changes, SpeedChange, SpeedHistory,
-    SpeedWatch, MAX_ACCELERATION_MPS2, MAX_REPEATS, SPEED_SPAN_S,
+    speed_change_warning, speed_changes, speed_warning, SpeedChange, SpeedHistory, SpeedWatch,
+    MAX_ACCELERATION_MPS2, MAX_REPEATS, SPEED_SPAN_S,
 };
 
 /// `"s"` unless `count` is one.

@@ -22,9 +22,8 @@ pub const AXIS_JUDGED_UNTIL_M: f64 = 300.0;
 /// What a stream of stamped poses (a daemon session's) says of its source as the poses come,
 /// as `correct` judges a file: whether they move as the set axis convention says (told once,
 /// between [`AXIS_JUDGED_FROM_M`] and [`AXIS_JUDGED_UNTIL_M`] of path, as
-/// [`axis_convention_warning`](super::axis_convention_warning) tells it), and else whether they
-/// stand upright over their first [`AXIS_JUDGED_UNTIL_M`] ([`tilt_warning`](super::tilt_warning),
-/// told once); the rate its first
+/// [`axes_warning`](super::axes_warning) tells it), and else whether they stand upright over
+/// their first [`AXIS_JUDGED_UNTIL_M`] (as it tells that too, told once); the rate its first
 /// [`SourceWatch::STAMPS`] stamps say ([`rate_from_stamps`]), told once; and the changes of speed
 /// no car makes ([`SpeedWatch`]) judged at that rate, or at the rate the corrector is set for
 /// where the stamps say none. Until the stamps tell the rate, it holds the positions, and then
@@ -165,7 +164,7 @@ impl SourceWatch {
 
     /// Follows the motion until its axes are told wrong (from [`AXIS_JUDGED_FROM_M`] of path on)
     /// or [`AXIS_JUDGED_UNTIL_M`] of path have not told them so; then tells whether the poses
-    /// were tilted as no vehicle drives ([`tilt_warning`](super::tilt_warning)). Poses in the
+    /// were tilted as no vehicle drives ([`axes_warning`](super::axes_warning)). Poses in the
     /// other convention are tilted too, so the tilt waits for the axes to be judged right.
     fn follow_axes(&mut self, pose: &Pose3) -> Option<String> {
         let motion = self.axes.as_mut()?;
@@ -406,17 +405,10 @@ mod tests {
     /// `flu` (tilted too) are told their axes only.
     #[test]
     fn a_session_whose_poses_stand_as_no_vehicle_does_is_told_once() {
-        use crate::trajectory::{quaternion_from_rotation, rotation_from_quaternion};
         let upright = along_x(&drive(499, |_| 10.0));
         let scalar_first: Vec<Pose3> = upright
             .iter()
-            .map(|p| {
-                let [x, y, z, w] = quaternion_from_rotation(&p.rotation);
-                Pose3 {
-                    rotation: rotation_from_quaternion([w, x, y, z]),
-                    ..*p
-                }
-            })
+            .map(crate::plausibility::axes::tests::scalar_first)
             .collect();
         let camera: Vec<Pose3> = upright
             .iter()

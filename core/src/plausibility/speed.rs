@@ -250,11 +250,35 @@ pub fn speed_change_warning(
     convention: AxisConvention,
     rate_hz: f64,
 ) -> Option<String> {
-    let positions: Vec<[f64; 2]> = poses
+    change_warning(&planar_positions(poses, convention), rate_hz)
+}
+
+/// A warning when the odometry's median speed is beyond any vehicle's
+/// ([`median_speed_warning`]), else when it changes faster than a car's can
+/// ([`speed_change_warning`], whose changes the first explains), from one pass over `poses`
+/// (given in `convention`, at `rate_hz`).
+pub fn speed_warning(
+    poses: &[Pose3],
+    convention: AxisConvention,
+    rate_hz: f64,
+    max_speed_mps: f64,
+) -> Option<String> {
+    let positions = planar_positions(poses, convention);
+    median_speed_warning(&positions, rate_hz, max_speed_mps)
+        .or_else(|| change_warning(&positions, rate_hz))
+}
+
+/// The planar positions (metres) of `poses`, given in `convention`.
+fn planar_positions(poses: &[Pose3], convention: AxisConvention) -> Vec<[f64; 2]> {
+    poses
         .iter()
         .map(|p| convention.to_planar(p).planar_position())
-        .collect();
-    let changes = speed_changes(&positions, rate_hz);
+        .collect()
+}
+
+/// [`speed_change_warning`] of planar `positions`.
+fn change_warning(positions: &[[f64; 2]], rate_hz: f64) -> Option<String> {
+    let changes = speed_changes(positions, rate_hz);
     if changes.is_empty() {
         return None;
     }
@@ -277,21 +301,15 @@ pub fn speed_change_warning(
     ))
 }
 
-/// A warning when the odometry's median speed (the planar positions of `poses`, given in
-/// `convention`, at `rate_hz`, over the steps that move) is beyond `max_speed_mps`: positions
-/// in other units than metres, or poses that come slower than `rate_hz`. On the shared KITTI
-/// trajectories the median is at most 25.3 m/s (the highway of 01); centimetres read as metres
-/// make 00's 849 m/s.
-pub fn median_speed_warning(
-    poses: &[Pose3],
-    convention: AxisConvention,
+/// A warning when the odometry's median speed (planar `positions` at `rate_hz`, over the steps
+/// that move) is beyond `max_speed_mps`: positions in other units than metres, or poses that
+/// come slower than `rate_hz`. On the shared KITTI trajectories the median is at most 25.3 m/s
+/// (the highway of 01); centimetres read as metres make 00's 849 m/s.
+fn median_speed_warning(
+    positions: &[[f64; 2]],
     rate_hz: f64,
     max_speed_mps: f64,
 ) -> Option<String> {
-    let positions: Vec<[f64; 2]> = poses
-        .iter()
-        .map(|p| convention.to_planar(p).planar_position())
-        .collect();
     let mut speeds: Vec<f64> = positions
         .windows(2)
         .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]) * rate_hz)
@@ -331,16 +349,24 @@ pub(super) mod tests {
             })
             .collect();
         let flu = AxisConvention::Flu;
-        assert_eq!(median_speed_warning(&metres, flu, 10.0, 70.0), None);
-        let w = median_speed_warning(&centimetres, flu, 10.0, 70.0).unwrap_or_default();
+        assert_eq!(
+            median_speed_warning(&planar_positions(&metres, flu), 10.0, 70.0),
+            None
+        );
+        let w = median_speed_warning(&planar_positions(&centimetres, flu), 10.0, 70.0)
+            .unwrap_or_default();
         assert!(w.starts_with("the odometry moves at 1200 m/s"), "{w}");
         // Read as coming at 1 Hz, it drives at 120 m/s: the rate is named too.
-        let w = median_speed_warning(&centimetres, flu, 1.0, 70.0).unwrap_or_default();
+        let w = median_speed_warning(&planar_positions(&centimetres, flu), 1.0, 70.0)
+            .unwrap_or_default();
         assert!(
             w.contains("at 120 m/s") && w.contains("come at 1 Hz"),
             "{w}"
         );
-        assert_eq!(median_speed_warning(&metres[..100], flu, 10.0, 70.0), None);
+        assert_eq!(
+            median_speed_warning(&planar_positions(&metres[..100], flu), 10.0, 70.0),
+            None
+        );
     }
 
     /// A drive along x at 10 Hz whose speed (m/s) at each step `speed(step)` gives.
