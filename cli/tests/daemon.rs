@@ -423,6 +423,44 @@ fn a_session_set_up_wrongly_is_told_in_the_log() {
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
+/// Always runs: a session whose positions are in centimetres (the town's drive, about 10 m/s
+/// read as 1000) is told once in the daemon's log, by its pace, naming the units, as `correct` tells a
+/// file; the changes of speed its corners make, 100 times steeper than a car's, are not told as
+/// an odometry that lost track. The answers are offline's. The drive in metres tells neither.
+#[test]
+fn a_session_in_centimetres_is_told_its_pace_in_the_log() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("pace");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let metres = &odometry[..400];
+    let centimetres: Vec<Pose3> = metres
+        .iter()
+        .map(|p| {
+            let mut planar = setup.convention.to_planar(p);
+            planar.translation *= 100.0;
+            setup.convention.from_planar(&planar)
+        })
+        .collect();
+    let pace = "are its positions in metres";
+    for (i, (poses, told)) in [(metres, 0), (&centimetres[..], 1)].into_iter().enumerate() {
+        closed(replayed_as_offline(&setup, &name, poses), &daemon, i);
+        let log = daemon.log();
+        assert_eq!(log.matches(pace).count(), told, "{log}");
+        assert_eq!(speed_change_lines(&log), Vec::<&str>::new(), "{log}");
+    }
+    // The town's odometry drives about 1 m a pose, with its noise.
+    let log = daemon.log();
+    let speed: f64 = log
+        .split("the odometry moves at ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("{log}"));
+    assert!((950.0..1050.0).contains(&speed), "{log}");
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
 /// Always runs: `lanealign replay` warns of what `lanealign correct` would, from the daemon's
 /// answers: a drive 5 km beside the town's map (no correction accepted: a wrong anchor or
 /// frame) and a drive whose odometry jumps 300 m at pose 200 (told with its sequence number,

@@ -43,7 +43,9 @@ use memmap2::MmapMut;
 
 use lanealign_core::continuity::Continuity;
 use lanealign_core::corrector::CorrectorState;
-use lanealign_core::plausibility::{AxisMotion, SourceWatchState, SpeedChange, SpeedHistory};
+use lanealign_core::plausibility::{
+    AxisMotion, Pace, SourceWatchState, SpeedChange, SpeedHistory, PACE_STEPS,
+};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::scale::{ScaleEstimate, ScaledOdometry};
 use lanealign_core::se2::Se2;
@@ -64,7 +66,11 @@ const SESSION_MAGIC: &[u8; 8] = b"LASESS02";
 /// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
 /// records cannot be appended to, so their sessions are not restored (they start afresh).
 const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP10";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP11";
+/// Snapshots before the session's watch judged the odometry's pace (read with none gathered so
+/// far: a session restored before its pace was judged judges it on the steps after the
+/// restore, and one restored after it judges it again).
+const SNAPSHOT_MAGIC_V10: &[u8; 8] = b"LASNAP10";
 /// Snapshots before the session's watch followed how far the poses drove tilted (read with
 /// none so far: a session restored while its first 300 m are followed judges its tilt on the
 /// path after the restore only).
@@ -405,7 +411,8 @@ impl Snapshot {
         let magic = body.get(..8)?;
         // Each format kept what the one before did and added a part.
         let version = match magic {
-            m if m == SNAPSHOT_MAGIC => 10,
+            m if m == SNAPSHOT_MAGIC => 11,
+            m if m == SNAPSHOT_MAGIC_V10 => 10,
             m if m == SNAPSHOT_MAGIC_V9 => 9,
             m if m == SNAPSHOT_MAGIC_V8 => 8,
             m if m == SNAPSHOT_MAGIC_V7 => 7,
@@ -424,6 +431,7 @@ impl Snapshot {
         let has_stall = version >= 8;
         let has_watch = version >= 9;
         let has_tilt = version >= 10;
+        let has_pace = version >= 11;
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -482,7 +490,7 @@ impl Snapshot {
             None
         };
         let watch = if has_watch && flag(d.u32()?)? {
-            Some(decode_watch(&mut d, has_tilt)?)
+            Some(decode_watch(&mut d, has_tilt, has_pace)?)
         } else {
             None
         };
@@ -702,12 +710,71 @@ fn encode_watch(e: &mut Encoder, watch: &SessionWatchState) {
         .u64(accepted as u64)
         .u64(resets as u64)
         .u64(watch.corrected_poses as u64);
+    match &source.pace {
+        Pace::Gathering {
+            steps_m,
+            last,
+            changes,
+        } => {
+            e.u32(0)
+                .u64(steps_m.len() as u64)
+                .f64s(steps_m)
+                .point(*last);
+            e.u64(changes.len() as u64);
+            for change in changes {
+                e.u64(change.pose as u64)
+                    .f64s(&[change.from_mps, change.to_mps, change.over_s]);
+            }
+        }
+        Pace::Plausible => {
+            e.u32(1);
+        }
+        Pace::TooFast => {
+            e.u32(2);
+        }
+    }
+}
+
+/// A stream's pace ([`encode_watch`]); `None` unless every part is there, every number is
+/// finite, no more steps are held than are judged on, each of them moved, and every change of
+/// speed lies among the poses the speed watch has seen (`seen`; none before it watches).
+fn decode_pace(d: &mut Decoder<'_>, seen: Option<usize>) -> Option<Pace> {
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    match d.u32()? {
+        0 => {}
+        1 => return Some(Pace::Plausible),
+        2 => return Some(Pace::TooFast),
+        _ => return None,
+    }
+    let steps = d.u64().filter(|&n| n <= PACE_STEPS as u64)?;
+    let steps_m: Vec<f64> = (0..steps)
+        .map(|_| d.f64().filter(|s| s.is_finite() && *s > 0.0))
+        .collect::<Option<_>>()?;
+    let last = (d.u32()?, d.f64s::<2>().filter(|p| finite(p))?);
+    let changes: Vec<SpeedChange> = (0..count(d)?)
+        .map(|_| {
+            let pose = usize::try_from(d.u64()?).ok()?;
+            let [from_mps, to_mps, over_s] = d.f64s::<3>().filter(|v| finite(v))?;
+            (pose < seen?).then_some(SpeedChange {
+                pose,
+                from_mps,
+                to_mps,
+                over_s,
+            })
+        })
+        .collect::<Option<_>>()?;
+    Some(Pace::Gathering {
+        steps_m,
+        last: (last.0 <= 1).then_some(last.0 == 1)?.then_some(last.1),
+        changes,
+    })
 }
 
 /// A session watch's state ([`encode_watch`]; without the tilted path unless `has_tilt`, as
-/// before format 10); `None` unless every part is there and every number but a stamp (any
-/// number a client sent) is finite.
-fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool) -> Option<SessionWatchState> {
+/// before format 10, and without the pace unless `has_pace`, as before format 11); `None`
+/// unless every part is there and every number but a stamp (any number a client sent) is
+/// finite.
+fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<SessionWatchState> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
     let axes = if flag(d.u32()?)? {
@@ -748,12 +815,17 @@ fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool) -> Option<SessionWatchState
         && alignments.resets <= alignments.attempts
         && alignments.attempts <= corrected_poses;
     counted.then_some(())?;
+    let pace = match has_pace {
+        true => decode_pace(d, speed.as_ref().map(|(_, history)| history.seen))?,
+        false => Pace::default(),
+    };
     Some(SessionWatchState {
         source: SourceWatchState {
             axes,
             stamps_s,
             held,
             speed,
+            pace,
         },
         watched_seq,
         alignments,
@@ -1230,6 +1302,16 @@ mod tests {
                             open: None,
                         },
                     )),
+                    pace: Pace::Gathering {
+                        steps_m: vec![1.25, 0.5, 2.0],
+                        last: Some([300.0, -19.5]),
+                        changes: vec![SpeedChange {
+                            pose: 806,
+                            from_mps: 19.0,
+                            to_mps: 1.5,
+                            over_s: 0.5,
+                        }],
+                    },
                 },
                 watched_seq: 1234,
                 alignments: Counts {
@@ -1257,8 +1339,14 @@ mod tests {
         // are judged, and none (the format before).
         let mut told = snap.watch.clone().unwrap();
         (told.source.axes, told.source.stamps_s, told.source.held) = (None, vec![], vec![]);
-        let fresh = SessionWatch::new(10.0, AxisConvention::Flu).state();
-        for watch in [Some(fresh), Some(told), None] {
+        let fresh = SessionWatch::new(10.0, 70.0, AxisConvention::Flu).state();
+        let judged = |pace: Pace| {
+            let mut watch = told.clone();
+            watch.source.pace = pace;
+            Some(watch)
+        };
+        let (plausible, too_fast) = (judged(Pace::Plausible), judged(Pace::TooFast));
+        for watch in [Some(fresh), Some(told), plausible, too_fast, None] {
             let mut other = snap.clone();
             other.watch = watch;
             assert_eq!(Snapshot::decode(&other.encode()), Some(other));
@@ -1291,15 +1379,26 @@ mod tests {
             v
         };
         let tail = window_at..bytes.len() - 8;
-        // The format before: the session watch's axes without the tilted path, read as none so
+        // The format before: the session watch without its pace (its tag, 3 steps, the last
+        // position, 1 change), which ends it, read as none gathered so far.
+        let pace_at = window_at - (4 + 8 + 3 * 8 + 4 + 16 + 8 + 32);
+        let v10 = frame(SNAPSHOT_MAGIC_V10, &[8..pace_at, tail.clone()]);
+        let mut old = snap.clone();
+        old.watch
+            .as_mut()
+            .expect("the example has a watch")
+            .source
+            .pace = Pace::default();
+        let decoded_v10 = Snapshot::decode(&v10).expect("the format before decodes");
+        assert_eq!(without_stamps(decoded_v10), without_stamps(old.clone()));
+        // The one before: the session watch's axes without the tilted path, read as none so
         // far. Its flag, the axes' flag, the last pose's (its flag and 12 numbers) and the
         // vertical and whole path in both conventions come before.
         let tilted_at = watch_at + 4 + 4 + 4 + 96 + 32;
         let v9 = frame(
             SNAPSHOT_MAGIC_V9,
-            &[8..tilted_at, tilted_at + 16..bytes.len() - 8],
+            &[8..tilted_at, tilted_at + 16..pace_at, tail.clone()],
         );
-        let mut old = snap.clone();
         let axes = old.watch.as_mut().and_then(|w| w.source.axes.as_mut());
         axes.expect("the example has axes").tilted_m = [0.0; 2];
         let decoded_v9 = Snapshot::decode(&v9).expect("the format before decodes");
@@ -1367,6 +1466,35 @@ mod tests {
             watch.source.held[1][0] = f64::INFINITY;
         }
         assert!(Snapshot::decode(&nan.encode()).is_none());
+        // So is a pace that holds a step that did not move, more steps than it judges on, or a
+        // change of speed at a pose its speed watch has not seen.
+        let gathering = |steps_m: Vec<f64>, change_at: usize| {
+            let mut other = snap.clone();
+            if let Some(watch) = &mut other.watch {
+                // No NaN stamp: the snapshot compares equal to itself.
+                watch.source.stamps_s.clear();
+                watch.source.pace = Pace::Gathering {
+                    steps_m,
+                    last: None,
+                    changes: vec![SpeedChange {
+                        pose: change_at,
+                        from_mps: 19.0,
+                        to_mps: 1.5,
+                        over_s: 0.5,
+                    }],
+                };
+            }
+            other
+        };
+        let other = gathering(vec![1.0; PACE_STEPS], 810);
+        assert_eq!(Snapshot::decode(&other.encode()), Some(other));
+        for bad in [
+            gathering(vec![1.0, 0.0], 806),
+            gathering(vec![1.0; PACE_STEPS + 1], 806),
+            gathering(vec![1.0], 811),
+        ] {
+            assert!(Snapshot::decode(&bad.encode()).is_none(), "{bad:?}");
+        }
     }
 
     fn seqs(records: &[Record]) -> Vec<u64> {

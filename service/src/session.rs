@@ -525,7 +525,11 @@ fn follow_grid(
 
 /// A watch for a new session of `setup`'s source.
 fn new_watch(setup: &SessionSetup) -> SessionWatch {
-    SessionWatch::new(setup.params.odometry_rate_hz, setup.placement.convention)
+    SessionWatch::new(
+        setup.params.odometry_rate_hz,
+        setup.params.max_speed_mps,
+        setup.placement.convention,
+    )
 }
 
 /// Restores the session journaled in `dir`: its snapshot, then every later record replayed
@@ -574,6 +578,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
         Some(s) => s.watch.clone().map(|state| {
             SessionWatch::restore(
                 setup.params.odometry_rate_hz,
+                setup.params.max_speed_mps,
                 setup.placement.convention,
                 state,
             )

@@ -1,5 +1,5 @@
-//! What a session's poses have told so far, for the daemon's warnings: the source's rate, axes
-//! and speed ([`SourceWatch`]), and its alignments (to warn when none is accepted).
+//! What a session's poses have told so far, for the daemon's warnings: the source's rate, axes,
+//! pace and speed ([`SourceWatch`]), and its alignments (to warn when none is accepted).
 //!
 //! It is part of a session's state like its corrector: a snapshot in the journal holds it, and
 //! restoring replays the records after the snapshot through it, so that a session restored
@@ -42,10 +42,10 @@ pub struct SessionWatchState {
 
 impl SessionWatch {
     /// A watch for a new session of a source whose corrector is set for `set_rate_hz` and
-    /// whose poses come in `convention`.
-    pub fn new(set_rate_hz: f64, convention: AxisConvention) -> Self {
+    /// `max_speed_mps` and whose poses come in `convention`.
+    pub fn new(set_rate_hz: f64, max_speed_mps: f64, convention: AxisConvention) -> Self {
         SessionWatch {
-            source: SourceWatch::new(set_rate_hz, convention),
+            source: SourceWatch::new(set_rate_hz, max_speed_mps, convention),
             watched_seq: 0,
             alignments: Counts::default(),
             corrected_poses: 0,
@@ -54,9 +54,14 @@ impl SessionWatch {
 
     /// A watch for the same source that continues from `state`, exactly as the one it was
     /// saved from would.
-    pub fn restore(set_rate_hz: f64, convention: AxisConvention, state: SessionWatchState) -> Self {
+    pub fn restore(
+        set_rate_hz: f64,
+        max_speed_mps: f64,
+        convention: AxisConvention,
+        state: SessionWatchState,
+    ) -> Self {
         SessionWatch {
-            source: SourceWatch::restore(set_rate_hz, convention, state.source),
+            source: SourceWatch::restore(set_rate_hz, max_speed_mps, convention, state.source),
             watched_seq: state.watched_seq,
             alignments: state.alignments,
             corrected_poses: state.corrected_poses,

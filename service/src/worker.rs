@@ -509,10 +509,12 @@ impl Worker {
 
 /// Logs what `watch` told of session `session` of source `source` (`news`): the rate its
 /// stamps say when `params` are set for another, that its poses move as no vehicle does in the
-/// source's frame, and each change of speed no car makes, with its sequence number.
+/// source's frame or faster than any, and each change of speed no car makes, with its sequence
+/// number.
 fn tell(source: &str, session: u64, watch: &SessionWatch, news: SourceNews, params: &Params) {
     let rate = news.rate_hz.and_then(|r| rate_warning(r, params));
-    for warning in rate.into_iter().chain(news.axis_warning) {
+    let told = [news.axis_warning, news.pace_warning];
+    for warning in rate.into_iter().chain(told.into_iter().flatten()) {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
     let rate_hz = watch.speed_rate_hz().unwrap_or(params.odometry_rate_hz);

@@ -806,7 +806,7 @@ fn a_sessions_poses_tell_its_axes_on_every_shared_run() {
                 (AxisConvention::KittiCamera, false),
                 (AxisConvention::Flu, true),
             ] {
-                let mut watch = plausibility::SourceWatch::new(10.0, convention);
+                let mut watch = plausibility::SourceWatch::new(10.0, 70.0, convention);
                 let warnings: Vec<(usize, String)> = poses
                     .iter()
                     .enumerate()
@@ -827,6 +827,56 @@ fn a_sessions_poses_tell_its_axes_on_every_shared_run() {
                     assert!(driven_m <= by_m, "{run} {seq}: told after {driven_m} m");
                 }
             }
+        }
+    }
+}
+
+/// A daemon session's pace ([`plausibility::SourceWatch`]: the median speed of its first 50
+/// steps that move) is a vehicle's on every shared run (ground truth, LiDAR and visual odometry),
+/// and the changes of speed it tells are those `correct` finds in the file (the stall of the
+/// visual odometry of 01 only). The same poses in centimetres are told once, by their pace, and
+/// none of their changes of speed, 100 times steeper than a car's, is told.
+#[test]
+fn a_sessions_pace_is_a_vehicles_on_every_shared_run_and_centimetres_are_told() {
+    let Some(data) = shared_data() else { return };
+    let cam = AxisConvention::KittiCamera;
+    for run in ["kitti/poses", "odometry/lidar", "odometry/stereo_vo"] {
+        for seq in SEQUENCES {
+            let poses = read(&data.join(format!("{run}/{seq}.txt")), Format::Kitti)
+                .unwrap()
+                .poses;
+            let centimetres: Vec<Pose3> = poses
+                .iter()
+                .map(|p| Pose3 {
+                    translation: p.translation * 100.0,
+                    ..*p
+                })
+                .collect();
+            let watched = |poses: &[Pose3]| {
+                let mut watch = plausibility::SourceWatch::new(10.0, 70.0, cam);
+                let mut news: Vec<_> = poses
+                    .iter()
+                    .enumerate()
+                    .map(|(i, p)| watch.observe(0.1 * i as f64, p))
+                    .collect();
+                news.push(watch.finish());
+                let paces: Vec<String> =
+                    news.iter().filter_map(|n| n.pace_warning.clone()).collect();
+                let changes = news.iter().map(|n| n.speed_changes.len()).sum::<usize>();
+                (paces, changes)
+            };
+            let planar: Vec<[f64; 2]> = poses
+                .iter()
+                .map(|p| cam.to_planar(p).planar_position())
+                .collect();
+            let in_the_file = plausibility::speed_changes(&planar, 10.0).len();
+            assert_eq!(watched(&poses), (vec![], in_the_file), "{run} {seq}");
+            let (paces, changes) = watched(&centimetres);
+            assert_eq!((paces.len(), changes), (1, 0), "{run} {seq}: {paces:?}");
+            assert!(
+                paces[0].contains("are its positions in metres"),
+                "{run} {seq}: {paces:?}"
+            );
         }
     }
 }

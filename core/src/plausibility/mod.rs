@@ -23,7 +23,8 @@ pub use setup::{
     CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M, MIN_ACCEPTED_SHARE, MIN_ATTEMPTS_JUDGED,
 };
 pub use source_watch::{
-    SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,
+    Pace, SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,
+    PACE_STEPS,
 };
 pub use speed::{
     speed_change_warning, speed_changes, speed_warning, SpeedChange, SpeedHistory, SpeedWatch,

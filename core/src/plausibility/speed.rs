@@ -302,24 +302,42 @@ fn change_warning(positions: &[[f64; 2]], rate_hz: f64) -> Option<String> {
 }
 
 /// A warning when the odometry's median speed (planar `positions` at `rate_hz`, over the steps
-/// that move) is beyond `max_speed_mps`: positions in other units than metres, or poses that
-/// come slower than `rate_hz`. On the shared KITTI trajectories the median is at most 25.3 m/s
-/// (the highway of 01); centimetres read as metres make 00's 849 m/s.
+/// that move) is beyond `max_speed_mps` ([`pace_warning`]).
 fn median_speed_warning(
     positions: &[[f64; 2]],
     rate_hz: f64,
     max_speed_mps: f64,
 ) -> Option<String> {
-    let mut speeds: Vec<f64> = positions
+    let mut steps_m: Vec<f64> = positions
         .windows(2)
-        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]) * rate_hz)
-        .filter(|v| v.is_finite() && *v > 0.0)
+        .filter_map(|w| moving_step_m(w[0], w[1]))
         .collect();
-    if speeds.is_empty() {
+    pace_warning(&mut steps_m, rate_hz, max_speed_mps)
+}
+
+/// The length (metres) of the step from planar position `from` to `to`, where it moves (a
+/// finite length above zero).
+pub(super) fn moving_step_m(from: [f64; 2], to: [f64; 2]) -> Option<f64> {
+    let length_m = (to[0] - from[0]).hypot(to[1] - from[1]);
+    (length_m.is_finite() && length_m > 0.0).then_some(length_m)
+}
+
+/// A warning when the median of `steps_m` (the lengths of steps that move, metres, reordered),
+/// the poses taken to come at `rate_hz`, is a speed beyond `max_speed_mps`: positions in other
+/// units than metres, or poses that come slower than `rate_hz`. On the shared KITTI
+/// trajectories the median is at most 25.3 m/s (the highway of 01); centimetres read as metres
+/// make 00's 849 m/s. No steps, no warning.
+pub(super) fn pace_warning(
+    steps_m: &mut [f64],
+    rate_hz: f64,
+    max_speed_mps: f64,
+) -> Option<String> {
+    if steps_m.is_empty() {
         return None;
     }
-    let middle = speeds.len() / 2;
-    let (_, &mut median, _) = speeds.select_nth_unstable_by(middle, f64::total_cmp);
+    let middle = steps_m.len() / 2;
+    let (_, &mut median_m, _) = steps_m.select_nth_unstable_by(middle, f64::total_cmp);
+    let median = median_m * rate_hz;
     (median > max_speed_mps).then(|| {
         format!(
             "the odometry moves at {median:.0} m/s (the median over the steps that move, the \
