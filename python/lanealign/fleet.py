@@ -11,6 +11,7 @@ or network file system, or object storage mounted on the workers) and returns a 
 so no trajectory or map travels through the scheduler.
 """
 
+import math
 import os
 from dataclasses import dataclass, field
 from typing import Callable, List, Mapping, Optional, Sequence, Tuple, Union
@@ -83,7 +84,14 @@ class Region:
 
 
 def correct_drive(drive: Drive) -> dict:
-    """Corrects one drive (a task): writes ``drive.output``, returns a summary."""
+    """Corrects one drive (a task): writes ``drive.output``, returns a summary. A drive whose
+    pairing with its ground truth is no pairing (``gt_offset`` not finite, ``gt_max_dt`` not a
+    number of seconds above 0 and at most an hour) fails before anything is written, naming it."""
+    if not math.isfinite(drive.gt_offset):
+        raise ValueError(f"gt_offset: {drive.gt_offset} must be a finite number of seconds")
+    if not 0.0 < drive.gt_max_dt <= 3600.0:
+        raise ValueError(
+            f"gt_max_dt: {drive.gt_max_dt} must be a number of seconds above 0 and at most 3600")
     poses, stamps = read_trajectory(drive.poses, format=drive.format)
     result = correct(
         poses,

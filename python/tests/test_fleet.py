@@ -277,6 +277,14 @@ def test_tum_drives_are_read_corrected_and_written_as_the_command_line_does(tmp_
                             rel_tol=1e-9), key
     loose = fleet.correct_drive(replace(drive, gt=str(ahead), gt_max_dt=0.06))
     assert len(poses) - 60 <= loose["raw"]["poses"] < len(poses), loose
+    # A pairing that is none fails the task by the drive's own names, and writes nothing (a NaN
+    # offset was told as the estimate's stamps being no numbers, after the drive was corrected).
+    never = tmp_path / "never.tum"
+    for bad in ({"gt_offset": math.nan}, {"gt_offset": -math.inf}, {"gt_max_dt": math.nan},
+                {"gt_max_dt": 0.0}):
+        with pytest.raises(ValueError, match=f"^{next(iter(bad))}: "):
+            fleet.correct_drive(replace(drive, gt=str(ahead), output=str(never), **bad))
+        assert not never.exists(), bad
 
 
 # KITTI's 10 Hz said to be 20 Hz doubles its accelerations, and the corrector says so.
