@@ -29,7 +29,7 @@ use lanealign_core::trajectory::{
 };
 use lanealign_service::cpu_latency;
 use lanealign_tests::shared_data;
-use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode};
+use lanealign_wire::payload::{CorrectedPose, ReasonCode, StatusCode, Warning};
 use lanealign_wire::service::{Ipc, DAEMON_NODE, WIRE_VERSION};
 use rustix::process::Signal;
 
@@ -280,10 +280,15 @@ fn an_odometry_that_stalls_is_told_in_the_log() {
         .into_iter()
         .enumerate()
     {
-        let session = replayed_as_offline(&setup, &name, poses);
+        let (session, raised) = replayed_as_offline(&setup, &name, poses);
         closed(session, &daemon, k);
         let log = daemon.log();
         assert_eq!(speed_change_lines(&log).len(), told, "{log}");
+        assert_eq!(
+            raised,
+            [Warning::LostTrack][..told],
+            "raised in the answers"
+        );
     }
     // Pose 300 goes out as sequence number 301.
     let log = daemon.log();
@@ -312,11 +317,25 @@ fn seq_of(line: &str) -> Option<u64> {
 }
 
 /// A session of `source` that has replayed `poses` (unstamped, 16 in flight), their answers
-/// checked equal to offline correction's.
-fn replayed_as_offline(setup: &Setup, source: &str, poses: &[Pose3]) -> Connection {
+/// checked equal to offline correction's: the connection, and the warnings its last answer
+/// carries (what the session's poses raised before it).
+fn replayed_as_offline(setup: &Setup, source: &str, poses: &[Pose3]) -> (Connection, Vec<Warning>) {
     let (answers, conn) = replay_session(setup, source, poses, &[], Rate::Max(16));
     assert!(poses_of(&answers) == offline(setup, source, poses));
-    conn
+    let raised = answers.last().map(|a| a.warnings().collect());
+    (conn, raised.unwrap_or_default())
+}
+
+/// `poses` (in `setup`'s axis convention, metres) with their planar positions in centimetres.
+fn in_centimetres(setup: &Setup, poses: &[Pose3]) -> Vec<Pose3> {
+    poses
+        .iter()
+        .map(|p| {
+            let mut planar = setup.convention.to_planar(p);
+            planar.translation *= 100.0;
+            setup.convention.from_planar(&planar)
+        })
+        .collect()
 }
 
 /// `poses` (in `setup`'s axis convention) moved in the plane by `by_m` (x, y in metres).
@@ -354,8 +373,9 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
             .chain([&odometry[moving - 1]; 5])
             .copied()
             .collect();
-        let conn = replayed_as_offline(&setup, &name, &poses);
+        let (conn, raised) = replayed_as_offline(&setup, &name, &poses);
         assert_eq!(told(&daemon.log()).len(), i, "{}", daemon.log());
+        assert_eq!(raised, [], "nothing raised while the session ran");
         closed(conn, &daemon, i);
         // Pose `moving` goes out as sequence number `moving + 1`; the change lies between the
         // half second before it and the one after.
@@ -373,7 +393,9 @@ fn a_stall_where_the_session_ends_is_told_when_it_ends() {
 /// 100 attempts, told once, while it runs; a session that ends before 100 attempts is told when
 /// it ends). The drive as it is tells neither. The answers are offline's throughout. Last, the
 /// drive with its rotations made from quaternions read scalar first (`qw qx qy qz`): upside down,
-/// told once its first 300 m are judged, naming the quaternion order.
+/// told once its first 300 m are judged, naming the quaternion order; and the drive beside the
+/// map with each pose sent twice, told once. What is told while a session runs is raised in its
+/// later answers (`CorrectedPose::warnings`).
 #[test]
 fn a_session_set_up_wrongly_is_told_in_the_log() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -387,6 +409,9 @@ fn a_session_set_up_wrongly_is_told_in_the_log() {
         .map(|p| AxisConvention::KittiCamera.from_planar(&setup.convention.to_planar(p)))
         .collect();
     let far = moved(&setup, drive, [5000.0, 5000.0]);
+    // Each pose sent twice: the second tries no alignment, so the count of attempts stays at
+    // 100 over two poses (until 2026-12-02 the warning was told for both).
+    let far_twice: Vec<Pose3> = far.iter().flat_map(|&p| [p, p]).collect();
     let scalar_first: Vec<Pose3> = drive
         .iter()
         .map(|p| {
@@ -401,22 +426,28 @@ fn a_session_set_up_wrongly_is_told_in_the_log() {
     let axes = "the poses probably use another axis convention; try --frame kitti-camera";
     let refused = "no correction was accepted in";
     let tilted = "were these written qw qx qy qz?";
+    // The warnings each session's last answer carries: a session of 150 poses tries fewer than
+    // 100 alignments, and is told when it ends.
+    let (axes_raised, refused_raised) = (&[Warning::Axes][..], &[Warning::Refusals][..]);
     let runs = [
-        (drive, 0, 0, 0),
-        (&camera[..], 1, 0, 0),
-        (&far[..], 1, 1, 0),
-        (&far[..150], 1, 2, 0),
-        (&scalar_first[..], 1, 2, 1),
+        (drive, 0, 0, 0, &[][..]),
+        (&camera[..], 1, 0, 0, axes_raised),
+        (&far[..], 1, 1, 0, refused_raised),
+        (&far[..150], 1, 2, 0, &[]),
+        (&scalar_first[..], 1, 2, 1, axes_raised),
+        (&far_twice[..], 1, 3, 1, refused_raised),
     ];
-    for (i, (poses, told_axes, told_refused, told_tilted)) in runs.into_iter().enumerate() {
-        closed(replayed_as_offline(&setup, &name, poses), &daemon, i);
+    for (i, (poses, told_axes, told_refused, told_tilted, raised)) in runs.into_iter().enumerate() {
+        let (conn, raised_before_the_last) = replayed_as_offline(&setup, &name, poses);
+        closed(conn, &daemon, i);
+        assert_eq!(raised_before_the_last, raised, "{i}");
         assert_eq!(count(axes), told_axes, "{}", daemon.log());
         assert_eq!(count(refused), told_refused, "{}", daemon.log());
         assert_eq!(count(tilted), told_tilted, "{}", daemon.log());
     }
     assert_eq!(
         count("no correction was accepted in 100 attempts over "),
-        1,
+        2,
         "{}",
         daemon.log()
     );
@@ -435,17 +466,12 @@ fn a_session_in_centimetres_is_told_its_pace_in_the_log() {
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
     let metres = &odometry[..400];
-    let centimetres: Vec<Pose3> = metres
-        .iter()
-        .map(|p| {
-            let mut planar = setup.convention.to_planar(p);
-            planar.translation *= 100.0;
-            setup.convention.from_planar(&planar)
-        })
-        .collect();
+    let centimetres = in_centimetres(&setup, metres);
     let pace = "are its positions in metres";
     for (i, (poses, told)) in [(metres, 0), (&centimetres[..], 1)].into_iter().enumerate() {
-        closed(replayed_as_offline(&setup, &name, poses), &daemon, i);
+        let (conn, raised) = replayed_as_offline(&setup, &name, poses);
+        closed(conn, &daemon, i);
+        assert_eq!(raised, [Warning::Pace][..told], "raised in the answers");
         let log = daemon.log();
         assert_eq!(log.matches(pace).count(), told, "{log}");
         assert_eq!(speed_change_lines(&log), Vec::<&str>::new(), "{log}");
@@ -463,8 +489,9 @@ fn a_session_in_centimetres_is_told_its_pace_in_the_log() {
 
 /// Always runs: `lanealign replay` warns of what `lanealign correct` would, from the daemon's
 /// answers: a drive 5 km beside the town's map (no correction accepted: a wrong anchor or
-/// frame) and a drive whose odometry jumps 300 m at pose 200 (told with its sequence number,
-/// 201). The town's drive as it is warns of neither.
+/// frame), a drive whose odometry jumps 300 m at pose 200 (told with its sequence number,
+/// 201), and a drive in centimetres (what the daemon raised in its answers: its pace). The
+/// town's drive as it is warns of none.
 #[test]
 fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -510,6 +537,21 @@ fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     assert!(
         jumped[0].contains("the odometry jumped at 1 pose (sequence number 201)"),
         "{jumped:?}"
+    );
+    // What the daemon raised in the answers beyond that: the drive in centimetres moves
+    // faster than any vehicle (and its poses, 1 m apart read as 100 m, never fill a window).
+    let paced = warned(&in_centimetres(&setup, drive));
+    assert_eq!(paced.len(), 2, "{paced:?}");
+    assert!(
+        paced[0].contains("no alignment was tried in 400 poses"),
+        "{paced:?}"
+    );
+    assert!(
+        paced[1].contains(
+            "the daemon raised in this session's answers: pace (its poses move faster than \
+             any vehicle: are its positions in metres"
+        ),
+        "{paced:?}"
     );
     assert!(daemon.stop().unwrap(), "clean exit");
 }

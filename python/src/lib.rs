@@ -26,7 +26,9 @@ use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_wire::clock::{deadline_after, time_left};
-use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
+use lanealign_wire::payload::{
+    from_upper_triangle, CorrectedPose, ReasonCode, StatusCode, Warning,
+};
 use lanealign_wire::service::{Namespace, SourceName, WIRE_VERSION};
 use lanealign_wire::wait::WaitStrategy;
 use numpy::ndarray::{Array1, Array3, ArrayD, ArrayViewD, Axis, IxDyn};
@@ -614,7 +616,9 @@ struct Client {
 /// `odometry_scale_sd` (ratios), and what the status CSV says of the step (`residual_m`,
 /// `match_ratio`, `window_len`, `applied_directions`), the session's `expected_seq`, the
 /// daemon's run (`daemon_epoch`) and the pose's times (`sent_mono_ns`, `received_mono_ns`,
-/// `published_mono_ns`: `CLOCK_MONOTONIC`, the same clock in every process of the machine).
+/// `published_mono_ns`: `CLOCK_MONOTONIC`, the same clock in every process of the machine), and
+/// the `warnings` the session raised before the pose (their names: `axes`, `rate`, `pace`,
+/// `refusals`, `lost_track`, `jumped`; docs/wire.md).
 fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("seq", answer.seq)?;
@@ -631,6 +635,8 @@ fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'
         ReasonCode::from_code(answer.reason).map_or("unknown", ReasonCode::name),
     )?;
     d.set_item("map_from_odom", answer.map_from_odom.to_vec())?;
+    let warnings: Vec<&str> = answer.warnings().map(Warning::name).collect();
+    d.set_item("warnings", warnings)?;
     let covariance = numpy::ndarray::arr2(&from_upper_triangle(&answer.covariance));
     d.set_item("covariance", covariance.into_pyarray(py))?;
     for (key, value) in [

@@ -611,6 +611,7 @@ def test_client_through_the_daemon_equals_correct(tmp_path):
     assert [a["status"] for a in answers] == [lanealign.STATUS_NAMES[c] for c in offline.status]
     assert {a["reason"] for a in answers if a["status"] not in ("rejected", "reset")} == {""}
     assert answers[-1]["covariance"].shape == (3, 3)
+    assert all(a["warnings"] == [] for a in answers), "the drive is set up as a vehicle's"
     # The tile's origin is the anchor's, so the map plane is the anchor's East-North plane.
     yaw = math.radians(ANCHOR_00[2])
     assert all(math.isclose(a["anchor_yaw"], yaw, rel_tol=0, abs_tol=1e-12) for a in answers)

@@ -61,15 +61,18 @@ pub const SEGMENT_RECORDS: u64 = MAX_IN_FLIGHT;
 /// Bytes of one record: input (136), answer (288), checksum (8).
 pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
-const ANSWER_LEN: usize = 288;
-const SESSION_MAGIC: &[u8; 8] = b"LASESS02";
+const ANSWER_LEN: usize = 296;
+const SESSION_MAGIC: &[u8; 8] = b"LASESS03";
+/// Journals whose answers were 288 bytes, before they carried the session's warnings: their
+/// records cannot be appended to, so their sessions are not restored (they start afresh).
+const SESSION_MAGIC_V2: &[u8; 8] = b"LASESS02";
 /// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
 /// records cannot be appended to, so their sessions are not restored (they start afresh).
 const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
 const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP11";
-/// Snapshots before the session's watch judged the odometry's pace (read with none gathered so
-/// far: a session restored before its pace was judged judges it on the steps after the
-/// restore, and one restored after it judges it again).
+/// Snapshots before the session's watch judged the odometry's pace and kept the warnings it
+/// raised (read with none gathered so far and none raised: a session restored from one judges
+/// its pace on the steps after the restore, and raises what is told after it).
 const SNAPSHOT_MAGIC_V10: &[u8; 8] = b"LASNAP10";
 /// Snapshots before the session's watch followed how far the poses drove tilted (read with
 /// none so far: a session restored while its first 300 m are followed judges its tilt on the
@@ -241,7 +244,8 @@ fn encode_answer(e: &mut Encoder, a: &CorrectedPose) {
         .f64s(&a.covariance)
         .f64(a.anchor_yaw)
         .f64(a.odometry_scale)
-        .f64(a.odometry_scale_sd);
+        .f64(a.odometry_scale_sd)
+        .u64(a.warnings);
 }
 
 fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
@@ -266,6 +270,7 @@ fn decode_answer(d: &mut Decoder<'_>) -> Option<CorrectedPose> {
         anchor_yaw: d.f64()?,
         odometry_scale: d.f64()?,
         odometry_scale_sd: d.f64()?,
+        warnings: d.u64()?,
     })
 }
 
@@ -733,6 +738,7 @@ fn encode_watch(e: &mut Encoder, watch: &SessionWatchState) {
             e.u32(2);
         }
     }
+    e.u64(watch.raised);
 }
 
 /// A stream's pace ([`encode_watch`]); `None` unless every part is there, every number is
@@ -771,7 +777,8 @@ fn decode_pace(d: &mut Decoder<'_>, seen: Option<usize>) -> Option<Pace> {
 }
 
 /// A session watch's state ([`encode_watch`]; without the tilted path unless `has_tilt`, as
-/// before format 10, and without the pace unless `has_pace`, as before format 11); `None`
+/// before format 10, and without the pace and the warnings raised unless `has_pace`, as before
+/// format 11); `None`
 /// unless every part is there and every number but a stamp (any number a client sent) is
 /// finite.
 fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<SessionWatchState> {
@@ -815,9 +822,12 @@ fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<S
         && alignments.resets <= alignments.attempts
         && alignments.attempts <= corrected_poses;
     counted.then_some(())?;
-    let pace = match has_pace {
-        true => decode_pace(d, speed.as_ref().map(|(_, history)| history.seen))?,
-        false => Pace::default(),
+    let (pace, raised) = match has_pace {
+        true => (
+            decode_pace(d, speed.as_ref().map(|(_, history)| history.seen))?,
+            d.u64()?,
+        ),
+        false => (Pace::default(), 0),
     };
     Some(SessionWatchState {
         source: SourceWatchState {
@@ -830,6 +840,7 @@ fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<S
         watched_seq,
         alignments,
         corrected_poses,
+        raised,
     })
 }
 
@@ -884,7 +895,7 @@ impl Header {
     /// Whether the file's bytes are a session file of an earlier journal format (whose records
     /// this daemon does not read).
     pub fn is_older_format(bytes: &[u8]) -> bool {
-        bytes.starts_with(SESSION_MAGIC_V1)
+        bytes.starts_with(SESSION_MAGIC_V1) || bytes.starts_with(SESSION_MAGIC_V2)
     }
 
     /// A header from the file's bytes.
@@ -1159,6 +1170,7 @@ mod tests {
     use super::*;
     use crate::session_watch::SessionWatch;
     use lanealign_core::stall::StallWatch;
+    use lanealign_wire::payload::Warning;
 
     fn record(seq: u64) -> Record {
         let input = OdomPose {
@@ -1191,6 +1203,7 @@ mod tests {
             anchor_yaw: 1.04,
             odometry_scale: 1.03,
             odometry_scale_sd: 0.004,
+            warnings: Warning::Rate.bit(),
         };
         Record { input, answer }
     }
@@ -1320,6 +1333,7 @@ mod tests {
                     resets: 2,
                 },
                 corrected_poses: 1200,
+                raised: Warning::Pace.bit() | Warning::Jumped.bit(),
             }),
         };
         let bytes = snap.encode();
@@ -1339,7 +1353,8 @@ mod tests {
         // are judged, and none (the format before).
         let mut told = snap.watch.clone().unwrap();
         (told.source.axes, told.source.stamps_s, told.source.held) = (None, vec![], vec![]);
-        let fresh = SessionWatch::new(10.0, 70.0, AxisConvention::Flu).state();
+        let params = lanealign_core::params::Preset::KissIcp.robust_params();
+        let fresh = SessionWatch::new(&params, AxisConvention::Flu).state();
         let judged = |pace: Pace| {
             let mut watch = told.clone();
             watch.source.pace = pace;
@@ -1380,15 +1395,13 @@ mod tests {
         };
         let tail = window_at..bytes.len() - 8;
         // The format before: the session watch without its pace (its tag, 3 steps, the last
-        // position, 1 change), which ends it, read as none gathered so far.
-        let pace_at = window_at - (4 + 8 + 3 * 8 + 4 + 16 + 8 + 32);
+        // position, 1 change) and the warnings raised, which end it, read as none gathered and
+        // none raised so far.
+        let pace_at = window_at - (4 + 8 + 3 * 8 + 4 + 16 + 8 + 32 + 8);
         let v10 = frame(SNAPSHOT_MAGIC_V10, &[8..pace_at, tail.clone()]);
         let mut old = snap.clone();
-        old.watch
-            .as_mut()
-            .expect("the example has a watch")
-            .source
-            .pace = Pace::default();
+        let watch = old.watch.as_mut().expect("the example has a watch");
+        (watch.source.pace, watch.raised) = (Pace::default(), 0);
         let decoded_v10 = Snapshot::decode(&v10).expect("the format before decodes");
         assert_eq!(without_stamps(decoded_v10), without_stamps(old.clone()));
         // The one before: the session watch's axes without the tilted path, read as none so
@@ -1628,9 +1641,11 @@ mod tests {
         assert_ne!(fingerprint(&["ab", ""]), fingerprint(&["a", "b"]));
         assert!(Header::decode(&bytes[..39]).is_none());
         assert!(!Header::is_older_format(&bytes));
-        let mut older = bytes.clone();
-        older[..8].copy_from_slice(SESSION_MAGIC_V1);
-        assert!(Header::is_older_format(&older));
-        assert!(Header::decode(&older).is_none());
+        for magic in [SESSION_MAGIC_V1, SESSION_MAGIC_V2] {
+            let mut older = bytes.clone();
+            older[..8].copy_from_slice(magic);
+            assert!(Header::is_older_format(&older));
+            assert!(Header::decode(&older).is_none());
+        }
     }
 }

@@ -15,7 +15,6 @@ use lanealign_core::corrector::{MatchMode, Status, StepTiming};
 use lanealign_core::grid::GridMaps;
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
-use lanealign_core::plausibility::SourceNews;
 use lanealign_core::pose::Pose3;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
 use lanealign_wire::payload::{
@@ -29,7 +28,7 @@ use crate::journal::{
     Snapshot, SEGMENT_RECORDS,
 };
 use crate::metrics::Outcome;
-use crate::session_watch::SessionWatch;
+use crate::session_watch::{SessionNews, SessionWatch};
 use crate::worker::wire_status;
 
 /// Work for the persistence thread: nothing a worker waits for.
@@ -147,6 +146,7 @@ fn blank_answer(input: &OdomPose, received_mono_ns: u64, epoch: u64) -> Correcte
         anchor_yaw: f64::NAN,
         odometry_scale: f64::NAN,
         odometry_scale_sd: f64::NAN,
+        warnings: 0,
     }
 }
 
@@ -232,6 +232,7 @@ impl Session {
     ) -> (Handled, Option<JournalFailure>) {
         let epoch = setup.daemon_epoch;
         let mut answer = blank_answer(input, received_mono_ns, epoch);
+        answer.warnings = self.watch.raised();
         let flagged = |mut answer: CorrectedPose, code: StatusCode, expected: u64| {
             answer.status = code as u32;
             answer.expected_seq = expected;
@@ -395,7 +396,7 @@ impl Session {
     /// Feeds the session's watch `input` if its answer was a correction (`outcome`, from
     /// [`Session::handle`]); returns what the watch told with it. The worker calls it after
     /// publishing the answer, off the latency path.
-    pub fn watch_answered(&mut self, input: &OdomPose, outcome: &Outcome) -> Option<SourceNews> {
+    pub fn watch_answered(&mut self, input: &OdomPose, outcome: &Outcome) -> Option<SessionNews> {
         match outcome {
             Outcome::Corrected(status) => Some(self.watch.observe(input, status)),
             _ => None,
@@ -525,11 +526,7 @@ fn follow_grid(
 
 /// A watch for a new session of `setup`'s source.
 fn new_watch(setup: &SessionSetup) -> SessionWatch {
-    SessionWatch::new(
-        setup.params.odometry_rate_hz,
-        setup.params.max_speed_mps,
-        setup.placement.convention,
-    )
+    SessionWatch::new(&setup.params, setup.placement.convention)
 }
 
 /// Restores the session journaled in `dir`: its snapshot, then every later record replayed
@@ -575,14 +572,10 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
     };
     // A snapshot of a format without the watch leaves it to start afresh after the replay.
     let mut watch = match &snapshot {
-        Some(s) => s.watch.clone().map(|state| {
-            SessionWatch::restore(
-                setup.params.odometry_rate_hz,
-                setup.params.max_speed_mps,
-                setup.placement.convention,
-                state,
-            )
-        }),
+        Some(s) => s
+            .watch
+            .clone()
+            .map(|state| SessionWatch::restore(&setup.params, setup.placement.convention, state)),
         None => Some(new_watch(setup)),
     };
     // On a grid, the replay loads the cells each pose needs right here (nothing is served yet),

@@ -15,11 +15,8 @@ use iceoryx2::port::publisher::Publisher;
 use lanealign_core::corrector::{RejectReason, Status};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::Params;
-use lanealign_core::plausibility::{
-    rate_warning, refusals_warning, SourceNews, MAX_ACCELERATION_MPS2, SPEED_SPAN_S,
-};
+use lanealign_core::plausibility::{MAX_ACCELERATION_MPS2, SPEED_SPAN_S};
 use lanealign_core::report::error_line;
-use lanealign_core::source_corrector::Counts;
 use lanealign_wire::clock::monotonic_ns;
 use lanealign_wire::payload::{CorrectedPose, OdomPose, ReasonCode, StatusCode, FLAG_END_SESSION};
 use lanealign_wire::service::{
@@ -32,7 +29,7 @@ use crate::config::ResolvedSource;
 use crate::grid_loader::GridLoader;
 use crate::metrics::{Outcome, SourceMetrics};
 use crate::session::{self, JournalFailure, PersistJob, Session, SessionSetup};
-use crate::session_watch::SessionWatch;
+use crate::session_watch::{SessionNews, SessionWatch};
 
 /// How long a worker waits for a pose before it checks for shutdown and idle sessions.
 const WAKE_UP: Duration = Duration::from_millis(100);
@@ -187,12 +184,6 @@ pub fn quiet_after(params: &Params) -> Duration {
     Duration::from_secs_f64((3.0 / params.odometry_rate_hz).max(1.0))
 }
 
-/// How many alignments a session tries before the daemon warns that none, or fewer than one in
-/// ten ([`MIN_ACCEPTED_SHARE`](lanealign_core::plausibility::MIN_ACCEPTED_SHARE)), were
-/// accepted (the robust presets try one per metre of road: 100 m of driving; a session that
-/// ends sooner is told when it ends, if none was).
-const REFUSALS_TOLD: usize = lanealign_core::plausibility::MIN_ATTEMPTS_JUDGED;
-
 struct Worker {
     name: String,
     setup: WorkerSetup,
@@ -237,9 +228,6 @@ impl Worker {
             if let Some(watch) = live.session.as_mut().map(|s| &mut s.watch) {
                 let news = watch.finish();
                 tell(&self.name, id, watch, news, &self.setup.sessions.params);
-                if watch.alignments().attempts < REFUSALS_TOLD {
-                    tell_refusals(&self.name, id, watch);
-                }
             }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
@@ -446,11 +434,13 @@ impl Worker {
         };
         if let Some(session) = live.session.as_mut() {
             if let Some(news) = session.watch_answered(&input, &outcome) {
-                let watch = &session.watch;
-                tell(&self.name, input.session, watch, news, &setup.params);
-                if watch.alignments().attempts == REFUSALS_TOLD {
-                    tell_refusals(&self.name, input.session, watch);
-                }
+                tell(
+                    &self.name,
+                    input.session,
+                    &session.watch,
+                    news,
+                    &setup.params,
+                );
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
@@ -507,37 +497,18 @@ impl Worker {
     }
 }
 
-/// Logs what `watch` told of session `session` of source `source` (`news`): the rate its
-/// stamps say when `params` are set for another, that its poses move as no vehicle does in the
-/// source's frame or faster than any, and each change of speed no car makes, with its sequence
-/// number.
-fn tell(source: &str, session: u64, watch: &SessionWatch, news: SourceNews, params: &Params) {
-    let rate = news.rate_hz.and_then(|r| rate_warning(r, params));
-    let told = [news.axis_warning, news.pace_warning];
-    for warning in rate.into_iter().chain(told.into_iter().flatten()) {
+/// Logs what `watch` told of session `session` of source `source` (`news`): what is wrong with
+/// its setup (the rate its stamps say when `params` are set for another, its poses moving as no
+/// vehicle does in the source's frame or faster than any, few alignments accepted), and each
+/// change of speed no car makes, with its sequence number.
+fn tell(source: &str, session: u64, watch: &SessionWatch, news: SessionNews, params: &Params) {
+    for warning in news.warnings {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
     let rate_hz = watch.speed_rate_hz().unwrap_or(params.odometry_rate_hz);
     for change in news.speed_changes {
         let seq = watch.seq_of(&change);
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road; where the source watches stalls (watch_stalls), a fall restarts its window and widens the covariance along the road by the distance missed at the speed before it and the heading by what a car may turn there");
-    }
-}
-
-/// Logs that session `session` (`watch`) of source `source` had none of its alignments
-/// accepted, if it tried any, or few of at least [`REFUSALS_TOLD`].
-fn tell_refusals(source: &str, session: u64, watch: &SessionWatch) {
-    let Counts {
-        attempts, accepted, ..
-    } = watch.alignments();
-    let warning = refusals_warning(
-        watch.corrected_poses(),
-        attempts,
-        accepted,
-        "the source's anchor and frame in this configuration and that the tile covers the drive",
-    );
-    if let Some(warning) = warning.filter(|_| attempts > 0) {
-        tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
 }
 

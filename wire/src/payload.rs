@@ -174,6 +174,89 @@ impl ReasonCode {
     }
 }
 
+/// What a session's poses have told of its setup or its odometry ([`CorrectedPose::warnings`]):
+/// each is a bit, raised for the rest of the session once told. The daemon's log says each once,
+/// in words (docs/operations.md, "Warnings").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u64)]
+pub enum Warning {
+    /// The poses move or stand as no vehicle does in the source's axis convention (another
+    /// `frame`, or rotations made from quaternions read in another order).
+    Axes = 1 << 0,
+    /// The stamps say a rate far from the source's `odometry_rate_hz`.
+    Rate = 1 << 1,
+    /// The poses move faster than any vehicle (`max_speed_mps`): positions in other units than
+    /// metres, or poses that come slower than the rate.
+    Pace = 1 << 2,
+    /// Fewer than 10 % of the session's first 100 alignments were accepted: a wrong anchor or
+    /// frame, or a tile that misses the drive.
+    Refusals = 1 << 3,
+    /// The odometry's speed changed faster than a car's can: it lost track, and the poses after
+    /// it may be off along the road.
+    LostTrack = 1 << 4,
+    /// The odometry jumped (an answer's status was `odometry_jump`).
+    Jumped = 1 << 5,
+}
+
+impl Warning {
+    /// Every warning, by bit.
+    pub const ALL: [Warning; 6] = [
+        Warning::Axes,
+        Warning::Rate,
+        Warning::Pace,
+        Warning::Refusals,
+        Warning::LostTrack,
+        Warning::Jumped,
+    ];
+
+    /// Its bit in [`CorrectedPose::warnings`].
+    pub fn bit(self) -> u64 {
+        self as u64
+    }
+
+    /// Lowercase name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Warning::Axes => "axes",
+            Warning::Rate => "rate",
+            Warning::Pace => "pace",
+            Warning::Refusals => "refusals",
+            Warning::LostTrack => "lost_track",
+            Warning::Jumped => "jumped",
+        }
+    }
+
+    /// What it says of the session, in a few words, and what to check.
+    pub fn meaning(self) -> &'static str {
+        match self {
+            Warning::Axes => {
+                "its poses move or stand as no vehicle does in the source's axis convention: \
+                 check the source's frame and the order its quaternions are read in"
+            }
+            Warning::Rate => "its stamps say a rate far from the source's odometry_rate_hz",
+            Warning::Pace => {
+                "its poses move faster than any vehicle: are its positions in metres, and does \
+                 it come at the source's odometry_rate_hz?"
+            }
+            Warning::Refusals => {
+                "few of its alignments were accepted: check the source's anchor and frame and \
+                 that the tile covers the drive"
+            }
+            Warning::LostTrack => {
+                "its odometry's speed changed faster than a car's can: it lost track, and the \
+                 poses after it may be off along the road"
+            }
+            Warning::Jumped => "its odometry jumped (status odometry_jump)",
+        }
+    }
+
+    /// The warnings whose bits `bits` raises, in bit order (bits this build does not know are
+    /// left out).
+    pub fn raised(bits: u64) -> impl Iterator<Item = Warning> {
+        Self::ALL.into_iter().filter(move |w| bits & w.bit() != 0)
+    }
+}
+
 /// A corrected pose, with everything needed to use, audit and time it.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("lanealign::CorrectedPose")]
@@ -231,6 +314,9 @@ pub struct CorrectedPose {
     /// The standard deviation of `odometry_scale` (a ratio; 0 where the source does not estimate
     /// the scale). NaN where `covariance` is.
     pub odometry_scale_sd: f64,
+    /// The [`Warning`]s the session's poses have raised before this one (bits; 0 for a source
+    /// that passes its poses through, or a session that has none).
+    pub warnings: u64,
 }
 
 impl OdomPose {
@@ -244,6 +330,11 @@ impl CorrectedPose {
     /// The status, if this build knows its code.
     pub fn status(&self) -> Option<StatusCode> {
         StatusCode::from_code(self.status)
+    }
+
+    /// The warnings the session had raised before this pose ([`CorrectedPose::warnings`]).
+    pub fn warnings(&self) -> impl Iterator<Item = Warning> {
+        Warning::raised(self.warnings)
     }
 }
 
@@ -273,7 +364,7 @@ mod tests {
     fn layout_is_the_documented_contract() {
         assert_eq!(
             crate::service::WIRE_VERSION,
-            3,
+            4,
             "the version of this layout and meaning"
         );
         assert_eq!((size_of::<OdomPose>(), align_of::<OdomPose>()), (136, 8));
@@ -282,7 +373,7 @@ mod tests {
         assert_eq!(offset_of!(OdomPose, flags), 128);
         assert_eq!(
             (size_of::<CorrectedPose>(), align_of::<CorrectedPose>()),
-            (288, 8)
+            (296, 8)
         );
         assert_eq!(offset_of!(CorrectedPose, expected_seq), 8);
         assert_eq!(offset_of!(CorrectedPose, session), 16);
@@ -299,6 +390,7 @@ mod tests {
         assert_eq!(offset_of!(CorrectedPose, anchor_yaw), 264);
         assert_eq!(offset_of!(CorrectedPose, odometry_scale), 272);
         assert_eq!(offset_of!(CorrectedPose, odometry_scale_sd), 280);
+        assert_eq!(offset_of!(CorrectedPose, warnings), 288);
     }
 
     #[test]
@@ -310,6 +402,13 @@ mod tests {
         assert_eq!(ReasonCode::from_code(2), Some(ReasonCode::ResidualTooLarge));
         assert_eq!(ReasonCode::from_code(3), Some(ReasonCode::SessionsFull));
         assert_eq!(ReasonCode::from_code(4), None);
+        for (i, w) in Warning::ALL.into_iter().enumerate() {
+            assert_eq!(w.bit(), 1 << i, "{}", w.name());
+        }
+        let raised: Vec<Warning> = Warning::raised(u64::MAX).collect();
+        assert_eq!(raised, Warning::ALL);
+        let raised: Vec<Warning> = Warning::raised(0b10_0100 | 1 << 40).collect();
+        assert_eq!(raised, [Warning::Pace, Warning::Jumped]);
     }
 
     /// The order docs/wire.md documents, and back to the same symmetric matrix.

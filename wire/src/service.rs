@@ -477,9 +477,9 @@ pub const DAEMON_NODE: &str = "lanealignd";
 /// session's services (docs/wire.md). It grows by one with every change to either; a client and
 /// a daemon exchange poses only when theirs are equal. 2: the answer of 288 bytes, with the
 /// odometry's scale (2026-11-27). 3: a `pass_through` answer's reason may be `sessions_full`
-/// (2026-11-29). A daemon carries it in its nodes' names ([`daemon_node_name`]), so a client
+/// (2026-11-29). 4: the answer of 296 bytes, with the session's warnings (2026-12-02). A daemon carries it in its nodes' names ([`daemon_node_name`]), so a client
 /// knows the daemon's before it sends a pose.
-pub const WIRE_VERSION: u32 = 3;
+pub const WIRE_VERSION: u32 = 4;
 
 /// The name of this build's daemon nodes: [`DAEMON_NODE`], then ` wire `, then
 /// [`WIRE_VERSION`].
@@ -953,7 +953,7 @@ mod tests {
         assert!(
             matches!(
                 error,
-                ServiceOpenError::IncompatibleLayout { size: 288, .. }
+                ServiceOpenError::IncompatibleLayout { size: 296, .. }
             ),
             "{error:?}"
         );

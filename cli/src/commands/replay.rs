@@ -12,7 +12,9 @@ use lanealign_core::input;
 use lanealign_core::plausibility::{first_few, plural, refusals_warning};
 use lanealign_core::pose::Pose3;
 use lanealign_core::trajectory::{self, Format, Trajectory};
-use lanealign_wire::payload::{from_upper_triangle, CorrectedPose, ReasonCode, StatusCode};
+use lanealign_wire::payload::{
+    from_upper_triangle, CorrectedPose, ReasonCode, StatusCode, Warning,
+};
 use lanealign_wire::service::{Namespace, SourceName};
 
 use super::percentile_us;
@@ -69,7 +71,8 @@ fn status_csv(answers: &[CorrectedPose]) -> String {
 
 /// What the daemon's `answers` say of a setup gone wrong or an odometry that jumped, as
 /// `lanealign correct` warns of them for a file (the daemon's log says it too, but the person
-/// replaying may not read it).
+/// replaying may not read it): from their statuses, and the warnings the session raised in them
+/// beyond those.
 fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
     let with = |code: StatusCode| answers.iter().filter(move |a| a.status() == Some(code));
     let accepted = with(StatusCode::Accepted).count();
@@ -98,7 +101,24 @@ fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
         .into_iter()
         .chain(no_correction)
         .chain(jumped)
+        .chain(raised_warning(answers))
         .collect()
+}
+
+/// The warnings the daemon's watch raised in `answers` ([`CorrectedPose::warnings`]), but for
+/// those [`warnings`] tells from the statuses themselves (refusals and jumps).
+fn raised_warning(answers: &[CorrectedPose]) -> Option<String> {
+    let bits = answers.iter().fold(0, |bits, a| bits | a.warnings);
+    let told: Vec<String> = Warning::raised(bits)
+        .filter(|w| !matches!(w, Warning::Refusals | Warning::Jumped))
+        .map(|w| format!("{} ({})", w.name(), w.meaning()))
+        .collect();
+    (!told.is_empty()).then(|| {
+        format!(
+            "the daemon raised in this session's answers: {}; its log says more",
+            told.join("; ")
+        )
+    })
 }
 
 /// Runs `lanealign replay`.
