@@ -58,7 +58,7 @@ use crate::session_watch::SessionWatchState;
 
 /// Records per segment: the last full segment alone holds [`MAX_IN_FLIGHT`] answers.
 pub const SEGMENT_RECORDS: u64 = MAX_IN_FLIGHT;
-/// Bytes of one record: input (136), answer (288), checksum (8).
+/// Bytes of one record: input (136), answer (296), checksum (8).
 pub const RECORD_LEN: usize = ODOM_LEN + ANSWER_LEN + 8;
 const ODOM_LEN: usize = 136;
 const ANSWER_LEN: usize = 296;
