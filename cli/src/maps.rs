@@ -116,7 +116,7 @@ impl LoadedMap {
             plausibility::speed_warning(
                 poses,
                 convention,
-                stamped_rate.unwrap_or(params.odometry_rate_hz),
+                plausibility::judged_rate_hz(stamped_rate, params.odometry_rate_hz),
                 params.max_speed_mps,
             ),
         ]

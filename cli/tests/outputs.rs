@@ -135,6 +135,30 @@ fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     assert_eq!(carried, 1800, "nine of every ten poses");
 }
 
+/// A TUM file whose stamps are 1000 times too close (a 10 Hz source driving 10 m/s, stamped 0.1
+/// ms apart: microseconds read as nanoseconds on the wire read so): the run asks about the
+/// stamps' unit instead of naming a rate of 10 kHz to set, and judges the speed at the rate the
+/// corrector is set for, so it does not call the odometry 1000 times too fast (until 2026-12-02
+/// it said "set odometry_rate_hz = 10000" and "the odometry moves at 10000 m/s").
+#[test]
+fn stamps_too_close_for_any_odometry_are_asked_about() {
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = straight_lane(dir.path(), 200);
+    let poses = dir.path().join("poses.tum");
+    let lines: String = (0..1000)
+        .map(|i| format!("{} {} 0.5 0 0 0 0 1\n", 1000.0 + 1e-4 * i as f64, i))
+        .collect();
+    std::fs::write(&poses, lines).unwrap();
+    let (err, _) = correct_tum(dir.path(), &lanes, &poses, &[], "accepted");
+    let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("WARN")).collect();
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].contains("the poses' stamps are 100 us apart (the median)")
+            && warnings[0].contains("Microseconds sent as nanoseconds"),
+        "{err}"
+    );
+}
+
 /// A TUM file whose quaternions were written scalar first (`qw qx qy qz`, the order of Eigen's
 /// constructor) reads as a vehicle upside down: the run says so, and its corrections are
 /// those of the file written in TUM's order.

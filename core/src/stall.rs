@@ -23,7 +23,8 @@
 //! `scaled`, [`crate::source_corrector`]); a [`Widening`]'s direction is in the same frame.
 
 use crate::plausibility::{
-    rate_from_stamps, SourceWatch, SpeedChange, SpeedHistory, SpeedWatch, MAX_ACCELERATION_MPS2,
+    judged_rate_hz, rate_from_stamps, SourceWatch, SpeedChange, SpeedHistory, SpeedWatch,
+    MAX_ACCELERATION_MPS2,
 };
 
 /// How fast a car turns (m/s^2, one standard deviation of its mean lateral acceleration over a
@@ -170,7 +171,7 @@ impl StallWatch {
             return;
         }
         let stamps: Vec<f64> = self.held.iter().map(|h| h[0]).collect();
-        let rate_hz = rate_from_stamps(&stamps).unwrap_or(self.set_rate_hz);
+        let rate_hz = judged_rate_hz(rate_from_stamps(&stamps), self.set_rate_hz);
         self.judged = Some((rate_hz, SpeedWatch::new(rate_hz)));
         let mut pending: Option<Widening> = None;
         for [_, x, y, heading] in std::mem::take(&mut self.held) {

@@ -15,6 +15,31 @@ const MIN_PLAUSIBLE_INTERVAL_S: f64 = 1e-5;
 /// asks, instead of naming a setting.
 const SLOWEST_PLAUSIBLE_HZ: f64 = 0.1;
 
+/// Above this rate (Hz: poses less than half a millisecond apart) a source's stamps are more
+/// likely in a smaller unit than the one they are read in (microseconds sent as the wire's
+/// nanoseconds make 10 Hz read as 10 kHz) than an odometry's: the warning asks, instead of
+/// naming a setting.
+const FASTEST_PLAUSIBLE_HZ: f64 = 2000.0;
+
+/// The rate (Hz) an odometry's speed is judged at: `stamped_hz`, the rate its stamps say, where
+/// they say one an odometry runs at (from 0.1 to 2000 Hz), else `set_hz`, the rate its corrector
+/// is set for (stamps in another unit are asked about by [`rate_warning`], not believed).
+pub fn judged_rate_hz(stamped_hz: Option<f64>, set_hz: f64) -> f64 {
+    stamped_hz
+        .filter(|hz| (SLOWEST_PLAUSIBLE_HZ..=FASTEST_PLAUSIBLE_HZ).contains(hz))
+        .unwrap_or(set_hz)
+}
+
+/// A rate (Hz) as a person reads it: whole hertz from 10 Hz on; below, a tenth matters (2.5 Hz
+/// is not 2 or 3).
+pub fn rate_text(rate_hz: f64) -> String {
+    if rate_hz >= 10.0 {
+        format!("{rate_hz:.0}")
+    } else {
+        format!("{rate_hz:.1}")
+    }
+}
+
 /// The rate (Hz) consecutive stamps (seconds, in arrival order) say the source runs at: the
 /// median interval's; `None` unless at least two intervals, and half of them, are plausible
 /// (at least 10 us; a source whose stamps are counters or constant says nothing).
@@ -44,6 +69,15 @@ pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
     } else {
         return None;
     };
+    if rate_hz > FASTEST_PLAUSIBLE_HZ {
+        let apart_us = 1e6 / rate_hz;
+        return Some(format!(
+            "the poses' stamps are {apart_us:.0} us apart (the median), which is no odometry's \
+             rate: are they in the unit they are read in (nanoseconds on the wire, seconds in a \
+             TUM file)? (Microseconds sent as nanoseconds make a 10 Hz source read as 10 kHz.) \
+             If they are, set odometry_rate_hz to the rate they give",
+        ));
+    }
     if rate_hz < SLOWEST_PLAUSIBLE_HZ {
         let apart_s = 1.0 / rate_hz;
         let apart = if apart_s < 1e6 {
@@ -57,12 +91,7 @@ pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
              set odometry_rate_hz to the rate they give",
         ));
     }
-    // Whole hertz above 10 Hz; below, a tenth matters (2.5 Hz is not 2 or 3).
-    let rate = if rate_hz >= 10.0 {
-        format!("{rate_hz:.0}")
-    } else {
-        format!("{rate_hz:.1}")
-    };
+    let rate = rate_text(rate_hz);
     Some(format!(
         "the poses come at about {rate} Hz (their stamps) but the corrector is set for {set_hz} \
          Hz, so its window spans {consequence}: set odometry_rate_hz = {rate} (--set \
@@ -110,6 +139,23 @@ mod tests {
             );
             assert!(!w.contains("= 0"), "{w}");
         }
+        // Stamps far too close are asked about too (microseconds sent as nanoseconds), and not
+        // believed for the speed; 1 kHz is an odometry's rate.
+        let fast: Vec<f64> = (0..100).map(|i| i as f64 * 1e-4).collect();
+        let fast_hz = rate_from_stamps(&fast).unwrap();
+        let w = rate_warning(fast_hz, &params).unwrap();
+        assert!(
+            w.contains("are 100 us apart") && w.contains("Microseconds sent as nanoseconds"),
+            "{w}"
+        );
+        assert!(!w.contains("= 10000"), "{w}");
+        assert_eq!(judged_rate_hz(Some(fast_hz), 10.0), 10.0);
+        assert_eq!(judged_rate_hz(Some(1000.0), 10.0), 1000.0);
+        assert_eq!(judged_rate_hz(Some(0.01), 10.0), 10.0);
+        assert_eq!(judged_rate_hz(None, 20.0), 20.0);
+        assert!(rate_warning(1000.0, &params)
+            .unwrap()
+            .contains("odometry_rate_hz=1000"));
         // Counters, a constant or stamps out of order tell no rate.
         let counters: Vec<f64> = (0..100).map(|i| i as f64 * 1e-9).collect();
         assert_eq!(rate_from_stamps(&counters), None);

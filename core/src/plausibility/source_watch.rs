@@ -2,7 +2,7 @@
 //! its speed, pose by pose.
 
 use super::axes::AxisMotion;
-use super::rate::rate_from_stamps;
+use super::rate::{judged_rate_hz, rate_from_stamps};
 use super::speed::{moving_step_m, pace_warning, SpeedChange, SpeedHistory, SpeedWatch};
 use crate::pose::{AxisConvention, Pose3};
 
@@ -281,7 +281,7 @@ impl SourceWatch {
     /// which it watches on.
     fn judge_held(&mut self) -> SourceNews {
         let rate_hz = rate_from_stamps(&self.stamps_s);
-        let judged_hz = rate_hz.unwrap_or(self.set_rate_hz);
+        let judged_hz = judged_rate_hz(rate_hz, self.set_rate_hz);
         let mut speed = SpeedWatch::new(judged_hz);
         let speed_changes = self.held.iter().filter_map(|&p| speed.observe(p)).collect();
         self.speed = Some((speed, judged_hz));

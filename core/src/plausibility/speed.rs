@@ -2,7 +2,7 @@
 
 use std::collections::VecDeque;
 
-use super::{first_few, plural};
+use super::{first_few, plural, rate_text};
 use crate::pose::{AxisConvention, Pose3};
 
 /// The most a car's speed changes per second (m/s^2): about 1 g, what its tyres give at most
@@ -293,11 +293,12 @@ fn change_warning(positions: &[[f64; 2]], rate_hz: f64) -> Option<String> {
          it may be off along the road; the corrector takes the vehicle to have driven on at the \
          speed before a fall, restarts its window and widens the covariance along the road by \
          the distance that misses and the heading by what a car may turn there (watch_stalls) \
-         (this takes the poses to come at {rate_hz} Hz: \
+         (this takes the poses to come at {} Hz: \
          where they do not, give their stamps or odometry_rate_hz)",
         changes.len(),
         plural(changes.len()),
         first_few(shown, changes.len()),
+        rate_text(rate_hz),
     ))
 }
 
@@ -339,6 +340,7 @@ pub(super) fn pace_warning(
     let (_, &mut median_m, _) = steps_m.select_nth_unstable_by(middle, f64::total_cmp);
     let median = median_m * rate_hz;
     (median > max_speed_mps).then(|| {
+        let rate_hz = rate_text(rate_hz);
         format!(
             "the odometry moves at {median:.0} m/s (the median over the steps that move, the \
              poses taken to come at {rate_hz} Hz), faster than max_speed_mps ({max_speed_mps} \
@@ -378,7 +380,7 @@ pub(super) mod tests {
         let w = median_speed_warning(&planar_positions(&centimetres, flu), 1.0, 70.0)
             .unwrap_or_default();
         assert!(
-            w.contains("at 120 m/s") && w.contains("come at 1 Hz"),
+            w.contains("at 120 m/s") && w.contains("come at 1.0 Hz"),
             "{w}"
         );
         assert_eq!(
