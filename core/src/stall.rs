@@ -94,7 +94,8 @@ pub struct StallState {
 /// Watches an odometry's speed for stalls and says how much each pose widens the uncertainty
 /// along the road (see the module's documentation). The speed is judged at the rate the
 /// first [`SourceWatch::STAMPS`] stamps say, or at the rate the corrector is set for where they
-/// say none (no stamps: a file in KITTI's format), as the daemon's warning judges it; until
+/// say none (no stamps: a file in KITTI's format) or none an odometry runs at
+/// ([`judged_rate_hz`]), as the daemon's warning judges it; until
 /// then the poses are held.
 #[derive(Clone, Debug)]
 pub struct StallWatch {

@@ -32,7 +32,8 @@ pub const PACE_STEPS: usize = 50;
 /// [`SourceWatch::STAMPS`] stamps say ([`rate_from_stamps`]), told once; its pace, the median
 /// speed of its first [`PACE_STEPS`] steps that move at that rate, when it is beyond any
 /// vehicle's (told once); and the changes of speed no car makes ([`SpeedWatch`]) judged at that
-/// rate, or at the rate the corrector is set for where the stamps say none. Until the stamps tell
+/// rate, or at the rate the corrector is set for where the stamps say none an odometry runs at
+/// ([`judged_rate_hz`]). Until the stamps tell
 /// the rate, it holds the positions, and then judges them. The changes wait for the pace to be
 /// judged: a pace beyond any vehicle's (positions in centimetres, a wrong rate) explains them,
 /// and they are not told.
