@@ -253,8 +253,9 @@ pub fn speed_change_warning(
     change_warning(&planar_positions(poses, convention), rate_hz)
 }
 
-/// A warning when the odometry's median speed is beyond any vehicle's
-/// ([`median_speed_warning`]), else when it changes faster than a car's can
+/// A warning when the odometry's median speed over the steps that move is beyond any vehicle's
+/// (`max_speed_mps`: positions in other units than metres, or poses slower than `rate_hz`),
+/// else when it changes faster than a car's can
 /// ([`speed_change_warning`], whose changes the first explains), from one pass over `poses`
 /// (given in `convention`, at `rate_hz`).
 pub fn speed_warning(
