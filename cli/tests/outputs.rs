@@ -50,13 +50,14 @@ fn correct_tum(
 }
 
 /// `poses` TUM poses at `rate_hz` along the lane of [`straight_lane`] at 10 m/s, 0.5 m beside
-/// it, written to `poses.tum` in `dir`.
-fn tum_along_the_lane(dir: &Path, poses: usize, rate_hz: f64) -> PathBuf {
+/// it, written to `poses.tum` in `dir`, their stamps `stamp_scale` times the seconds they
+/// come at (1 for stamps in seconds).
+fn tum_along_the_lane(dir: &Path, poses: usize, rate_hz: f64, stamp_scale: f64) -> PathBuf {
     let path = dir.join("poses.tum");
     let lines: String = (0..poses)
         .map(|i| {
             let t = i as f64 / rate_hz;
-            format!("{} {} 0.5 0 0 0 0 1\n", 1.7e9 + t, 10.0 * t)
+            format!("{} {} 0.5 0 0 0 0 1\n", 1.7e9 + stamp_scale * t, 10.0 * t)
         })
         .collect();
     std::fs::write(&path, lines).unwrap();
@@ -112,7 +113,7 @@ fn outputs_appear_only_when_the_whole_run_succeeded() {
 fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
-    let poses = tum_along_the_lane(dir.path(), 2000, 100.0);
+    let poses = tum_along_the_lane(dir.path(), 2000, 100.0, 1.0);
     let run = |set: &[&str]| correct_tum(dir.path(), &lanes, &poses, set, "carried");
     // An alignment on every window pose and no standstill (the robust method's spacing of 1 m
     // would carry poses 0.1 m apart too, and its standstill of 1 m/s, taken at the presets'
@@ -144,11 +145,7 @@ fn a_tum_source_faster_than_its_preset_is_told_the_setting() {
 fn stamps_too_close_for_any_odometry_are_asked_about() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
-    let poses = dir.path().join("poses.tum");
-    let lines: String = (0..1000)
-        .map(|i| format!("{} {} 0.5 0 0 0 0 1\n", 1000.0 + 1e-4 * i as f64, i))
-        .collect();
-    std::fs::write(&poses, lines).unwrap();
+    let poses = tum_along_the_lane(dir.path(), 1000, 10.0, 1e-3);
     let (err, _) = correct_tum(dir.path(), &lanes, &poses, &[], "accepted");
     let warnings: Vec<&str> = err.lines().filter(|l| l.starts_with("WARN")).collect();
     assert_eq!(warnings.len(), 1, "{err}");
@@ -166,7 +163,7 @@ fn stamps_too_close_for_any_odometry_are_asked_about() {
 fn quaternions_written_scalar_first_are_told() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
-    let poses = tum_along_the_lane(dir.path(), 1000, 10.0);
+    let poses = tum_along_the_lane(dir.path(), 1000, 10.0, 1.0);
     let (err, accepted) = correct_tum(dir.path(), &lanes, &poses, &[], "accepted");
     assert!(!err.contains("WARN"), "{err}");
     let in_order = std::fs::read_to_string(dir.path().join("out.tum")).unwrap();
@@ -306,7 +303,7 @@ fn an_odometry_that_stalls_is_told_where() {
 fn a_tum_source_slower_than_its_preset_is_told_the_setting() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
-    let poses = tum_along_the_lane(dir.path(), 100, 2.0);
+    let poses = tum_along_the_lane(dir.path(), 100, 2.0, 1.0);
     let run = |set: &[&str]| correct_tum(dir.path(), &lanes, &poses, set, "warming_up");
     let (err, warming) = run(&[]);
     assert!(

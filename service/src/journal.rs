@@ -745,6 +745,7 @@ fn encode_watch(e: &mut Encoder, watch: &SessionWatchState) {
 /// finite, no more steps are held than are judged on, each of them moved, and every change of
 /// speed lies among the poses the speed watch has seen (`seen`; none before it watches).
 fn decode_pace(d: &mut Decoder<'_>, seen: Option<usize>) -> Option<Pace> {
+    let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
     match d.u32()? {
         0 => {}
@@ -771,16 +772,15 @@ fn decode_pace(d: &mut Decoder<'_>, seen: Option<usize>) -> Option<Pace> {
         .collect::<Option<_>>()?;
     Some(Pace::Gathering {
         steps_m,
-        last: (last.0 <= 1).then_some(last.0 == 1)?.then_some(last.1),
+        last: flag(last.0)?.then_some(last.1),
         changes,
     })
 }
 
 /// A session watch's state ([`encode_watch`]; without the tilted path unless `has_tilt`, as
 /// before format 10, and without the pace and the warnings raised unless `has_pace`, as before
-/// format 11); `None`
-/// unless every part is there and every number but a stamp (any number a client sent) is
-/// finite.
+/// format 11); `None` unless every part is there and every number but a stamp (any number a
+/// client sent) is finite.
 fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<SessionWatchState> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());

@@ -189,9 +189,12 @@ impl SessionWatch {
             .saturating_sub(self.source.poses_since(change) as u64)
     }
 
-    /// The rate (Hz) the speed is judged at, once the stamps have told it.
-    pub fn speed_rate_hz(&self) -> Option<f64> {
-        self.source.speed_rate_hz()
+    /// The rate (Hz) the speed is judged at: the one the stamps told, or the source's
+    /// `odometry_rate_hz` until they have (no change of speed is told before).
+    pub fn speed_rate_hz(&self) -> f64 {
+        self.source
+            .speed_rate_hz()
+            .unwrap_or(self.params.odometry_rate_hz)
     }
 }
 

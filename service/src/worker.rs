@@ -227,7 +227,7 @@ impl Worker {
         if let Some(mut live) = self.sessions.remove(&id) {
             if let Some(watch) = live.session.as_mut().map(|s| &mut s.watch) {
                 let news = watch.finish();
-                tell(&self.name, id, watch, news, &self.setup.sessions.params);
+                tell(&self.name, id, watch, news);
             }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
@@ -434,13 +434,7 @@ impl Worker {
         };
         if let Some(session) = live.session.as_mut() {
             if let Some(news) = session.watch_answered(&input, &outcome) {
-                tell(
-                    &self.name,
-                    input.session,
-                    &session.watch,
-                    news,
-                    &setup.params,
-                );
+                tell(&self.name, input.session, &session.watch, news);
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
@@ -498,14 +492,14 @@ impl Worker {
 }
 
 /// Logs what `watch` told of session `session` of source `source` (`news`): what is wrong with
-/// its setup (the rate its stamps say when `params` are set for another, its poses moving as no
+/// its setup (the rate its stamps say when the source is set for another, its poses moving as no
 /// vehicle does in the source's frame or faster than any, few alignments accepted), and each
 /// change of speed no car makes, with its sequence number.
-fn tell(source: &str, session: u64, watch: &SessionWatch, news: SessionNews, params: &Params) {
+fn tell(source: &str, session: u64, watch: &SessionWatch, news: SessionNews) {
     for warning in news.warnings {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
     }
-    let rate_hz = watch.speed_rate_hz().unwrap_or(params.odometry_rate_hz);
+    let rate_hz = watch.speed_rate_hz();
     for change in news.speed_changes {
         let seq = watch.seq_of(&change);
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, from_mps = change.from_mps, to_mps = change.to_mps, rate_hz, "the odometry's speed changed faster than a car's can (more than {MAX_ACCELERATION_MPS2} m/s^2 over {SPEED_SPAN_S} s, the poses taken to come at rate_hz: their stamps' rate, or odometry_rate_hz where they tell none): it probably lost track; where the lanes run straight the corrections cannot show how far the vehicle went meanwhile, and the poses after it may be off along the road; where the source watches stalls (watch_stalls), a fall restarts its window and widens the covariance along the road by the distance missed at the speed before it and the heading by what a car may turn there");
