@@ -165,7 +165,8 @@ impl Continuity {
                 return Continued::Moved;
             }
             let predicted = last * last_motion;
-            self.continued_from_odom = predicted * odom_from_body.inverse();
+            // Renormalised: the frame is composed from its own earlier value at every jump.
+            self.continued_from_odom = (predicted * odom_from_body.inverse()).normalized();
             self.last = Some((predicted, stamp_s));
             return Continued::Jumped;
         }
@@ -324,6 +325,32 @@ mod tests {
             c.observe(Se2::IDENTITY, f64::NAN, &params),
             Continued::Jumped
         );
+    }
+
+    #[test]
+    fn an_odometry_that_keeps_changing_frame_keeps_a_rigid_one() {
+        // Every tenth pose the odometry relocalises into a frame 1 km away and turned, and
+        // goes on in it: each change is a jump. The frame is composed from its own earlier
+        // value at each jump and the steps between from it; unrenormalised, the rounding of its
+        // rotation entries multiplied at every jump (KITTI 00 with a glitch every tenth pose
+        // had its corrected poses scaled by 1e39 after 400 jumps).
+        let params = Preset::KissIcp.robust_params();
+        let change = Se2::new(2.0, 1000.0, -700.0);
+        let mut frame = Se2::IDENTITY;
+        let mut c = Continuity::default();
+        for i in 0..4000 {
+            if i % 10 == 5 {
+                frame = change * frame;
+            }
+            let drive = Se2::new(0.001 * i as f64, 1.2 * i as f64, 0.05 * i as f64);
+            let got = c.observe(frame * drive, f64::NAN, &params);
+            assert_eq!(got == Continued::Jumped, i % 10 == 5, "pose {i}");
+            let (cos, sin) = c.continued_from_odom.rotation();
+            assert!(
+                (cos.hypot(sin) - 1.0).abs() < 1e-12,
+                "pose {i}: {cos} {sin}"
+            );
+        }
     }
 
     #[test]

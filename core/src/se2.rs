@@ -85,7 +85,22 @@ impl Se2 {
         ]
     }
 
-    /// The inverse transform `a_from_b`.
+    /// The same transform with its rotation entries scaled back onto the unit circle. Every
+    /// product rounds them by about one unit in the last place; a transform kept as state and
+    /// composed again from its own earlier values without end (the odometry's frame after each
+    /// of its jumps) must be renormalised, or those errors compound: [`Se2::inverse`] is exact
+    /// only for unit entries, and through it the error multiplied at every jump, until an
+    /// odometry that jumped on every other pose had rotations scaled by 1e39 after 200 jumps.
+    pub fn normalized(&self) -> Se2 {
+        let norm = self.cos.hypot(self.sin);
+        Se2 {
+            cos: self.cos / norm,
+            sin: self.sin / norm,
+            ..*self
+        }
+    }
+
+    /// The inverse transform `a_from_b` (exact for unit rotation entries).
     pub fn inverse(&self) -> Se2 {
         Se2 {
             cos: self.cos,
