@@ -404,6 +404,38 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_restarts() {
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 14, "800");
 }
 
+/// The same with an odometry that glitches on every other pose (published 300 m to the side of
+/// its drive, the next on it again): a session restored from a snapshot taken right after a
+/// glitch (half of them) judges the pose after it from the frame before the glitch, as offline
+/// (`LASNAP12`).
+#[test]
+fn killed_daemons_lose_nothing_of_an_odometry_that_glitches() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, mut poses) = synthetic::drive(2, 7);
+    let aside = Se2::new(0.5, 0.0, 300.0);
+    let glitched = |i: usize| i >= 50 && i % 2 == 1;
+    for (i, pose) in poses.iter_mut().enumerate() {
+        if glitched(i) {
+            *pose = apply_planar_correction(&aside, pose);
+        }
+    }
+    let t = town_driven(town_setup, poses);
+    // The glitches jump (but those that land ahead, taken for poses missing), and nothing else
+    // does: the pose after each goes on in the drive's frame.
+    let (_, status) = offline_with_status(&t.setup, &t.name, &t.poses);
+    let jumps: Vec<usize> = status
+        .lines()
+        .skip(1)
+        .enumerate()
+        .filter(|(_, l)| l.contains("odometry_jump"))
+        .map(|(i, _)| i)
+        .collect();
+    let glitches: Vec<usize> = (0..t.poses.len()).filter(|&i| glitched(i)).collect();
+    assert!(jumps.iter().all(|&i| glitched(i)), "{jumps:?}");
+    assert!(jumps.len() > glitches.len() / 2, "{jumps:?}");
+    killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 15, "800");
+}
+
 /// The same with an odometry that stalls (its steps 1 % of the road for 3 s, every 30 s of the
 /// drive): the restored sessions watch its speed on from where the killed ones were, and every
 /// covariance the stalls widen and every window they restart is offline's.

@@ -80,6 +80,23 @@ fn continues_the_drive(last_motion: &Se2, motion: &Se2, min_step_m: f64) -> bool
         && wrap_angle(y.atan2(x) - travel - turn / 2.0).abs() <= MAX_GAP_CHORD_DEVIATION
 }
 
+/// The motion `h` that, taken twice, is `motion` (both `before_from_after`, planar): half the
+/// turn, and the translation `t_h` with `t_h + R(turn / 2) t_h = t`, for every turn (the half
+/// turn lies within (-pi/2, pi/2], where `I + R` is invertible).
+fn half_of(motion: &Se2) -> Se2 {
+    let half_turn = motion.yaw() / 2.0;
+    let (sin, cos) = half_turn.sin_cos();
+    let [x, y] = motion.translation();
+    // (I + R)^-1 for R = [[cos, -sin], [sin, cos]]: [[1 + cos, sin], [-sin, 1 + cos]] over
+    // (1 + cos)^2 + sin^2 = 2 (1 + cos), at least 2 for a half turn within (-pi/2, pi/2].
+    let det = 2.0 * (1.0 + cos);
+    Se2::new(
+        half_turn,
+        ((1.0 + cos) * x + sin * y) / det,
+        (-sin * x + (1.0 + cos) * y) / det,
+    )
+}
+
 /// What is known of the odometry's own motion, to tell a jump from a drive.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Continuity {
@@ -90,6 +107,9 @@ pub struct Continuity {
     pub last: Option<(Se2, f64)>,
     /// The motion of the last step (`before_from_after`, planar); `None` before the first.
     pub last_motion: Option<Se2>,
+    /// The odometry as it was before its last pose, when that pose jumped or was taken for a
+    /// step over missing poses: the pose after it may show that it was a glitch.
+    pub before_glitch: Option<BeforeGlitch>,
 }
 
 impl Default for Continuity {
@@ -98,8 +118,29 @@ impl Default for Continuity {
             continued_from_odom: Se2::IDENTITY,
             last: None,
             last_motion: None,
+            before_glitch: None,
         }
     }
+}
+
+/// The odometry before a pose that may be a glitch (a single pose published off its drive: a
+/// corrupt message, a failed registration the next one mends), to go on from if the pose after
+/// it continues the drive from there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BeforeGlitch {
+    /// [`Continuity::continued_from_odom`] before the pose.
+    pub continued_from_odom: Se2,
+    /// [`Continuity::last`] before the pose: the last pose of the drive and its stamp.
+    pub last: (Se2, f64),
+    /// [`Continuity::last_motion`] before the pose.
+    pub last_motion: Se2,
+}
+
+/// Whether a step of `moved_m` metres over `elapsed_s` seconds is more than a vehicle drives:
+/// faster than [`Params::max_speed_mps`] and more than [`MAX_STEP_GROWTH`] times
+/// `usual_step_m`, the length the drive's steps had before it.
+fn beyond_a_drive(moved_m: f64, elapsed_s: f64, usual_step_m: f64, params: &Params) -> bool {
+    moved_m > params.max_speed_mps * elapsed_s && moved_m > MAX_STEP_GROWTH * usual_step_m
 }
 
 /// How a pose continued the odometry.
@@ -126,6 +167,7 @@ impl Continuity {
     /// one); returns whether it jumped. After a jump, [`Continuity::continued_from_odom`] carries
     /// it (and the poses after it) to where the last motion leads from the last pose.
     pub fn observe(&mut self, odom_from_body: Se2, stamp_s: f64, params: &Params) -> Continued {
+        let before_glitch = self.before_glitch.take();
         let continued = self.continued_from_odom * odom_from_body;
         let Some((last, last_stamp_s)) = self.last else {
             self.last = Some((continued, stamp_s));
@@ -148,9 +190,30 @@ impl Continuity {
         // A step is a jump when the vehicle could not drive it in the time, and when it is
         // more than [`MAX_STEP_GROWTH`] times the step before: a source slower than its set
         // rate (poses far apart, all alike) is not one.
-        if moved_m > params.max_speed_mps * elapsed_s
-            && moved_m > MAX_STEP_GROWTH * length(&last_motion)
-        {
+        if beyond_a_drive(moved_m, elapsed_s, length(&last_motion), params) {
+            // The pose before may have been the glitch: read in the frame before it, this pose
+            // may continue the drive from the pose before that, two steps on.
+            if let Some(before) = before_glitch {
+                let resumed = before.continued_from_odom * odom_from_body;
+                let (before_last, before_stamp_s) = before.last;
+                let elapsed_s = (stamp_s - before_stamp_s).max(2.0 * period_s);
+                let usual_step_m = 2.0 * length(&before.last_motion);
+                let two_steps = before_last.inverse() * resumed;
+                if !beyond_a_drive(length(&two_steps), elapsed_s, usual_step_m, params) {
+                    self.continued_from_odom = before.continued_from_odom;
+                    self.last = Some((resumed, stamp_s));
+                    // The step of one pose, for the next to be judged against and predicted
+                    // with: glitches on every other pose would otherwise leave it as it was
+                    // before the first.
+                    self.last_motion = Some(half_of(&two_steps));
+                    return Continued::Moved;
+                }
+            }
+            self.before_glitch = Some(BeforeGlitch {
+                continued_from_odom: self.continued_from_odom,
+                last: (last, last_stamp_s),
+                last_motion,
+            });
             // Stamps that show poses missing (more than one period and a half between the two)
             // tell how long the gap took, and the speed has judged it. Without that (no stamps,
             // stamps at the rate, repeated, reset or in a unit too small) the step may still
@@ -350,6 +413,77 @@ mod tests {
                 (cos.hypot(sin) - 1.0).abs() < 1e-12,
                 "pose {i}: {cos} {sin}"
             );
+        }
+    }
+
+    #[test]
+    fn half_a_motion_taken_twice_is_the_motion() {
+        for motion in [
+            Se2::new(0.0, 2.0, 0.0),
+            Se2::new(0.3, 1.5, 0.2),
+            Se2::new(-3.0, -4.0, 7.0),
+            Se2::new(3.1, 0.5, -0.5),
+        ] {
+            let half = half_of(&motion);
+            assert!(close(half * half, motion), "{motion:?}: {half:?}");
+        }
+    }
+
+    #[test]
+    fn a_glitch_of_one_pose_changes_nothing_after_it() {
+        // One pose in ten is published off the drive (a corrupt message, a failed
+        // registration), the next one on it again. Off to the side it is a jump, straight
+        // ahead it is taken for poses missing (without stamps); either way the pose after it
+        // continues the drive from the pose before it, in the frame it had: nothing of the
+        // glitch stays. Before, the pose after a glitch jumped too, back into the drive's frame
+        // moved by the prediction's error (centimetres a glitch), and after a glitch ahead
+        // taken for missing poses the drive went on 500 m ahead.
+        let params = Preset::KissIcp.robust_params();
+        let drive = |i: usize| Se2::new(0.001 * i as f64, 1.2 * i as f64, 0.05 * i as f64);
+        for (off, stamped, every) in [
+            (Se2::new(0.0, 0.0, 500.0), false, 10),
+            (Se2::new(0.0, 0.0, 500.0), true, 10),
+            (Se2::new(1.0, -300.0, -400.0), false, 10),
+            (Se2::new(1.0, -300.0, -400.0), false, 2),
+        ] {
+            let mut c = Continuity::default();
+            let (mut glitches, mut expected) = (0, 0);
+            for i in 0..1000 {
+                let glitch = i >= 10 && i % every == every / 2;
+                expected += usize::from(glitch);
+                let published = if glitch { off * drive(i) } else { drive(i) };
+                let stamp = if stamped { i as f64 / 10.0 } else { f64::NAN };
+                let got = c.observe(published, stamp, &params);
+                if glitch {
+                    glitches += usize::from(got == Continued::Jumped);
+                    // Placed one step of the drive on, the step as the drive turned it (also
+                    // when every other pose is a glitch: the step is taken from the two poses
+                    // around the last).
+                    let ([x, y], [dx, dy]) =
+                        (c.last.unwrap().0.translation(), drive(i).translation());
+                    assert!((x - dx).hypot(y - dy) < 0.01, "pose {i}: {x} {y}");
+                    continue;
+                }
+                assert_eq!(got, Continued::Moved, "pose {i}");
+                assert_eq!(c.continued_from_odom, Se2::IDENTITY, "pose {i}");
+                assert!(close(c.last.unwrap().0, drive(i)), "pose {i}");
+            }
+            assert_eq!(glitches, expected, "{off:?} {stamped}");
+        }
+        // Straight ahead along the drive (without stamps: poses missing) it is motion, and the
+        // pose after it too.
+        let mut c = Continuity::default();
+        let ahead = |i: usize| Se2::new(0.0, 1.2 * i as f64, 0.0);
+        for i in 0..100 {
+            let published = if i % 10 == 5 {
+                Se2::new(0.0, 500.0, 0.0) * ahead(i)
+            } else {
+                ahead(i)
+            };
+            assert_eq!(c.observe(published, f64::NAN, &params), Continued::Moved);
+            if i % 10 != 5 {
+                assert!(close(c.last.unwrap().0, ahead(i)), "pose {i}");
+            }
         }
     }
 

@@ -41,7 +41,7 @@ use std::sync::Arc;
 
 use memmap2::MmapMut;
 
-use lanealign_core::continuity::Continuity;
+use lanealign_core::continuity::{BeforeGlitch, Continuity};
 use lanealign_core::corrector::CorrectorState;
 use lanealign_core::plausibility::{
     AxisMotion, Pace, SourceWatchState, SpeedChange, SpeedHistory, PACE_STEPS,
@@ -69,7 +69,11 @@ const SESSION_MAGIC_V2: &[u8; 8] = b"LASESS02";
 /// Journals whose answers were 272 bytes, before they carried the odometry's scale: their
 /// records cannot be appended to, so their sessions are not restored (they start afresh).
 const SESSION_MAGIC_V1: &[u8; 8] = b"LASESS01";
-const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP11";
+const SNAPSHOT_MAGIC: &[u8; 8] = b"LASNAP12";
+/// Snapshots before a glitch of the odometry (one pose off its drive) was told from a jump
+/// (read with no pose before one: the pose after a snapshot taken between a glitch and the
+/// pose after it is judged against the glitch, as before).
+const SNAPSHOT_MAGIC_V11: &[u8; 8] = b"LASNAP11";
 /// Snapshots before the session's watch judged the odometry's pace and kept the warnings it
 /// raised (read with none gathered so far and none raised: a session restored from one judges
 /// its pace on the steps after the restore, and raises what is told after it).
@@ -397,6 +401,19 @@ impl Snapshot {
                 e.u32(0);
             }
         }
+        match &continuity.before_glitch {
+            Some(before) => {
+                let (last, stamp_s) = before.last;
+                e.u32(1)
+                    .se2(&before.continued_from_odom)
+                    .se2(&last)
+                    .f64(stamp_s)
+                    .se2(&before.last_motion);
+            }
+            None => {
+                e.u32(0);
+            }
+        }
         e.u64(c.window.len() as u64);
         for p in &c.window {
             e.f64s(p);
@@ -416,7 +433,8 @@ impl Snapshot {
         let magic = body.get(..8)?;
         // Each format kept what the one before did and added a part.
         let version = match magic {
-            m if m == SNAPSHOT_MAGIC => 11,
+            m if m == SNAPSHOT_MAGIC => 12,
+            m if m == SNAPSHOT_MAGIC_V11 => 11,
             m if m == SNAPSHOT_MAGIC_V10 => 10,
             m if m == SNAPSHOT_MAGIC_V9 => 9,
             m if m == SNAPSHOT_MAGIC_V8 => 8,
@@ -437,6 +455,7 @@ impl Snapshot {
         let has_watch = version >= 9;
         let has_tilt = version >= 10;
         let has_pace = version >= 11;
+        let has_glitch = version >= 12;
         let mut d = Decoder(&body[8..]);
         let last_seq = d.u64()?;
         let next_segment = d.u64()?;
@@ -459,7 +478,7 @@ impl Snapshot {
         let last_position = (d.u32()?, d.f64s::<2>()?);
         let smoothed = (d.u32()?, d.se2()?);
         let flag = |f: u32| (f <= 1).then_some(f == 1);
-        let continuity = if has_continuity {
+        let mut continuity = if has_continuity {
             let continued_from_odom = d.se2()?;
             let last = (d.u32()?, d.se2()?, d.f64()?);
             Continuity {
@@ -469,6 +488,7 @@ impl Snapshot {
                     let motion = (d.u32()?, d.se2()?);
                     flag(motion.0)?.then_some(motion.1)
                 },
+                before_glitch: None,
             }
         } else {
             Continuity::default()
@@ -499,6 +519,13 @@ impl Snapshot {
         } else {
             None
         };
+        if has_glitch && flag(d.u32()?)? {
+            continuity.before_glitch = Some(BeforeGlitch {
+                continued_from_odom: d.se2()?,
+                last: (d.se2()?, d.f64()?),
+                last_motion: d.se2()?,
+            });
+        }
         let n = d.u64()?;
         if n > MAX_WINDOW || d.0.len() as u64 != n * 16 {
             return None;
@@ -1261,6 +1288,11 @@ mod tests {
                     continued_from_odom: Se2::new(-2.0, 300.0, 40.0),
                     last: Some((Se2::new(1.0, 7.0, 8.0), 12.5)),
                     last_motion: Some(Se2::new(0.01, 1.5, 0.0)),
+                    before_glitch: Some(BeforeGlitch {
+                        continued_from_odom: Se2::new(-1.5, 250.0, 30.0),
+                        last: (Se2::new(1.0, 5.5, 8.0), 12.4),
+                        last_motion: Se2::new(0.02, 1.4, 0.0),
+                    }),
                 },
                 scaled: ScaledOdometry {
                     last_in_anchored: Some([310.5, -20.25]),
@@ -1384,7 +1416,10 @@ mod tests {
         let watch_at = stall_at + 176 + 5 * 16;
         let mut unwatched = snap.clone();
         unwatched.watch = None;
-        let window_at = watch_at + 4 + bytes.len() - unwatched.encode().len();
+        // The pose before a glitch (its flag, two transforms, a stamp and a third) follows the
+        // session watch, and the window follows it.
+        let glitch_at = watch_at + 4 + bytes.len() - unwatched.encode().len();
+        let window_at = glitch_at + 4 + 32 + 32 + 8 + 32;
         let frame = |magic: &[u8; 8], parts: &[std::ops::Range<usize>]| {
             let mut v = magic.to_vec();
             for part in parts {
@@ -1394,12 +1429,17 @@ mod tests {
             v
         };
         let tail = window_at..bytes.len() - 8;
+        // The format before: no pose before a glitch, read as none.
+        let v11 = frame(SNAPSHOT_MAGIC_V11, &[8..glitch_at, tail.clone()]);
+        let mut old = snap.clone();
+        old.state.continuity.before_glitch = None;
+        let decoded_v11 = Snapshot::decode(&v11).expect("the format before decodes");
+        assert_eq!(without_stamps(decoded_v11), without_stamps(old.clone()));
         // The format before: the session watch without its pace (its tag, 3 steps, the last
         // position, 1 change) and the warnings raised, which end it, read as none gathered and
         // none raised so far.
-        let pace_at = window_at - (4 + 8 + 3 * 8 + 4 + 16 + 8 + 32 + 8);
+        let pace_at = glitch_at - (4 + 8 + 3 * 8 + 4 + 16 + 8 + 32 + 8);
         let v10 = frame(SNAPSHOT_MAGIC_V10, &[8..pace_at, tail.clone()]);
-        let mut old = snap.clone();
         let watch = old.watch.as_mut().expect("the example has a watch");
         (watch.source.pace, watch.raised) = (Pace::default(), 0);
         let decoded_v10 = Snapshot::decode(&v10).expect("the format before decodes");
