@@ -12,6 +12,11 @@
 //! the last motion on from the last pose (position and heading), and every later pose is
 //! carried over from the new frame by the same transform.
 //!
+//! A glitch (one pose published off the drive, the next on it again) is told by the pose after
+//! it: when that pose would be a jump too, but continues the drive from the pose before the
+//! glitch in the frame the odometry had then ([`BeforeGlitch`]), the odometry goes on in that
+//! frame as if the glitch had not been.
+//!
 //! Only positions are judged. A heading can turn in one step in odometry that is not wrong (a
 //! source that updates its heading less often than its position; the synthetic town's corners,
 //! 90 degrees in one pose), and a turn taken for a jump would be lost for good; a jump of the
@@ -396,7 +401,7 @@ mod tests {
         // goes on in it: each change is a jump. The frame is composed from its own earlier
         // value at each jump and the steps between from it; unrenormalised, the rounding of its
         // rotation entries multiplied at every jump (KITTI 00 with a glitch every tenth pose
-        // had its corrected poses scaled by 1e39 after 400 jumps).
+        // had its corrected poses scaled by 1e39 within 80 jumps).
         let params = Preset::KissIcp.robust_params();
         let change = Se2::new(2.0, 1000.0, -700.0);
         let mut frame = Se2::IDENTITY;

@@ -89,8 +89,9 @@ impl Se2 {
     /// product rounds them by about one unit in the last place; a transform kept as state and
     /// composed again from its own earlier values without end (the odometry's frame after each
     /// of its jumps) must be renormalised, or those errors compound: [`Se2::inverse`] is exact
-    /// only for unit entries, and through it the error multiplied at every jump, until an
-    /// odometry that jumped on every other pose had rotations scaled by 1e39 after 200 jumps.
+    /// only for unit entries, and through it the error multiplied at every jump, until KITTI
+    /// 00 with a glitch every tenth pose (two jumps each) had its corrected poses scaled by 1e39
+    /// within 80 jumps.
     pub fn normalized(&self) -> Se2 {
         let norm = self.cos.hypot(self.sin);
         Se2 {
