@@ -23,7 +23,8 @@ use lanealign_cli::replay::{replay, waited_for_place_warning, Rate};
 use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
-use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
+use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{
     quaternion_from_rotation, read, rotation_from_quaternion, Format,
 };
@@ -257,6 +258,49 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
     }
     let log = log_once_it_says(&daemon, "the odometry jumped");
     assert_eq!(log.matches("the odometry jumped").count(), 1, "{log}");
+    assert!(daemon.stop().unwrap(), "clean exit");
+}
+
+/// Always runs: an odometry that glitches on every other pose (the town's drive, each odd pose
+/// from 50 on published 300 m to the side, the next on it again) is answered as offline, its
+/// glitches jumps; the daemon's log tells the first jump and, where the session ends, how many
+/// more there were, instead of a line for each (before: one WARN per jump, 50 a second for such
+/// an odometry at 100 Hz).
+#[test]
+fn an_odometry_that_keeps_jumping_is_told_once_and_counted() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let name = unique("glitch");
+    let setup = town_setup(&[&name]);
+    let daemon = start(&setup);
+    let (_, odometry) = synthetic::drive(1, 42);
+    let aside = Se2::new(0.5, 0.0, 300.0);
+    let poses: Vec<Pose3> = odometry[..400]
+        .iter()
+        .enumerate()
+        .map(|(i, p)| match i >= 50 && i % 2 == 1 {
+            true => apply_planar_correction(&aside, p),
+            false => *p,
+        })
+        .collect();
+    let (answers, conn) = replay_session(&setup, &name, &poses, &[], Rate::Max(16));
+    assert!(poses_of(&answers) == offline(&setup, &name, &poses));
+    let jumps = answers
+        .iter()
+        .filter(|a| a.status() == Some(StatusCode::OdometryJump))
+        .count();
+    assert!(jumps > 100, "{jumps} jumps");
+    closed(conn, &daemon, 0);
+    let log = log_once_it_says(&daemon, "more times since the last jump told");
+    assert_eq!(log.matches("the odometry jumped:").count(), 1, "{log}");
+    let untold: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("more times since the last jump told"))
+        .collect();
+    assert_eq!(untold.len(), 1, "{log}");
+    assert!(
+        untold[0].contains(&format!("jumps={}", jumps - 1)),
+        "{jumps} jumps: {log}"
+    );
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 

@@ -9,6 +9,7 @@ pub mod daemon;
 pub mod fail_stop;
 pub mod grid_loader;
 pub mod journal;
+pub mod jump_log;
 pub mod metrics;
 pub mod persistence;
 pub mod session;

@@ -27,6 +27,7 @@ use lanealign_wire::shm::{self, ShmError};
 
 use crate::config::ResolvedSource;
 use crate::grid_loader::GridLoader;
+use crate::jump_log::{JumpLog, Untold, JUMP_TOLD_EVERY};
 use crate::metrics::{Outcome, SourceMetrics};
 use crate::session::{self, JournalFailure, PersistJob, Session, SessionSetup};
 use crate::session_watch::{SessionNews, SessionWatch};
@@ -174,6 +175,8 @@ struct Live {
     notifier: Notifier<Ipc>,
     services: SessionServices<Ipc>,
     last_active: Instant,
+    /// What the log told of the session's odometry jumps.
+    jumps: JumpLog,
 }
 
 /// How long a session has had no pose before a new session may take its place among the
@@ -210,6 +213,7 @@ impl Worker {
             notifier,
             services,
             last_active: Instant::now(),
+            jumps: JumpLog::default(),
         })
     }
 
@@ -228,6 +232,9 @@ impl Worker {
             if let Some(watch) = live.session.as_mut().map(|s| &mut s.watch) {
                 let news = watch.finish();
                 tell(&self.name, id, watch, news);
+            }
+            if let Some(untold) = live.jumps.finish() {
+                tell_untold_jumps(&self.name, id, untold);
             }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
@@ -438,7 +445,12 @@ impl Worker {
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
-            tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump)");
+            if let Some(untold) = live.jumps.jumped(input.seq, Instant::now()) {
+                if let Some(untold) = untold {
+                    tell_untold_jumps(&self.name, input.session, untold);
+                }
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump; this log tells one jump of a session in {} s at most)", JUMP_TOLD_EVERY.as_secs());
+            }
         }
         if delivered {
             self.summary.published += 1;
@@ -495,6 +507,16 @@ impl Worker {
 /// its setup (the rate its stamps say when the source is set for another, its poses moving as no
 /// vehicle does in the source's frame or faster than any, few alignments accepted), and each
 /// change of speed no car makes, with its sequence number.
+/// Logs the jumps of `session` that the log did not tell (see [`JumpLog`]).
+fn tell_untold_jumps(source: &str, session: u64, untold: Untold) {
+    let Untold {
+        count,
+        first_seq,
+        last_seq,
+    } = untold;
+    tracing::warn!(source = %source, session = format_args!("{session:016x}"), jumps = count, first_seq, last_seq, "the odometry jumped {count} more times since the last jump told (status odometry_jump; sequence numbers {first_seq} to {last_seq})");
+}
+
 fn tell(source: &str, session: u64, watch: &SessionWatch, news: SessionNews) {
     for warning in news.warnings {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");

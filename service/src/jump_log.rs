@@ -1,0 +1,98 @@
+//! How often the daemon's log tells that a session's odometry jumped. Each jump is answered
+//! (status `odometry_jump`) and raised in the session's answers (`Warning::Jumped`); the log,
+//! read by people, tells the first and then at most one every [`JUMP_TOLD_EVERY`], with how many
+//! it did not tell since. An odometry that glitches on every other pose at 100 Hz wrote 50 WARN
+//! lines a second before, one per jump.
+
+use std::time::{Duration, Instant};
+
+/// The shortest time between two jumps of a session that the log tells.
+pub const JUMP_TOLD_EVERY: Duration = Duration::from_secs(10);
+
+/// The jumps of a session the log has not told, by sequence number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Untold {
+    /// How many.
+    pub count: u64,
+    /// The first one's sequence number.
+    pub first_seq: u64,
+    /// The last one's sequence number.
+    pub last_seq: u64,
+}
+
+/// What the log has told of a session's jumps.
+#[derive(Clone, Debug, Default)]
+pub struct JumpLog {
+    /// When the last jump told was.
+    told_at: Option<Instant>,
+    /// The jumps since, untold.
+    untold: Option<Untold>,
+}
+
+impl JumpLog {
+    /// Takes a jump at sequence number `seq` (at `now`); returns the jumps not told before it
+    /// (`Some(None)` when there were none) when the log tells this one, `None` when it is left
+    /// untold.
+    pub fn jumped(&mut self, seq: u64, now: Instant) -> Option<Option<Untold>> {
+        let due = self
+            .told_at
+            .is_none_or(|at| now.saturating_duration_since(at) >= JUMP_TOLD_EVERY);
+        if due {
+            self.told_at = Some(now);
+            return Some(self.untold.take());
+        }
+        self.untold = Some(match self.untold {
+            Some(u) => Untold {
+                count: u.count.saturating_add(1),
+                last_seq: seq,
+                ..u
+            },
+            None => Untold {
+                count: 1,
+                first_seq: seq,
+                last_seq: seq,
+            },
+        });
+        None
+    }
+
+    /// The jumps left untold where the session ends.
+    pub fn finish(&mut self) -> Option<Untold> {
+        self.untold.take()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_jump_is_told_then_one_in_ten_seconds_with_those_between() {
+        let start = Instant::now();
+        let at = |ms: u64| start + Duration::from_millis(ms);
+        let mut log = JumpLog::default();
+        assert_eq!(log.jumped(100, at(0)), Some(None));
+        // Every other pose at 100 Hz: 499 more within the 10 s, untold.
+        for k in 1..500 {
+            assert_eq!(log.jumped(100 + 2 * k, at(20 * k)), None, "jump {k}");
+        }
+        let between = Untold {
+            count: 499,
+            first_seq: 102,
+            last_seq: 1098,
+        };
+        assert_eq!(log.jumped(1100, at(10_000)), Some(Some(between)));
+        assert_eq!(log.jumped(1102, at(10_020)), None);
+        assert_eq!(
+            log.finish(),
+            Some(Untold {
+                count: 1,
+                first_seq: 1102,
+                last_seq: 1102
+            })
+        );
+        assert_eq!(log.finish(), None);
+        // A jump long after the last told is told, with none untold before it.
+        assert_eq!(log.jumped(5000, at(60_000)), Some(None));
+    }
+}
