@@ -532,10 +532,11 @@ fn a_session_in_centimetres_is_told_its_pace_in_the_log() {
 }
 
 /// Always runs: a session stamped in microseconds sent as the wire's nanoseconds (the town's 10
-/// Hz read as 10 kHz) is asked about its stamps' unit, once, and raises `rate`; its speed is
-/// judged at the rate its source is set for, so it is not told it moves faster than any vehicle
-/// (until 2026-12-02: "set odometry_rate_hz = 10000" and a pace of 10 000 m/s). The answers are
-/// offline's with the same stamps.
+/// Hz read as 10 kHz), and one in milliseconds (10 MHz), is asked about its stamps' unit, once,
+/// and raises `rate`; its speed is judged at the rate its source is set for, so it is not told it
+/// moves faster than any vehicle (until 2026-12-02: "set odometry_rate_hz = 10000" and a pace of
+/// 10 000 m/s for microseconds; nothing at all for milliseconds, whose stamps, less than 10 us
+/// apart, were taken for counters). The answers are offline's with the same stamps.
 #[test]
 fn a_session_stamped_in_microseconds_is_asked_about_them() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -544,21 +545,28 @@ fn a_session_stamped_in_microseconds_is_asked_about_them() {
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
     let poses = &odometry[..400];
-    let stamps_ns: Vec<i64> = (0..400).map(|i| 1_000_000 + 100_000 * i).collect();
-    let (answers, conn) = replay_session(&setup, &name, poses, &stamps_ns, Rate::Max(16));
-    let stamps_s: Vec<f64> = stamps_ns.iter().map(|&ns| ns as f64 * 1e-9).collect();
-    assert!(poses_of(&answers) == offline_stamped(&setup, &name, poses, Some(&stamps_s)));
-    closed(conn, &daemon, 0);
-    let raised: Vec<Warning> = answers.last().unwrap().warnings().collect();
-    assert_eq!(raised, [Warning::Rate]);
-    let log = daemon.log();
-    assert_eq!(
-        log.matches("Microseconds sent as nanoseconds").count(),
-        1,
-        "{log}"
-    );
-    assert!(!log.contains("the odometry moves at"), "{log}");
-    assert_eq!(speed_change_lines(&log), Vec::<&str>::new(), "{log}");
+    for (k, (period, apart)) in [(100_000, "100 us"), (100, "100 ns")]
+        .into_iter()
+        .enumerate()
+    {
+        let stamps_ns: Vec<i64> = (0..400).map(|i| 1_000_000 + period * i).collect();
+        let (answers, conn) = replay_session(&setup, &name, poses, &stamps_ns, Rate::Max(16));
+        let stamps_s: Vec<f64> = stamps_ns.iter().map(|&ns| ns as f64 * 1e-9).collect();
+        assert!(poses_of(&answers) == offline_stamped(&setup, &name, poses, Some(&stamps_s)));
+        closed(conn, &daemon, k);
+        let raised: Vec<Warning> = answers.last().unwrap().warnings().collect();
+        assert_eq!(raised, [Warning::Rate], "{apart}");
+        let log = daemon.log();
+        let asked = format!("stamps are {apart} apart");
+        assert_eq!(log.matches(&asked).count(), 1, "{log}");
+        assert_eq!(
+            log.matches("Microseconds sent as nanoseconds").count(),
+            k + 1,
+            "{log}"
+        );
+        assert!(!log.contains("the odometry moves at"), "{log}");
+        assert_eq!(speed_change_lines(&log), Vec::<&str>::new(), "{log}");
+    }
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
