@@ -7,6 +7,10 @@ use crate::params::Params;
 /// stretch of road.
 pub const MAX_RATE_RATIO: f64 = 1.5;
 
+/// Stamps this close (seconds: a nanosecond and a half) or closer are no time: they advance by
+/// one a pose, an index (what `lanealign replay` sends without stamps), or not at all.
+const INDEX_INTERVAL_S: f64 = 1.5e-9;
+
 /// Below this rate (Hz: poses more than 10 s apart) a source's stamps are more likely in another
 /// unit than seconds (milliseconds make 10 Hz read as 0.01 Hz) than an odometry's: the warning
 /// asks, instead of naming a setting.
@@ -14,8 +18,8 @@ const SLOWEST_PLAUSIBLE_HZ: f64 = 0.1;
 
 /// Above this rate (Hz: poses less than half a millisecond apart) a source's stamps are more
 /// likely in a smaller unit than the one they are read in (microseconds sent as the wire's
-/// nanoseconds make 10 Hz read as 10 kHz, milliseconds as 10 MHz) or counters than an
-/// odometry's: the warning asks, instead of naming a setting.
+/// nanoseconds make 10 Hz read as 10 kHz, milliseconds as 10 MHz) than an odometry's: the
+/// warning asks, instead of naming a setting.
 const FASTEST_PLAUSIBLE_HZ: f64 = 2000.0;
 
 /// The rate (Hz) an odometry's speed is judged at: `stamped_hz`, the rate its stamps say, where
@@ -38,15 +42,15 @@ pub fn rate_text(rate_hz: f64) -> String {
 }
 
 /// The rate (Hz) consecutive stamps (seconds, in arrival order) say the source runs at: the
-/// median interval's; `None` unless at least two intervals, and half of them, move forward (a
-/// source whose stamps are constant, as without stamps, says nothing). Stamps in another unit
-/// or counters give a rate no odometry runs at, which [`rate_warning`] asks about and
+/// median interval's; `None` unless at least two intervals, and half of them, move forward by
+/// more than a nanosecond (a source whose stamps are constant or an index says nothing). Stamps
+/// in a unit too small give a rate no odometry runs at, which [`rate_warning`] asks about and
 /// [`judged_rate_hz`] does not believe.
 pub fn rate_from_stamps(stamps_s: &[f64]) -> Option<f64> {
     let mut intervals: Vec<f64> = stamps_s
         .windows(2)
         .map(|w| w[1] - w[0])
-        .filter(|dt| dt.is_finite() && *dt > 0.0)
+        .filter(|dt| dt.is_finite() && *dt > INDEX_INTERVAL_S)
         .collect();
     if intervals.len() < 2 || intervals.len() * 2 < stamps_s.len() {
         return None;
@@ -77,10 +81,9 @@ pub fn rate_warning(rate_hz: f64, params: &Params) -> Option<String> {
         };
         return Some(format!(
             "the poses' stamps are {apart} apart (the median), which is no odometry's rate: are \
-             they in the unit they are read in (nanoseconds on the wire, seconds in a TUM file), \
-             and time, not counters? (Microseconds sent as nanoseconds make a 10 Hz source read \
-             as 10 kHz, milliseconds as 10 MHz.) If they are, set odometry_rate_hz to the rate \
-             they give",
+             they in the unit they are read in (nanoseconds on the wire, seconds in a TUM file)? \
+             (Microseconds sent as nanoseconds make a 10 Hz source read as 10 kHz, milliseconds \
+             as 10 MHz.) If they are, set odometry_rate_hz to the rate they give",
         ));
     }
     if rate_hz < SLOWEST_PLAUSIBLE_HZ {
@@ -161,9 +164,9 @@ mod tests {
         assert!(rate_warning(1000.0, &params)
             .unwrap()
             .contains("odometry_rate_hz=1000"));
-        // Milliseconds sent as nanoseconds, and counters, are asked about too (before
+        // Milliseconds sent as nanoseconds are asked about too, at 10 and 100 Hz (before
         // 2026-12-02 stamps less than 10 us apart told no rate, and nothing was said).
-        for (apart_s, says) in [(1e-7, "are 100 ns apart"), (1e-9, "are 1 ns apart")] {
+        for (apart_s, says) in [(1e-7, "are 100 ns apart"), (1e-8, "are 10 ns apart")] {
             let close: Vec<f64> = (0..100).map(|i| 1.7e3 + i as f64 * apart_s).collect();
             let hz = rate_from_stamps(&close).unwrap();
             let w = rate_warning(hz, &params).unwrap();
@@ -173,7 +176,10 @@ mod tests {
             );
             assert_eq!(judged_rate_hz(Some(hz), 10.0), 10.0);
         }
-        // A constant (no stamps) or stamps out of order tell no rate.
+        // An index (what `replay` sends without stamps, 1 ns apart), a constant (no stamps) or
+        // stamps out of order tell no rate.
+        let index: Vec<f64> = (0..100).map(|i| i as f64 * 1e-9).collect();
+        assert_eq!(rate_from_stamps(&index), None);
         assert_eq!(rate_from_stamps(&[0.0; 100]), None);
         assert_eq!(rate_from_stamps(&[3.0, 2.0, 1.0, 0.0]), None);
     }
