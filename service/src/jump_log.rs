@@ -20,6 +20,13 @@ pub struct Untold {
     pub last_seq: u64,
 }
 
+/// A jump the log tells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Told {
+    /// The jumps before it that the log did not tell.
+    pub untold_before: Option<Untold>,
+}
+
 /// What the log has told of a session's jumps.
 #[derive(Clone, Debug, Default)]
 pub struct JumpLog {
@@ -30,16 +37,17 @@ pub struct JumpLog {
 }
 
 impl JumpLog {
-    /// Takes a jump at sequence number `seq` (at `now`); returns the jumps not told before it
-    /// (`Some(None)` when there were none) when the log tells this one, `None` when it is left
-    /// untold.
-    pub fn jumped(&mut self, seq: u64, now: Instant) -> Option<Option<Untold>> {
+    /// Takes a jump at sequence number `seq` (at `now`); `Some` when the log tells it, `None`
+    /// when it is left untold.
+    pub fn jumped(&mut self, seq: u64, now: Instant) -> Option<Told> {
         let due = self
             .told_at
             .is_none_or(|at| now.saturating_duration_since(at) >= JUMP_TOLD_EVERY);
         if due {
             self.told_at = Some(now);
-            return Some(self.untold.take());
+            return Some(Told {
+                untold_before: self.untold.take(),
+            });
         }
         self.untold = Some(match self.untold {
             Some(u) => Untold {
@@ -71,7 +79,8 @@ mod tests {
         let start = Instant::now();
         let at = |ms: u64| start + Duration::from_millis(ms);
         let mut log = JumpLog::default();
-        assert_eq!(log.jumped(100, at(0)), Some(None));
+        let told = |untold_before| Some(Told { untold_before });
+        assert_eq!(log.jumped(100, at(0)), told(None));
         // Every other pose at 100 Hz: 499 more within the 10 s, untold.
         for k in 1..500 {
             assert_eq!(log.jumped(100 + 2 * k, at(20 * k)), None, "jump {k}");
@@ -81,7 +90,7 @@ mod tests {
             first_seq: 102,
             last_seq: 1098,
         };
-        assert_eq!(log.jumped(1100, at(10_000)), Some(Some(between)));
+        assert_eq!(log.jumped(1100, at(10_000)), told(Some(between)));
         assert_eq!(log.jumped(1102, at(10_020)), None);
         assert_eq!(
             log.finish(),
@@ -93,6 +102,6 @@ mod tests {
         );
         assert_eq!(log.finish(), None);
         // A jump long after the last told is told, with none untold before it.
-        assert_eq!(log.jumped(5000, at(60_000)), Some(None));
+        assert_eq!(log.jumped(5000, at(60_000)), told(None));
     }
 }

@@ -445,8 +445,8 @@ impl Worker {
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
-            if let Some(untold) = live.jumps.jumped(input.seq, Instant::now()) {
-                if let Some(untold) = untold {
+            if let Some(told) = live.jumps.jumped(input.seq, Instant::now()) {
+                if let Some(untold) = told.untold_before {
                     tell_untold_jumps(&self.name, input.session, untold);
                 }
                 tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump; this log tells one jump of a session in {} s at most)", JUMP_TOLD_EVERY.as_secs());
@@ -503,10 +503,6 @@ impl Worker {
     }
 }
 
-/// Logs what `watch` told of session `session` of source `source` (`news`): what is wrong with
-/// its setup (the rate its stamps say when the source is set for another, its poses moving as no
-/// vehicle does in the source's frame or faster than any, few alignments accepted), and each
-/// change of speed no car makes, with its sequence number.
 /// Logs the jumps of `session` that the log did not tell (see [`JumpLog`]).
 fn tell_untold_jumps(source: &str, session: u64, untold: Untold) {
     let Untold {
@@ -517,6 +513,10 @@ fn tell_untold_jumps(source: &str, session: u64, untold: Untold) {
     tracing::warn!(source = %source, session = format_args!("{session:016x}"), jumps = count, first_seq, last_seq, "the odometry jumped {count} more times since the last jump told (status odometry_jump; sequence numbers {first_seq} to {last_seq})");
 }
 
+/// Logs what `watch` told of session `session` of source `source` (`news`): what is wrong with
+/// its setup (the rate its stamps say when the source is set for another, its poses moving as no
+/// vehicle does in the source's frame or faster than any, few alignments accepted), and each
+/// change of speed no car makes, with its sequence number.
 fn tell(source: &str, session: u64, watch: &SessionWatch, news: SessionNews) {
     for warning in news.warnings {
         tracing::warn!(source = %source, session = format_args!("{session:016x}"), "{warning}");
