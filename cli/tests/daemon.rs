@@ -23,8 +23,7 @@ use lanealign_cli::replay::{replay, waited_for_place_warning, Rate};
 use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
 use lanealign_client::Connection;
-use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
-use lanealign_core::se2::Se2;
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::trajectory::{
     quaternion_from_rotation, read, rotation_from_quaternion, Format,
 };
@@ -273,15 +272,7 @@ fn an_odometry_that_keeps_jumping_is_told_once_and_counted() {
     let setup = town_setup(&[&name]);
     let daemon = start(&setup);
     let (_, odometry) = synthetic::drive(1, 42);
-    let aside = Se2::new(0.5, 0.0, 300.0);
-    let poses: Vec<Pose3> = odometry[..400]
-        .iter()
-        .enumerate()
-        .map(|(i, p)| match i >= 50 && i % 2 == 1 {
-            true => apply_planar_correction(&aside, p),
-            false => *p,
-        })
-        .collect();
+    let poses = glitching(&odometry[..400]);
     let (answers, conn) = replay_session(&setup, &name, &poses, &[], Rate::Max(16));
     assert!(poses_of(&answers) == offline(&setup, &name, &poses));
     let jumps = answers

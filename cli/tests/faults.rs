@@ -411,15 +411,8 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_restarts() {
 #[test]
 fn killed_daemons_lose_nothing_of_an_odometry_that_glitches() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let (_, mut poses) = synthetic::drive(2, 7);
-    let aside = Se2::new(0.5, 0.0, 300.0);
-    let glitched = |i: usize| i >= 50 && i % 2 == 1;
-    for (i, pose) in poses.iter_mut().enumerate() {
-        if glitched(i) {
-            *pose = apply_planar_correction(&aside, pose);
-        }
-    }
-    let t = town_driven(town_setup, poses);
+    let (_, poses) = synthetic::drive(2, 7);
+    let t = town_driven(town_setup, glitching(&poses));
     // The glitches jump (but those that land ahead, taken for poses missing), and nothing else
     // does: the pose after each goes on in the drive's frame.
     let (_, status) = offline_with_status(&t.setup, &t.name, &t.poses);
@@ -430,8 +423,8 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_glitches() {
         .filter(|(_, l)| l.contains("odometry_jump"))
         .map(|(i, _)| i)
         .collect();
-    let glitches: Vec<usize> = (0..t.poses.len()).filter(|&i| glitched(i)).collect();
-    assert!(jumps.iter().all(|&i| glitched(i)), "{jumps:?}");
+    let glitches: Vec<usize> = (0..t.poses.len()).filter(|&i| is_glitch(i)).collect();
+    assert!(jumps.iter().all(|&i| is_glitch(i)), "{jumps:?}");
     assert!(jumps.len() > glitches.len() / 2, "{jumps:?}");
     killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 15, "800");
 }

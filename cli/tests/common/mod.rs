@@ -18,7 +18,8 @@ use lanealign_core::geo::{Anchor, Projection};
 use lanealign_core::grid::{self, GridSpec};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{CorrectorConfig, Method, Preset};
-use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
+use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{correct_stamped_trajectory, Placement};
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions};
@@ -472,4 +473,23 @@ pub fn shm_entries() -> std::collections::BTreeSet<String> {
         }
     }
     out
+}
+
+/// Whether pose `i` of a drive made [`glitching`] is a glitch: every other pose from 50 on.
+pub fn is_glitch(i: usize) -> bool {
+    i >= 50 && i % 2 == 1
+}
+
+/// `poses` (planar) with each glitch ([`is_glitch`]) published 300 m to the side of the drive
+/// and turned, the pose after it on the drive again.
+pub fn glitching(poses: &[Pose3]) -> Vec<Pose3> {
+    let aside = Se2::new(0.5, 0.0, 300.0);
+    poses
+        .iter()
+        .enumerate()
+        .map(|(i, p)| match is_glitch(i) {
+            true => apply_planar_correction(&aside, p),
+            false => *p,
+        })
+        .collect()
 }
