@@ -23,15 +23,15 @@
 //! heading alone (an odometry restarted within a few metres of its origin) is left to the
 //! alignment, which corrects heading.
 //!
-//! Without stamps (or with stamps only at the set rate) the time between two poses is not
-//! known, and poses can be missing (an odometry that lost track for a second, a file written only
-//! while it tracked): the step over the gap is then longer than the speed limit allows in one
-//! period. Such a step is motion when it continues the last step as a car drives on, at that
+//! Without stamps (or with stamps that advance by less than half a period: an index, a unit too
+//! small) the time between two poses is not known, and poses can be missing (an odometry that
+//! lost track for a second, a file written only while it tracked): the step over the gap is then
+//! longer than the speed limit allows in one period. Such a step is motion when it continues the last step as a car drives on, at that
 //! step's curvature, whatever the speed ([`MAX_GAP_CHORD_DEVIATION`], [`MAX_GAP_TURN_CHANGE`]):
 //! the chord of an arc leaves at half its turn. An odometry that restarts or relocalises lands
-//! somewhere its last motion does not lead to, and is a jump. Stamps that show poses missing
-//! (more than one period and a half between two poses) time the gap, and the speed alone judges
-//! it.
+//! somewhere its last motion does not lead to, and is a jump. Stamps that advance by half a
+//! period or more are a clock: they time the step (poses missing show as a longer interval), and
+//! the speed alone judges it, so a glitch straight ahead is a jump too.
 //!
 //! Frames: `odom` is the source's planar odometry frame as it publishes it now; `continued` is
 //! the frame of the session's first pose, which the corrector sees throughout.
@@ -219,13 +219,12 @@ impl Continuity {
                 last: (last, last_stamp_s),
                 last_motion,
             });
-            // Stamps that show poses missing (more than one period and a half between the two)
-            // tell how long the gap took, and the speed has judged it. Without that (no stamps,
-            // stamps at the rate, repeated, reset or in a unit too small) the step may still
-            // span poses missing from the input.
-            let gap_timed = since_last_s > 1.5 * period_s;
-            if !gap_timed
-                && continues_the_drive(&last_motion, &motion, params.standstill_distance_m())
+            // Stamps that advance by half a period or more are a clock: they tell how long the
+            // step took (poses missing show as a longer interval), and the speed has judged it.
+            // Without one (no stamps, stamps repeated, reset, an index or in a unit too small)
+            // the step may still span poses missing from the input.
+            let timed = since_last_s >= 0.5 * period_s;
+            if !timed && continues_the_drive(&last_motion, &motion, params.standstill_distance_m())
             {
                 // The last motion stays the step of one pose, for the next step to be judged
                 // against and a later jump to be predicted with.
@@ -335,9 +334,15 @@ mod tests {
             (c.observe(last, stamps[2], &params), c.continued_from_odom)
         };
         // 1 m a pose along x (heading 0.3 rad: the direction of travel is the motion's, not the
-        // body's), then 20 m on: poses missing, without stamps or with stamps at the rate.
+        // body's), then 20 m on: poses missing, without stamps or with stamps that are no clock
+        // (repeated, an index of 1 ns a pose, milliseconds sent as nanoseconds).
         let on = Se2::new(0.3, 21.0, 0.0);
-        for stamps in [[f64::NAN; 3], [0.0, 0.1, 0.2], [7.0, 7.0, 7.0]] {
+        for stamps in [
+            [f64::NAN; 3],
+            [7.0, 7.0, 7.0],
+            [1e-9, 2e-9, 3e-9],
+            [1e-7, 2e-7, 3e-7],
+        ] {
             assert_eq!(
                 walk(stamps, on),
                 (Continued::Moved, Se2::IDENTITY),
@@ -350,8 +355,11 @@ mod tests {
         let (sin, cos) = (bend / 2.0).sin_cos();
         let bent = Se2::new(0.3 + bend, 1.0 + 20.0 * cos, 20.0 * sin);
         assert_eq!(walk([f64::NAN; 3], bent).0, Continued::Moved);
-        // Stamps that show one pose missing time the gap: 20 m in 0.2 s is a jump.
-        assert_eq!(walk([0.0, 0.1, 0.3], on).0, Continued::Jumped);
+        // Stamps that advance as a clock time the step: 20 m in the period of the set rate, in
+        // half of it, or over one pose missing (0.2 s) is a jump.
+        for stamps in [[0.0, 0.1, 0.2], [0.0, 0.05, 0.1], [0.0, 0.1, 0.3]] {
+            assert_eq!(walk(stamps, on).0, Continued::Jumped, "{stamps:?}");
+        }
         // Off the direction of travel, or turned unlike the road, it is a jump.
         for off in [
             Se2::new(0.3, 21.0, 5.0),
@@ -437,10 +445,10 @@ mod tests {
     #[test]
     fn a_glitch_of_one_pose_changes_nothing_after_it() {
         // One pose in ten is published off the drive (a corrupt message, a failed
-        // registration), the next one on it again. Off to the side it is a jump, straight
-        // ahead it is taken for poses missing (without stamps); either way the pose after it
-        // continues the drive from the pose before it, in the frame it had: nothing of the
-        // glitch stays. Before, the pose after a glitch jumped too, back into the drive's frame
+        // registration), the next one on it again. Off to the side it is a jump, and so it is
+        // straight ahead with stamps; straight ahead without stamps it is taken for poses
+        // missing. Either way the pose after it continues the drive from the pose before it, in
+        // the frame it had: nothing of the glitch stays. Before, the pose after a glitch jumped too, back into the drive's frame
         // moved by the prediction's error (centimetres a glitch), and after a glitch ahead
         // taken for missing poses the drive went on 500 m ahead.
         let params = Preset::KissIcp.robust_params();
@@ -475,19 +483,28 @@ mod tests {
             }
             assert_eq!(glitches, expected, "{off:?} {stamped}");
         }
-        // Straight ahead along the drive (without stamps: poses missing) it is motion, and the
-        // pose after it too.
-        let mut c = Continuity::default();
-        let ahead = |i: usize| Se2::new(0.0, 1.2 * i as f64, 0.0);
-        for i in 0..100 {
-            let published = if i % 10 == 5 {
-                Se2::new(0.0, 500.0, 0.0) * ahead(i)
-            } else {
-                ahead(i)
-            };
-            assert_eq!(c.observe(published, f64::NAN, &params), Continued::Moved);
-            if i % 10 != 5 {
-                assert!(close(c.last.unwrap().0, ahead(i)), "pose {i}");
+        // Straight ahead along the drive: without stamps (poses missing) it is motion, with
+        // stamps a jump; the pose after it continues the drive either way.
+        for stamped in [false, true] {
+            let mut c = Continuity::default();
+            let ahead = |i: usize| Se2::new(0.0, 1.2 * i as f64, 0.0);
+            for i in 0..100 {
+                let glitch = i % 10 == 5;
+                let published = if glitch {
+                    Se2::new(0.0, 500.0, 0.0) * ahead(i)
+                } else {
+                    ahead(i)
+                };
+                let stamp = if stamped { i as f64 / 10.0 } else { f64::NAN };
+                let want = if glitch && stamped {
+                    Continued::Jumped
+                } else {
+                    Continued::Moved
+                };
+                assert_eq!(c.observe(published, stamp, &params), want, "pose {i}");
+                if !glitch {
+                    assert!(close(c.last.unwrap().0, ahead(i)), "pose {i}");
+                }
             }
         }
     }
@@ -510,8 +527,9 @@ mod tests {
         /// Any drive a car can make (speed changing by at most a fifth a pose, up to the limit,
         /// turning as it likes) is no jump; the same drive whose odometry changes frame at one
         /// pose after its first step, moving it by more than 30 m, is flagged there and only
-        /// there (stamped at 10 Hz), and every pose after it lands where the unbroken drive's
-        /// would, moved by the one predicted step's error.
+        /// there (stamped at 10 Hz: also where it lands ahead, where the drive would have gone
+        /// on to, which without stamps reads as poses missing), and every pose after it lands
+        /// where the unbroken drive's would, moved by the one predicted step's error.
         #[test]
         fn a_frame_change_is_found_and_undone(
             steps in proptest::collection::vec((0.8f64..1.2, -0.5f64..0.5), 20..200),
@@ -542,11 +560,6 @@ mod tests {
                 (ax - bx).hypot(ay - by)
             };
             proptest::prop_assume!(moved(change * drive[at], drive[at]) > 30.0);
-            // A change that happens to land where the drive would have gone on to (ahead, turned
-            // as the road turns) reads as poses missing: `missing_poses_are_motion`.
-            let last_motion = drive[at - 2].inverse() * drive[at - 1];
-            let step = drive[at - 1].inverse() * (change * drive[at]);
-            proptest::prop_assume!(!continues_the_drive(&last_motion, &step, 0.1));
             let mut c = Continuity::default();
             let mut landed = Vec::new();
             for (i, pose) in drive.iter().enumerate() {

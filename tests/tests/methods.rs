@@ -15,7 +15,9 @@ use lanealign_core::plausibility;
 use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
 use lanealign_core::se2::{distance, wrap_angle, Se2};
 use lanealign_core::smoothing::Smoothing;
-use lanealign_core::source_corrector::{correct_trajectory, counts, CorrectedPose, Placement};
+use lanealign_core::source_corrector::{
+    correct_stamped_trajectory, correct_trajectory, counts, CorrectedPose, Placement,
+};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm_lanes::LaneOptions;
@@ -540,6 +542,18 @@ impl Drive00 {
         correct_trajectory(map, params, MatchMode::Fast, self.placement, poses)
     }
 
+    /// [`Drive00::correct`] with a stamp (seconds) for each pose.
+    fn correct_stamped(
+        &self,
+        params: Params,
+        poses: &[Pose3],
+        stamps_s: &[f64],
+    ) -> Vec<CorrectedPose> {
+        let map = self.sequence.map.clone();
+        let stamps = Some(stamps_s);
+        correct_stamped_trajectory(map, params, MatchMode::Fast, self.placement, poses, stamps)
+    }
+
     fn planar(poses: &[Pose3]) -> Vec<Pose3> {
         poses.iter().map(|p| Self::CAM.to_planar(p)).collect()
     }
@@ -769,11 +783,14 @@ fn an_odometry_that_glitches_is_corrected_as_if_it_had_not() {
     };
     let none = on_the_drive(&unbroken, &|_| false);
     // Every tenth pose, ahead or off to the side; and every other pose, where the drive's step
-    // is known only from the poses around each glitch.
-    for (off, every, bound) in [
-        (Se2::new(0.0, 500.0, 0.0), 10, 0.1),
-        (Se2::new(0.0, -300.0, 400.0), 10, 0.1),
-        (Se2::new(0.0, -300.0, 400.0), 2, 0.25),
+    // is known only from the poses around each glitch. Without stamps, a glitch that lands
+    // straight ahead (500 m along x where the car drives along x) reads as poses missing; with
+    // stamps at the rate every glitch is a jump.
+    for (off, every, bound, stamped) in [
+        (Se2::new(0.0, 500.0, 0.0), 10, 0.1, false),
+        (Se2::new(0.0, 500.0, 0.0), 10, 0.1, true),
+        (Se2::new(0.0, -300.0, 400.0), 10, 0.1, false),
+        (Se2::new(0.0, -300.0, 400.0), 2, 0.25, false),
     ] {
         let glitched = |i: usize| i >= 100 && i % every == every / 2;
         let poses: Vec<Pose3> = drive
@@ -785,7 +802,11 @@ fn an_odometry_that_glitches_is_corrected_as_if_it_had_not() {
                 false => *p,
             })
             .collect();
-        let out = drive.correct(params, &poses);
+        let stamps: Vec<f64> = (0..poses.len()).map(|i| i as f64 / 10.0).collect();
+        let out = match stamped {
+            false => drive.correct(params, &poses),
+            true => drive.correct_stamped(params, &poses, &stamps),
+        };
         let worst_rotation = out
             .iter()
             .map(|c| c.pose.rotation_error())
@@ -799,15 +820,19 @@ fn an_odometry_that_glitches_is_corrected_as_if_it_had_not() {
             .count();
         let glitches = (0..out.len()).filter(|&i| glitched(i)).count();
         let on = on_the_drive(&out, &glitched);
+        let all = on_the_drive(&out, &|_| false);
         println!(
-            "KITTI 00 lidar, {glitches} poses glitched by {:?}: {flagged} jumps, {on:.3} m on \
-             the other poses ({none:.3} m unglitched)",
+            "KITTI 00 lidar, {glitches} poses glitched by {:?} (stamped: {stamped}): {flagged} \
+             jumps, {on:.3} m on the other poses ({none:.3} m unglitched), {all:.3} m on all",
             off.translation()
         );
         assert!(
             flagged > glitches / 4 && flagged <= glitches,
             "{flagged} of {glitches}"
         );
+        if stamped {
+            assert_eq!(flagged, glitches, "stamped: every glitch is a jump");
+        }
         assert!((on - none).abs() < bound, "{on} m against {none} m");
     }
 }
