@@ -291,6 +291,18 @@ impl<const N: usize> Stretch<N> {
     }
 }
 
+/// `covariance` with the position's variance grown along `offset` (metres, map plane) by its
+/// square: the pose may lie `offset` away (one sigma), where no measurement can tell.
+pub fn widened_by(covariance: &Covariance, offset: [f64; 2]) -> Covariance {
+    let mut widened = *covariance;
+    for r in 0..2 {
+        for c in 0..2 {
+            widened[r][c] += offset[r] * offset[c];
+        }
+    }
+    widened
+}
+
 /// A correction `corrected_from_current` as `(dx, dy, dyaw)` about `center`: the move of
 /// `center` (metres) and the rotation (radians).
 pub fn correction_at(correction: &Se2, center: [f64; 2]) -> Vector3<f64> {

@@ -155,6 +155,14 @@ pub enum Continued {
     Moved,
     /// A jump: the pose was placed where the last motion leads.
     Jumped,
+    /// A step past the limits taken for poses missing from an input without a clock: it drives
+    /// on as the last step did. It may as well be a glitch that landed straight ahead, which
+    /// only the pose after it can show.
+    OverGap {
+        /// How far the pose lies beyond where one step of the last motion leads from the last
+        /// pose (metres, `continued` frame): where the vehicle is if the pose was a glitch.
+        beyond: [f64; 2],
+    },
 }
 
 impl Continuity {
@@ -229,7 +237,11 @@ impl Continuity {
                 // The last motion stays the step of one pose, for the next step to be judged
                 // against and a later jump to be predicted with.
                 self.last = Some((continued, stamp_s));
-                return Continued::Moved;
+                let ([x, y], [px, py]) =
+                    (continued.translation(), (last * last_motion).translation());
+                return Continued::OverGap {
+                    beyond: [x - px, y - py],
+                };
             }
             let predicted = last * last_motion;
             // Renormalised: the frame is composed from its own earlier value at every jump.
@@ -333,9 +345,14 @@ mod tests {
             c.observe(Se2::new(0.3, 1.0, 0.0), stamps[1], &params);
             (c.observe(last, stamps[2], &params), c.continued_from_odom)
         };
+        let over_gap = |got: Continued| match got {
+            Continued::OverGap { beyond } => Some(beyond),
+            _ => None,
+        };
         // 1 m a pose along x (heading 0.3 rad: the direction of travel is the motion's, not the
         // body's), then 20 m on: poses missing, without stamps or with stamps that are no clock
-        // (repeated, an index of 1 ns a pose, milliseconds sent as nanoseconds).
+        // (repeated, an index of 1 ns a pose, milliseconds sent as nanoseconds). The pose lies
+        // 19 m beyond where one step leads.
         let on = Se2::new(0.3, 21.0, 0.0);
         for stamps in [
             [f64::NAN; 3],
@@ -343,18 +360,17 @@ mod tests {
             [1e-9, 2e-9, 3e-9],
             [1e-7, 2e-7, 3e-7],
         ] {
-            assert_eq!(
-                walk(stamps, on),
-                (Continued::Moved, Se2::IDENTITY),
-                "{stamps:?}"
-            );
+            let (got, frame) = walk(stamps, on);
+            let [x, y] = over_gap(got).unwrap_or_else(|| panic!("{stamps:?}: {got:?}"));
+            assert!((x - 19.0).abs() < 1e-9 && y.abs() < 1e-9, "{x} {y}");
+            assert_eq!(frame, Se2::IDENTITY);
         }
         // Bending 20 degrees on the way, as a road would (the chord at half the turn), is the
         // same.
         let bend = 20f64.to_radians();
         let (sin, cos) = (bend / 2.0).sin_cos();
         let bent = Se2::new(0.3 + bend, 1.0 + 20.0 * cos, 20.0 * sin);
-        assert_eq!(walk([f64::NAN; 3], bent).0, Continued::Moved);
+        assert!(over_gap(walk([f64::NAN; 3], bent).0).is_some());
         // Stamps that advance as a clock time the step: 20 m in the period of the set rate, in
         // half of it, or over one pose missing (0.2 s) is a jump.
         for stamps in [[0.0, 0.1, 0.2], [0.0, 0.05, 0.1], [0.0, 0.1, 0.3]] {
@@ -483,8 +499,9 @@ mod tests {
             }
             assert_eq!(glitches, expected, "{off:?} {stamped}");
         }
-        // Straight ahead along the drive: without stamps (poses missing) it is motion, with
-        // stamps a jump; the pose after it continues the drive either way.
+        // Straight ahead along the drive: without stamps it is taken for poses missing (500 m
+        // beyond where the drive leads), with stamps a jump; the pose after it continues the
+        // drive either way.
         for stamped in [false, true] {
             let mut c = Continuity::default();
             let ahead = |i: usize| Se2::new(0.0, 1.2 * i as f64, 0.0);
@@ -496,12 +513,17 @@ mod tests {
                     ahead(i)
                 };
                 let stamp = if stamped { i as f64 / 10.0 } else { f64::NAN };
-                let want = if glitch && stamped {
-                    Continued::Jumped
-                } else {
-                    Continued::Moved
-                };
-                assert_eq!(c.observe(published, stamp, &params), want, "pose {i}");
+                let got = c.observe(published, stamp, &params);
+                match (glitch, stamped, got) {
+                    (true, true, Continued::Jumped) | (false, _, Continued::Moved) => {}
+                    (true, false, Continued::OverGap { beyond: [x, y] }) => {
+                        assert!(
+                            (x - 500.0).abs() < 1e-9 && y.abs() < 1e-9,
+                            "pose {i}: {x} {y}"
+                        )
+                    }
+                    _ => panic!("pose {i}: {got:?}"),
+                }
                 if !glitch {
                     assert!(close(c.last.unwrap().0, ahead(i)), "pose {i}");
                 }
@@ -606,12 +628,15 @@ mod tests {
                 if (from..from + missing).contains(&i) {
                     continue;
                 }
-                proptest::prop_assert_eq!(
-                    c.observe(*pose, f64::NAN, &params),
-                    Continued::Moved,
-                    "pose {}",
-                    i
-                );
+                let got = c.observe(*pose, f64::NAN, &params);
+                if let Continued::OverGap { beyond: [x, y] } = got {
+                    // Only the step over the gap, and it lies beyond the one step's prediction
+                    // by less than the road missed.
+                    proptest::prop_assert_eq!(i, from + missing);
+                    proptest::prop_assert!(x.hypot(y) < 7.0 * missing as f64);
+                } else {
+                    proptest::prop_assert_eq!(got, Continued::Moved, "pose {}", i);
+                }
             }
             proptest::prop_assert_eq!(c.continued_from_odom, Se2::IDENTITY);
         }

@@ -12,7 +12,7 @@
 
 use std::sync::Arc;
 
-use crate::confidence::Covariance;
+use crate::confidence::{widened_by, Covariance};
 use crate::continuity::{Continued, Continuity};
 use crate::corrector::{Corrector, CorrectorState, MatchMode, Status, StepTiming};
 use crate::lane_map::LaneMap;
@@ -283,7 +283,17 @@ impl SourceCorrector {
                 Some(smoother) => smoother.next(step.map_from_anchored, anchored.planar_position()),
                 None => step.map_from_anchored,
             };
-            (step.status, step.covariance, step.timing, published)
+            // A step taken for poses missing may be a glitch straight ahead: the vehicle is then
+            // where the drive leads, as far back as the pose lies beyond it.
+            let covariance = match continued {
+                Continued::OverGap { beyond } => {
+                    let in_anchored = self.placement.anchored_from_odom.rotate(beyond);
+                    let in_map = step.map_from_anchored.rotate(in_anchored);
+                    widened_by(&step.covariance, in_map)
+                }
+                Continued::Moved | Continued::Jumped => step.covariance,
+            };
+            (step.status, covariance, step.timing, published)
         };
         let corrected = match status {
             Status::InvalidInput => *pose,

@@ -833,6 +833,31 @@ fn an_odometry_that_glitches_is_corrected_as_if_it_had_not() {
         if stamped {
             assert_eq!(flagged, glitches, "stamped: every glitch is a jump");
         }
+        // A glitch taken for poses missing is answered where the odometry put it, 500 m off:
+        // its published covariance says so (the pose inside its 95 % ellipse).
+        let odom_from_map = drive.placement.anchored_from_odom.inverse();
+        let far: Vec<usize> = (0..out.len())
+            .filter(|&i| {
+                let est = cam.to_planar(&out[i].pose).planar_position();
+                distance(est, drive.gt[i].planar_position()) > 50.0
+            })
+            .collect();
+        println!("  {} poses more than 50 m off", far.len());
+        assert_eq!(
+            far.len(),
+            glitches - flagged,
+            "the glitches not taken for jumps"
+        );
+        if !far.is_empty() {
+            let pick = |v: &[Pose3]| far.iter().map(|&i| v[i]).collect::<Vec<_>>();
+            let est: Vec<Pose3> = out.iter().map(|c| cam.to_planar(&c.pose)).collect();
+            let cov: Vec<[[f64; 2]; 2]> = far
+                .iter()
+                .map(|&i| position_covariance_in(&odom_from_map, &out[i].covariance))
+                .collect();
+            let far_off = calibration(&pick(&drive.gt), &pick(&est), &cov).unwrap();
+            assert_eq!(far_off.cov95_coverage, 1.0, "{far_off:?}");
+        }
         assert!((on - none).abs() < bound, "{on} m against {none} m");
     }
 }
