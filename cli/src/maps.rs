@@ -112,6 +112,7 @@ impl LoadedMap {
                 plausibility::CHECK_CORRECT_SETUP,
             ),
             plausibility::odometry_jump_warning(run, params),
+            plausibility::poses_missing_warning(poses, stamps_s, convention, params),
             stamped_rate.and_then(|rate| plausibility::rate_warning(rate, params)),
             plausibility::speed_warning(
                 poses,

@@ -193,12 +193,15 @@ fn quaternions_written_scalar_first_are_told() {
     assert_eq!(positions(&out), positions(&in_order));
 }
 
+/// A restarted odometry is told as a jump; the same drive paused for 3 s is told as poses
+/// missing without stamps, and not at all with stamps that time the pause.
 #[test]
 fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
     let dir = tempfile::tempdir().unwrap();
     let lanes = straight_lane(dir.path(), 200);
     // Along the lane at 12 m/s (10 Hz), 0.5 m beside it; the odometry restarts at its origin at
-    // pose 300. As TUM: the same, with a 3 s pause before pose 300 instead.
+    // pose 300. As TUM: the same, with a 3 s pause before pose 300 instead; and the paused drive
+    // without stamps.
     let kitti = dir.path().join("restarted.txt");
     let lines: String = (0..400)
         .map(|i| {
@@ -216,6 +219,14 @@ fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
         })
         .collect();
     std::fs::write(&tum, lines).unwrap();
+    let gap = dir.path().join("paused.txt");
+    let lines: String = (0..400)
+        .map(|i| {
+            let x = if i < 300 { i } else { i + 30 } as f64 * 1.2;
+            format!("1 0 0 {x} 0 1 0 0.5 0 0 1 0\n")
+        })
+        .collect();
+    std::fs::write(&gap, lines).unwrap();
     let run = |poses: &Path, format: &str| {
         let out = Command::new(env!("CARGO_BIN_EXE_lanealign"))
             .args([
@@ -238,8 +249,20 @@ fn an_odometry_that_jumps_is_told_where_and_a_paused_one_is_not() {
         ),
         "{err}"
     );
+    assert!(!err.contains("poses missing"), "{err}");
     let err = run(&tum, "tum");
     assert!(!err.contains("jumped"), "{err}");
+    assert!(!err.contains("poses missing"), "{err}");
+    let err = run(&gap, "kitti");
+    assert!(!err.contains("jumped"), "{err}");
+    assert!(
+        err.contains(
+            "WARN 1 step of the odometry (300) was longer than max_speed_mps (70 m/s) allows in \
+             one period at odometry_rate_hz (10 Hz) and drove on as the step before: taken for \
+             poses missing from the input"
+        ),
+        "{err}"
+    );
 }
 
 /// Along a lane at 20 m/s (10 Hz), the odometry falls to 1 m/s within a step at pose 200, as a

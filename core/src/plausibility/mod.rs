@@ -19,8 +19,9 @@ mod speed;
 pub use axes::{axes_warning, AxisMotion, MAX_TILTED_SHARE, MAX_TILT_DEG, MAX_VERTICAL_SHARE};
 pub use rate::{judged_rate_hz, rate_from_stamps, rate_text, rate_warning, MAX_RATE_RATIO};
 pub use setup::{
-    anchor_warning, distance_to_lanes, odometry_jump_warning, refusals_warning, too_far_from_lanes,
-    CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M, MIN_ACCEPTED_SHARE, MIN_ATTEMPTS_JUDGED,
+    anchor_warning, distance_to_lanes, odometry_jump_warning, poses_missing_warning,
+    refusals_warning, too_far_from_lanes, CHECK_CORRECT_SETUP, MAX_START_TO_LANE_M,
+    MIN_ACCEPTED_SHARE, MIN_ATTEMPTS_JUDGED,
 };
 pub use source_watch::{
     Pace, SourceNews, SourceWatch, SourceWatchState, AXIS_JUDGED_FROM_M, AXIS_JUDGED_UNTIL_M,

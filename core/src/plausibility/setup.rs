@@ -1,11 +1,12 @@
 //! Whether a run's setup lets the map correct it: the anchor against the map, whether enough
-//! corrections were accepted, the odometry's jumps.
+//! corrections were accepted, the odometry's jumps and the poses missing from it.
 
 use super::{first_few, plural};
+use crate::continuity::{Continued, Continuity};
 use crate::corrector::Status;
 use crate::lane_map::LaneMap;
 use crate::params::Params;
-use crate::pose::Pose3;
+use crate::pose::{AxisConvention, Pose3};
 use crate::se2::Se2;
 use crate::source_corrector::CorrectedPose;
 
@@ -121,6 +122,50 @@ pub fn odometry_jump_warning(run: &[CorrectedPose], params: &Params) -> Option<S
         jumps.len(),
         plural(jumps.len()),
         first_few(jumps.iter().map(usize::to_string), jumps.len()),
+        params.max_speed_mps,
+        params.odometry_rate_hz,
+    ))
+}
+
+/// A warning when steps of the odometry were taken for poses missing from the input
+/// ([`Continued::OverGap`]: longer than [`Params::max_speed_mps`] allows in one period, driving
+/// on as the step before, without stamps that time them): at which poses (0-based, the first
+/// few), and that a glitch straight ahead reads the same. `poses` in `convention`, stamped
+/// `stamps_s` (seconds) where the input has stamps; judged as the corrector judges them.
+pub fn poses_missing_warning(
+    poses: &[Pose3],
+    stamps_s: Option<&[f64]>,
+    convention: AxisConvention,
+    params: &Params,
+) -> Option<String> {
+    let mut continuity = Continuity::default();
+    let gaps: Vec<usize> = poses
+        .iter()
+        .enumerate()
+        .filter(|(_, pose)| pose.problem().is_none())
+        .filter(|&(i, pose)| {
+            let stamp_s = stamps_s.and_then(|s| s.get(i).copied()).unwrap_or(f64::NAN);
+            let planar = convention.to_planar(pose).to_se2();
+            matches!(
+                continuity.observe(planar, stamp_s, params),
+                Continued::OverGap { .. }
+            )
+        })
+        .map(|(i, _)| i)
+        .collect();
+    if gaps.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "{} step{} of the odometry ({}) {} longer than max_speed_mps ({} m/s) allows in one \
+         period at odometry_rate_hz ({} Hz) and drove on as the step before: taken for poses \
+         missing from the input; a pose that glitched straight ahead reads the same, so each is \
+         published with a covariance that covers that; give the stamps (TUM) to have each \
+         judged by its time",
+        gaps.len(),
+        plural(gaps.len()),
+        first_few(gaps.iter().map(usize::to_string), gaps.len()),
+        if gaps.len() == 1 { "was" } else { "were" },
         params.max_speed_mps,
         params.odometry_rate_hz,
     ))
