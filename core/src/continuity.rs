@@ -26,9 +26,11 @@
 //! Without stamps (or with stamps that advance by less than half a period: an index, a unit too
 //! small) the time between two poses is not known, and poses can be missing (an odometry that
 //! lost track for a second, a file written only while it tracked): the step over the gap is then
-//! longer than the speed limit allows in one period. Such a step is motion when it continues the last step as a car drives on, at that
-//! step's curvature, whatever the speed ([`MAX_GAP_CHORD_DEVIATION`], [`MAX_GAP_TURN_CHANGE`]):
-//! the chord of an arc leaves at half its turn. An odometry that restarts or relocalises lands
+//! longer than the speed limit allows in one period. Such a step is motion when it continues the
+//! last step as a car drives on, at that step's curvature, whatever the speed
+//! ([`MAX_GAP_CHORD_DEVIATION`], [`MAX_GAP_TURN_CHANGE`]): the chord of an arc leaves at half its
+//! turn; it may also be a glitch straight ahead, which only the pose after it shows
+//! ([`Continued::OverGap`]). An odometry that restarts or relocalises lands
 //! somewhere its last motion does not lead to, and is a jump. Stamps that advance by half a
 //! period or more are a clock: they time the step (poses missing show as a longer interval), and
 //! the speed alone judges it, so a glitch straight ahead is a jump too.
@@ -464,9 +466,10 @@ mod tests {
         // registration), the next one on it again. Off to the side it is a jump, and so it is
         // straight ahead with stamps; straight ahead without stamps it is taken for poses
         // missing. Either way the pose after it continues the drive from the pose before it, in
-        // the frame it had: nothing of the glitch stays. Before, the pose after a glitch jumped too, back into the drive's frame
-        // moved by the prediction's error (centimetres a glitch), and after a glitch ahead
-        // taken for missing poses the drive went on 500 m ahead.
+        // the frame it had: nothing of the glitch stays. Before, the pose after a glitch jumped
+        // too, back into the drive's frame moved by the prediction's error (centimetres a
+        // glitch), and after a glitch ahead taken for missing poses the drive went on 500 m
+        // ahead.
         let params = Preset::KissIcp.robust_params();
         let drive = |i: usize| Se2::new(0.001 * i as f64, 1.2 * i as f64, 0.05 * i as f64);
         for (off, stamped, every) in [
