@@ -89,17 +89,18 @@ def correct(
     time in seconds (N), as a TUM file gives them: finite and increasing, as ``lanealign
     correct`` checks a TUM file's (else a ``ValueError`` names the first that is not). The
     odometry's speed, which tells its jumps (status ``"odometry_jump"``) from its motion, is
-    then judged by them, so that a pause in the poses is not taken for a jump even over a bend;
-    without them the poses come at
+    then judged by them, so that a pause in the poses is not taken for a jump even over a bend,
+    and a pose that glitched straight ahead is one; without them the poses come at
     ``odometry_rate_hz``, and a step too long for one period is motion only where it drives on
-    as the step before did (poses missing). An odometry whose scale may be off by more than
+    as the step before did (poses missing; such a pose's covariance also covers a glitch straight
+    ahead, and a warning names it). An odometry whose scale may be off by more than
     about 1 % (wheel odometry) has it estimated with ``overrides={"scale_sigma": 0.05}``; the
     orb-slam3 preset does so by default; ``odometry_scale`` says what came of it. ``status``: a
     path to write the status CSV ``--status`` writes (what happened at each pose, the covariance,
     ``map_from_odom``), whole or not at all.
 
     What ``lanealign correct`` prints as ``WARN`` lines (a run set up wrongly, an odometry that
-    jumped or lost track) comes as a ``UserWarning`` each, with the same text.
+    jumped, lost track or had poses missing) comes as a ``UserWarning`` each, with the same text.
     """
     return Corrected(*_lanealign.correct(
         _floats(poses),
