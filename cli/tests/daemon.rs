@@ -203,7 +203,8 @@ fn a_source_faster_than_its_corrector_is_set_for_is_told_in_the_log() {
 /// corrected as offline with them (no jump). Without stamps (the replay's are the poses'
 /// indices) the pause reads as poses missing: on a straight the step drives on and is motion;
 /// over a corner it turns unlike the road and is taken for a jump. Either way the answers are
-/// offline's without stamps, and the daemon's log says where it jumped.
+/// offline's without stamps, and the daemon's log says where it jumped and where it took a step
+/// for poses missing (before 2026-12-02, untold).
 #[test]
 fn a_paused_odometry_is_judged_by_its_stamps() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -257,6 +258,12 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
     }
     let log = log_once_it_says(&daemon, "the odometry jumped");
     assert_eq!(log.matches("the odometry jumped").count(), 1, "{log}");
+    let missing: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("a step of the odometry was taken for poses missing"))
+        .collect();
+    assert_eq!(missing.len(), 1, "the straight's pause, unstamped: {log}");
+    assert!(missing[0].contains("seq=601"), "{}", missing[0]);
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 

@@ -99,6 +99,8 @@ pub struct SourceCorrector {
     scaled: ScaledOdometry,
     /// Where [`Params::watch_stalls`]: the watch for stalls of the odometry.
     stall: Option<StallWatch>,
+    /// Whether the last pose taken was a step taken for poses missing ([`Continued::OverGap`]).
+    took_poses_missing: bool,
 }
 
 impl SourceCorrector {
@@ -116,6 +118,7 @@ impl SourceCorrector {
                 .watch_stalls
                 .then(|| StallWatch::new(params.odometry_rate_hz)),
             placement,
+            took_poses_missing: false,
         }
     }
 
@@ -123,6 +126,14 @@ impl SourceCorrector {
     /// map plane before any correction.
     pub fn anchor_yaw(&self) -> f64 {
         self.anchor_yaw
+    }
+
+    /// Whether the last pose [`SourceCorrector::correct_at`] took was a step it took for poses
+    /// missing ([`Continued::OverGap`]: longer than [`Params::max_speed_mps`] allows in one
+    /// period, driving on as the step before, its stamps no clock); such a pose may as well be a
+    /// glitch straight ahead, and its covariance covers that.
+    pub fn took_poses_missing(&self) -> bool {
+        self.took_poses_missing
     }
 
     /// Poses in the corrector's window.
@@ -190,6 +201,7 @@ impl SourceCorrector {
                 None => StallWatch::new(params.odometry_rate_hz),
             }),
             placement,
+            took_poses_missing: false,
         }
     }
 
@@ -223,6 +235,7 @@ impl SourceCorrector {
     /// the turns it may have made there, and the window restarts ([`crate::stall`]).
     pub fn correct_at(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         if pose.problem().is_some() {
+            self.took_poses_missing = false;
             let record = CorrectedPose {
                 pose: *pose,
                 map_from_odom: self.map_from_odom(),
@@ -238,6 +251,7 @@ impl SourceCorrector {
         let continued = self
             .continuity
             .observe(planar.to_se2(), stamp_s, self.corrector.params());
+        self.took_poses_missing = matches!(continued, Continued::OverGap { .. });
         let mut anchored = apply_planar_correction(
             &placement.anchored_from_odom,
             &self.continuity.carry(&planar),
@@ -498,6 +512,37 @@ mod tests {
             SourceCorrector::restore(map, params, MatchMode::Fast, placement, first.state());
         for pose in &restarted[350..] {
             assert_eq!(first.correct(pose).0, second.correct(pose).0);
+        }
+    }
+
+    #[test]
+    fn a_step_over_poses_missing_is_told_and_published_as_uncertain_as_a_glitch() {
+        // An eastbound lane, driven at 15 m/s 0.5 m to its left; poses 300 to 329 are missing.
+        let lane = Lane::new(1, (0..400).map(|i| [i as f64 * 3.0, 0.0]).collect());
+        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
+        let placement = Placement {
+            convention: AxisConvention::Flu,
+            anchored_from_odom: Se2::IDENTITY,
+            smoothing: None,
+        };
+        let params = Preset::KissIcp.robust_params();
+        let kept: Vec<usize> = (0..300).chain(330..400).collect();
+        for stamped in [false, true] {
+            let mut c = SourceCorrector::new(map.clone(), params, MatchMode::Fast, placement);
+            for (k, &i) in kept.iter().enumerate() {
+                let stamp_s = if stamped { i as f64 / 10.0 } else { f64::NAN };
+                let (record, _) =
+                    c.correct_at(&Pose3::planar(1.5 * i as f64, 0.5, 0.0, 0.0), stamp_s);
+                let over_gap = !stamped && i == 330;
+                assert_eq!(c.took_poses_missing(), over_gap, "pose {k}");
+                let xx = record.covariance[0][0];
+                if over_gap {
+                    // 45 m beyond where one step leads: that far back if it was a glitch.
+                    assert!(xx > 45.0 * 45.0 && xx < 46.0 * 46.0, "{xx}");
+                } else {
+                    assert!(xx < 25.0, "pose {k}: {xx}");
+                }
+            }
         }
     }
 

@@ -414,6 +414,12 @@ impl Session {
         self.corrector.window_len()
     }
 
+    /// Whether the last pose the corrector took was a step it took for poses missing
+    /// ([`lanealign_core::source_corrector::SourceCorrector::took_poses_missing`]).
+    pub fn took_poses_missing(&self) -> bool {
+        self.corrector.took_poses_missing()
+    }
+
     /// The corrector's state (what a snapshot holds).
     pub fn state(&self) -> lanealign_core::source_corrector::SourceState {
         self.corrector.state()

@@ -27,8 +27,8 @@ use lanealign_wire::shm::{self, ShmError};
 
 use crate::config::ResolvedSource;
 use crate::grid_loader::GridLoader;
-use crate::jump_log::{JumpLog, Untold, JUMP_TOLD_EVERY};
 use crate::metrics::{Outcome, SourceMetrics};
+use crate::repeat_log::{RepeatLog, Untold, TOLD_EVERY};
 use crate::session::{self, JournalFailure, PersistJob, Session, SessionSetup};
 use crate::session_watch::{SessionNews, SessionWatch};
 
@@ -176,7 +176,9 @@ struct Live {
     services: SessionServices<Ipc>,
     last_active: Instant,
     /// What the log told of the session's odometry jumps.
-    jumps: JumpLog,
+    jumps: RepeatLog,
+    /// What the log told of the steps the session's corrector took for poses missing.
+    poses_missing: RepeatLog,
 }
 
 /// How long a session has had no pose before a new session may take its place among the
@@ -213,7 +215,8 @@ impl Worker {
             notifier,
             services,
             last_active: Instant::now(),
-            jumps: JumpLog::default(),
+            jumps: RepeatLog::default(),
+            poses_missing: RepeatLog::default(),
         })
     }
 
@@ -234,7 +237,10 @@ impl Worker {
                 tell(&self.name, id, watch, news);
             }
             if let Some(untold) = live.jumps.finish() {
-                tell_untold_jumps(&self.name, id, untold);
+                tell_untold(&self.name, id, Repeat::Jump, untold);
+            }
+            if let Some(untold) = live.poses_missing.finish() {
+                tell_untold(&self.name, id, Repeat::PosesMissing, untold);
             }
             tracing::info!(source = %self.name, session = format_args!("{id:016x}"), why, "session ended");
             let dir = live.session.as_ref().and_then(|s| s.journal_dir());
@@ -445,11 +451,24 @@ impl Worker {
             }
         }
         if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
-            if let Some(told) = live.jumps.jumped(input.seq, Instant::now()) {
+            if let Some(told) = live.jumps.repeated(input.seq, Instant::now()) {
                 if let Some(untold) = told.untold_before {
-                    tell_untold_jumps(&self.name, input.session, untold);
+                    tell_untold(&self.name, input.session, Repeat::Jump, untold);
                 }
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump; this log tells one jump of a session in {} s at most)", JUMP_TOLD_EVERY.as_secs());
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump; this log tells one jump of a session in {} s at most)", TOLD_EVERY.as_secs());
+            }
+        }
+        let over_gap = matches!(outcome, Outcome::Corrected(_))
+            && live
+                .session
+                .as_ref()
+                .is_some_and(Session::took_poses_missing);
+        if over_gap {
+            if let Some(told) = live.poses_missing.repeated(input.seq, Instant::now()) {
+                if let Some(untold) = told.untold_before {
+                    tell_untold(&self.name, input.session, Repeat::PosesMissing, untold);
+                }
+                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, odometry_rate_hz = setup.params.odometry_rate_hz, "a step of the odometry was taken for poses missing: longer than max_speed_mps allows in one period of odometry_rate_hz, it drove on as the step before, and the stamps are no clock (they advance by less than half a period); a pose that glitched straight ahead reads the same, so its covariance covers that; real stamps have each step judged by its time (this log tells one such step of a session in {} s at most)", TOLD_EVERY.as_secs());
             }
         }
         if delivered {
@@ -503,14 +522,30 @@ impl Worker {
     }
 }
 
-/// Logs the jumps of `session` that the log did not tell (see [`JumpLog`]).
-fn tell_untold_jumps(source: &str, session: u64, untold: Untold) {
+/// What a session's odometry repeats that the log tells at most once every [`TOLD_EVERY`].
+#[derive(Clone, Copy)]
+enum Repeat {
+    /// A jump (status `odometry_jump`).
+    Jump,
+    /// A step taken for poses missing.
+    PosesMissing,
+}
+
+/// Logs the repeats of `what` in `session` that the log did not tell (see [`RepeatLog`]).
+fn tell_untold(source: &str, session: u64, what: Repeat, untold: Untold) {
     let Untold {
         count,
         first_seq,
         last_seq,
     } = untold;
-    tracing::warn!(source = %source, session = format_args!("{session:016x}"), jumps = count, first_seq, last_seq, "the odometry jumped {count} more times since the last jump told (status odometry_jump; sequence numbers {first_seq} to {last_seq})");
+    match what {
+        Repeat::Jump => {
+            tracing::warn!(source = %source, session = format_args!("{session:016x}"), jumps = count, first_seq, last_seq, "the odometry jumped {count} more times since the last jump told (status odometry_jump; sequence numbers {first_seq} to {last_seq})")
+        }
+        Repeat::PosesMissing => {
+            tracing::warn!(source = %source, session = format_args!("{session:016x}"), steps = count, first_seq, last_seq, "{count} more steps of the odometry were taken for poses missing since the last one told (sequence numbers {first_seq} to {last_seq})")
+        }
+    }
 }
 
 /// Logs what `watch` told of session `session` of source `source` (`news`): what is wrong with

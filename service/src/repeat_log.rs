@@ -1,15 +1,16 @@
-//! How often the daemon's log tells that a session's odometry jumped. Each jump is answered
-//! (status `odometry_jump`) and raised in the session's answers (`Warning::Jumped`); the log,
-//! read by people, tells the first and then at most one every [`JUMP_TOLD_EVERY`], with how many
-//! it did not tell since. An odometry that glitches on every other pose at 100 Hz wrote 50 WARN
-//! lines a second before, one per jump.
+//! How often the daemon's log tells something a session's odometry may do again and again: jump
+//! (each answered with status `odometry_jump` and raised in the session's answers,
+//! `Warning::Jumped`), or take a step the corrector takes for poses missing (each published with a
+//! covariance that covers a glitch). The log, read by people, tells the first and then at most
+//! one every [`TOLD_EVERY`], with how many it did not tell since. An odometry that glitches on
+//! every other pose at 100 Hz wrote 50 WARN lines a second before, one per jump.
 
 use std::time::{Duration, Instant};
 
-/// The shortest time between two jumps of a session that the log tells.
-pub const JUMP_TOLD_EVERY: Duration = Duration::from_secs(10);
+/// The shortest time between two repeats of a session that the log tells.
+pub const TOLD_EVERY: Duration = Duration::from_secs(10);
 
-/// The jumps of a session the log has not told, by sequence number.
+/// The repeats of a session the log has not told, by sequence number.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Untold {
     /// How many.
@@ -20,29 +21,29 @@ pub struct Untold {
     pub last_seq: u64,
 }
 
-/// A jump the log tells.
+/// A repeat the log tells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Told {
-    /// The jumps before it that the log did not tell.
+    /// The repeats before it that the log did not tell.
     pub untold_before: Option<Untold>,
 }
 
-/// What the log has told of a session's jumps.
+/// What the log has told of one thing a session's odometry repeats.
 #[derive(Clone, Debug, Default)]
-pub struct JumpLog {
-    /// When the last jump told was.
+pub struct RepeatLog {
+    /// When the last repeat told was.
     told_at: Option<Instant>,
-    /// The jumps since, untold.
+    /// The repeats since, untold.
     untold: Option<Untold>,
 }
 
-impl JumpLog {
-    /// Takes a jump at sequence number `seq` (at `now`); `Some` when the log tells it, `None`
+impl RepeatLog {
+    /// Takes a repeat at sequence number `seq` (at `now`); `Some` when the log tells it, `None`
     /// when it is left untold.
-    pub fn jumped(&mut self, seq: u64, now: Instant) -> Option<Told> {
+    pub fn repeated(&mut self, seq: u64, now: Instant) -> Option<Told> {
         let due = self
             .told_at
-            .is_none_or(|at| now.saturating_duration_since(at) >= JUMP_TOLD_EVERY);
+            .is_none_or(|at| now.saturating_duration_since(at) >= TOLD_EVERY);
         if due {
             self.told_at = Some(now);
             return Some(Told {
@@ -64,7 +65,7 @@ impl JumpLog {
         None
     }
 
-    /// The jumps left untold where the session ends.
+    /// The repeats left untold where the session ends.
     pub fn finish(&mut self) -> Option<Untold> {
         self.untold.take()
     }
@@ -78,20 +79,20 @@ mod tests {
     fn the_first_jump_is_told_then_one_in_ten_seconds_with_those_between() {
         let start = Instant::now();
         let at = |ms: u64| start + Duration::from_millis(ms);
-        let mut log = JumpLog::default();
+        let mut log = RepeatLog::default();
         let told = |untold_before| Some(Told { untold_before });
-        assert_eq!(log.jumped(100, at(0)), told(None));
+        assert_eq!(log.repeated(100, at(0)), told(None));
         // Every other pose at 100 Hz: 499 more within the 10 s, untold.
         for k in 1..500 {
-            assert_eq!(log.jumped(100 + 2 * k, at(20 * k)), None, "jump {k}");
+            assert_eq!(log.repeated(100 + 2 * k, at(20 * k)), None, "jump {k}");
         }
         let between = Untold {
             count: 499,
             first_seq: 102,
             last_seq: 1098,
         };
-        assert_eq!(log.jumped(1100, at(10_000)), told(Some(between)));
-        assert_eq!(log.jumped(1102, at(10_020)), None);
+        assert_eq!(log.repeated(1100, at(10_000)), told(Some(between)));
+        assert_eq!(log.repeated(1102, at(10_020)), None);
         assert_eq!(
             log.finish(),
             Some(Untold {
@@ -102,6 +103,6 @@ mod tests {
         );
         assert_eq!(log.finish(), None);
         // A jump long after the last told is told, with none untold before it.
-        assert_eq!(log.jumped(5000, at(60_000)), told(None));
+        assert_eq!(log.repeated(5000, at(60_000)), told(None));
     }
 }
