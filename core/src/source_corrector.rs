@@ -414,15 +414,25 @@ mod tests {
     use crate::params::Preset;
     use crate::smoothing::Smoothing;
 
-    #[test]
-    fn any_non_finite_number_is_invalid_input_and_changes_nothing() {
-        let lane = Lane::new(1, (0..100).map(|i| [i as f64 * 3.0, 0.0]).collect());
-        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
-        let placement = Placement {
+    /// An eastbound lane along the x axis from the origin, a point every 3 m.
+    fn eastbound(points: usize) -> Arc<LaneMap> {
+        let lane = Lane::new(1, (0..points).map(|i| [i as f64 * 3.0, 0.0]).collect());
+        Arc::new(LaneMap::new(&[lane]).unwrap())
+    }
+
+    /// Poses in `flu` axes, their odometry frame the map's.
+    fn on_the_map(smoothing: Option<Smoothing>) -> Placement {
+        Placement {
             convention: AxisConvention::Flu,
             anchored_from_odom: Se2::IDENTITY,
-            smoothing: None,
-        };
+            smoothing,
+        }
+    }
+
+    #[test]
+    fn any_non_finite_number_is_invalid_input_and_changes_nothing() {
+        let map = eastbound(100);
+        let placement = on_the_map(None);
         let mut c = SourceCorrector::new(map, Preset::KissIcp.params(), MatchMode::Fast, placement);
         c.correct(&Pose3::planar(0.0, 0.5, 0.0, 0.0));
         // Height and roll are not part of the planar position, yet must be plausible too.
@@ -453,13 +463,8 @@ mod tests {
     fn a_jump_of_the_odometry_is_flagged_and_the_drive_goes_on_where_it_was() {
         // An eastbound lane; the odometry drives along it at 15 m/s, 0.5 m to its left, and
         // restarts at its origin at pose 300.
-        let lane = Lane::new(1, (0..400).map(|i| [i as f64 * 3.0, 0.0]).collect());
-        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
-        let placement = Placement {
-            convention: AxisConvention::Flu,
-            anchored_from_odom: Se2::IDENTITY,
-            smoothing: Some(Smoothing::default()),
-        };
+        let map = eastbound(400);
+        let placement = on_the_map(Some(Smoothing::default()));
         let params = Preset::KissIcp.robust_params();
         let drive: Vec<Pose3> = (0..600)
             .map(|i| Pose3::planar(1.5 * i as f64, 0.5, 0.0, 0.0))
@@ -518,13 +523,8 @@ mod tests {
     #[test]
     fn a_step_over_poses_missing_is_told_and_published_as_uncertain_as_a_glitch() {
         // An eastbound lane, driven at 15 m/s 0.5 m to its left; poses 300 to 329 are missing.
-        let lane = Lane::new(1, (0..400).map(|i| [i as f64 * 3.0, 0.0]).collect());
-        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
-        let placement = Placement {
-            convention: AxisConvention::Flu,
-            anchored_from_odom: Se2::IDENTITY,
-            smoothing: None,
-        };
+        let map = eastbound(400);
+        let placement = on_the_map(None);
         let params = Preset::KissIcp.robust_params();
         let kept: Vec<usize> = (0..300).chain(330..400).collect();
         for stamped in [false, true] {
@@ -550,8 +550,7 @@ mod tests {
     /// 3 s after 300 poses (0.2 m/s) and then goes on at 20 m/s: the poses in the odometry's
     /// frame, on the lane.
     fn stalled_drive() -> (Arc<LaneMap>, Vec<Pose3>) {
-        let lane = Lane::new(1, (0..1000).map(|i| [i as f64 * 3.0, 0.0]).collect());
-        let map = Arc::new(LaneMap::new(&[lane]).unwrap());
+        let map = eastbound(1000);
         let mut x = 0.0;
         let poses = (0..600)
             .map(|i| {
@@ -695,11 +694,7 @@ mod tests {
                 Pose3::planar(1.03 * x, 1.03 * y, p.planar_heading(), 0.0)
             })
             .collect();
-        let placement = Placement {
-            convention: AxisConvention::Flu,
-            anchored_from_odom: Se2::IDENTITY,
-            smoothing: None,
-        };
+        let placement = on_the_map(None);
         let mut params = Preset::KissIcp.robust_params();
         params.scale_sigma = 0.05;
         let mut unscaled = params;
