@@ -258,12 +258,9 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
     }
     let log = log_once_it_says(&daemon, "the odometry jumped");
     assert_eq!(log.matches("the odometry jumped").count(), 1, "{log}");
-    let missing: Vec<&str> = log
-        .lines()
-        .filter(|l| l.contains("a step of the odometry was taken for poses missing"))
-        .collect();
-    assert_eq!(missing.len(), 1, "the straight's pause, unstamped: {log}");
-    assert!(missing[0].contains("seq=601"), "{}", missing[0]);
+    // The straight's pause, unstamped.
+    let missing = the_line_saying(&log, "a step of the odometry was taken for poses missing");
+    assert!(missing.contains("seq=601"), "{missing}");
     assert!(daemon.stop().unwrap(), "clean exit");
 }
 
@@ -290,13 +287,9 @@ fn an_odometry_that_keeps_jumping_is_told_once_and_counted() {
     closed(conn, &daemon, 0);
     let log = log_once_it_says(&daemon, "more times since the last jump told");
     assert_eq!(log.matches("the odometry jumped:").count(), 1, "{log}");
-    let untold: Vec<&str> = log
-        .lines()
-        .filter(|l| l.contains("more times since the last jump told"))
-        .collect();
-    assert_eq!(untold.len(), 1, "{log}");
+    let untold = the_line_saying(&log, "more times since the last jump told");
     assert!(
-        untold[0].contains(&format!("jumps={}", jumps - 1)),
+        untold.contains(&format!("jumps={}", jumps - 1)),
         "{jumps} jumps: {log}"
     );
     assert!(daemon.stop().unwrap(), "clean exit");

@@ -450,25 +450,22 @@ impl Worker {
                 tell(&self.name, input.session, &session.watch, news);
             }
         }
-        if let Outcome::Corrected(Status::OdometryJump { .. }) = outcome {
-            if let Some(told) = live.jumps.repeated(input.seq, Instant::now()) {
-                if let Some(untold) = told.untold_before {
-                    tell_untold(&self.name, input.session, Repeat::Jump, untold);
-                }
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump; this log tells one jump of a session in {} s at most)", TOLD_EVERY.as_secs());
+        if let Outcome::Corrected(status) = outcome {
+            let at = RepeatAt {
+                source: &self.name,
+                session: input.session,
+                seq: input.seq,
+                params: &setup.params,
+            };
+            if let Status::OdometryJump { .. } = status {
+                at.tell(Repeat::Jump, &mut live.jumps);
             }
-        }
-        let over_gap = matches!(outcome, Outcome::Corrected(_))
-            && live
+            if live
                 .session
                 .as_ref()
-                .is_some_and(Session::took_poses_missing);
-        if over_gap {
-            if let Some(told) = live.poses_missing.repeated(input.seq, Instant::now()) {
-                if let Some(untold) = told.untold_before {
-                    tell_untold(&self.name, input.session, Repeat::PosesMissing, untold);
-                }
-                tracing::warn!(source = %self.name, session = format_args!("{:016x}", input.session), seq = input.seq, max_speed_mps = setup.params.max_speed_mps, odometry_rate_hz = setup.params.odometry_rate_hz, "a step of the odometry was taken for poses missing: longer than max_speed_mps allows in one period of odometry_rate_hz, it drove on as the step before, and the stamps are no clock (they advance by less than half a period); a pose that glitched straight ahead reads the same, so its covariance covers that; real stamps have each step judged by its time (this log tells one such step of a session in {} s at most)", TOLD_EVERY.as_secs());
+                .is_some_and(Session::took_poses_missing)
+            {
+                at.tell(Repeat::PosesMissing, &mut live.poses_missing);
             }
         }
         if delivered {
@@ -529,6 +526,43 @@ enum Repeat {
     Jump,
     /// A step taken for poses missing.
     PosesMissing,
+}
+
+/// Where a repeat happened: the pose `seq` of session `session` of source `source`, corrected
+/// under `params`.
+struct RepeatAt<'a> {
+    source: &'a str,
+    session: u64,
+    seq: u64,
+    params: &'a Params,
+}
+
+impl RepeatAt<'_> {
+    /// Logs `what` here when `log` (the session's log of it) is due to tell it, with the repeats
+    /// it did not tell since.
+    fn tell(&self, what: Repeat, log: &mut RepeatLog) {
+        let Some(told) = log.repeated(self.seq, Instant::now()) else {
+            return;
+        };
+        let RepeatAt {
+            source,
+            session,
+            seq,
+            params,
+        } = *self;
+        if let Some(untold) = told.untold_before {
+            tell_untold(source, session, what, untold);
+        }
+        let every_s = TOLD_EVERY.as_secs();
+        match what {
+            Repeat::Jump => {
+                tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, max_speed_mps = params.max_speed_mps, "the odometry jumped: it lies farther from its last pose than the vehicle can drive; its poses go on from where the vehicle was (status odometry_jump; this log tells one jump of a session in {every_s} s at most)")
+            }
+            Repeat::PosesMissing => {
+                tracing::warn!(source = %source, session = format_args!("{session:016x}"), seq, max_speed_mps = params.max_speed_mps, odometry_rate_hz = params.odometry_rate_hz, "a step of the odometry was taken for poses missing: longer than max_speed_mps allows in one period of odometry_rate_hz, it drove on as the step before, and the stamps are no clock (they advance by less than half a period); a pose that glitched straight ahead reads the same, so its covariance covers that; real stamps have each step judged by its time (this log tells one such step of a session in {every_s} s at most)")
+            }
+        }
+    }
 }
 
 /// Logs the repeats of `what` in `session` that the log did not tell (see [`RepeatLog`]).

@@ -372,6 +372,13 @@ pub fn log_once_it_says(daemon: &DaemonProcess, what: &str) -> String {
     daemon.log()
 }
 
+/// The one line of `log` that says `what` (panics, showing the log, unless exactly one does).
+pub fn the_line_saying<'a>(log: &'a str, what: &str) -> &'a str {
+    let lines: Vec<&str> = log.lines().filter(|l| l.contains(what)).collect();
+    assert_eq!(lines.len(), 1, "lines saying {what:?}: {log}");
+    lines[0]
+}
+
 /// How many session journals the daemon of `setup` holds for `source`.
 pub fn journal_count(setup: &Setup, source: &str) -> usize {
     std::fs::read_dir(setup.state.join(&setup.namespace).join(source))
