@@ -204,7 +204,8 @@ fn a_source_faster_than_its_corrector_is_set_for_is_told_in_the_log() {
 /// indices) the pause reads as poses missing: on a straight the step drives on and is motion;
 /// over a corner it turns unlike the road and is taken for a jump. Either way the answers are
 /// offline's without stamps, and the daemon's log says where it jumped and where it took a step
-/// for poses missing (before 2026-12-02, untold).
+/// for poses missing (before 2026-12-02, untold); the answers after that step carry the
+/// `poses_missing` warning (before, no bit said it).
 #[test]
 fn a_paused_odometry_is_judged_by_its_stamps() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -241,19 +242,30 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
                 .filter(|a| a.status() == Some(StatusCode::OdometryJump))
                 .map(|a| a.seq)
                 .collect();
-            (poses_of(&r.answers), jumps)
+            // The answers that carry the warning: every one after the step it was raised by.
+            let missing: Vec<u64> = r
+                .answers
+                .iter()
+                .filter(|a| a.warnings & Warning::PosesMissing.bit() != 0)
+                .map(|a| a.seq)
+                .collect();
+            (poses_of(&r.answers), jumps, missing)
         };
-        let (stamped, jumps) = answered(&stamps);
+        let (stamped, jumps, missing) = answered(&stamps);
         assert!(jumps.is_empty(), "{jumps:?}");
+        assert!(missing.is_empty(), "{missing:?}");
         assert!(stamped == offline_stamped(&setup, &name, &poses, Some(&stamps_s)));
-        let (unstamped, jumps) = answered(&[]);
+        let (unstamped, jumps, missing) = answered(&[]);
         assert!(unstamped == offline(&setup, &name, &poses));
+        let seq = paused_at as u64 + 1;
         if corner {
-            let seq = paused_at as u64 + 1;
             assert_eq!(jumps, [seq], "the pose after the pause");
+            assert!(missing.is_empty(), "{missing:?}");
             assert!(unstamped != stamped);
         } else {
             assert!(jumps.is_empty(), "{jumps:?}");
+            let after: Vec<u64> = (seq + 1..=poses.len() as u64).collect();
+            assert_eq!(missing, after, "raised by the pose after the pause");
         }
     }
     let log = log_once_it_says(&daemon, "the odometry jumped");
@@ -564,8 +576,10 @@ fn a_session_stamped_in_microseconds_is_asked_about_them() {
 /// Always runs: `lanealign replay` warns of what `lanealign correct` would, from the daemon's
 /// answers: a drive 5 km beside the town's map (no correction accepted: a wrong anchor or
 /// frame), a drive whose odometry jumps 300 m at pose 200 (told with its sequence number,
-/// 201), and a drive in centimetres (what the daemon raised in its answers: its pace). The
-/// town's drive as it is warns of none.
+/// 201), a drive in centimetres (what the daemon raised in its answers: its pace) and a drive
+/// that paused on a straight without stamps (raised: a step taken for poses missing; before
+/// 2026-12-02 `correct` warned of it and `replay` did not). The town's drive as it is warns of
+/// none.
 #[test]
 fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -626,6 +640,16 @@ fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
              any vehicle: are its positions in metres"
         ),
         "{paced:?}"
+    );
+    let paused: Vec<Pose3> = drive[..200].iter().chain(&drive[230..]).copied().collect();
+    let paused = warned(&paused);
+    assert_eq!(paused.len(), 1, "{paused:?}");
+    assert!(
+        paused[0].contains(
+            "the daemon raised in this session's answers: poses_missing (a step of its odometry \
+             was longer than the vehicle drives in one period"
+        ),
+        "{paused:?}"
     );
     assert!(daemon.stop().unwrap(), "clean exit");
 }

@@ -91,7 +91,8 @@ class Client:
         ``sent_mono_ns``, ``received_mono_ns`` and ``published_mono_ns`` (CLOCK_MONOTONIC, which
         ``time.monotonic_ns()`` reads on Linux: the round trip is it minus ``sent_mono_ns``);
         ``warnings``: the names of what the session's poses raised before this one (``axes``,
-        ``rate``, ``pace``, ``refusals``, ``lost_track``, ``jumped``; docs/wire.md)."""
+        ``rate``, ``pace``, ``refusals``, ``lost_track``, ``jumped``, ``poses_missing``;
+        docs/wire.md)."""
         ...
     def close(self, timeout_s: float = ...) -> Dict[str, object]: ...
     def __enter__(self) -> "Client": ...

@@ -618,7 +618,7 @@ struct Client {
 /// daemon's run (`daemon_epoch`) and the pose's times (`sent_mono_ns`, `received_mono_ns`,
 /// `published_mono_ns`: `CLOCK_MONOTONIC`, the same clock in every process of the machine), and
 /// the `warnings` the session raised before the pose (their names: `axes`, `rate`, `pace`,
-/// `refusals`, `lost_track`, `jumped`; docs/wire.md).
+/// `refusals`, `lost_track`, `jumped`, `poses_missing`; docs/wire.md).
 fn answer_dict<'py>(py: Python<'py>, answer: &CorrectedPose) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("seq", answer.seq)?;

@@ -398,7 +398,11 @@ impl Session {
     /// publishing the answer, off the latency path.
     pub fn watch_answered(&mut self, input: &OdomPose, outcome: &Outcome) -> Option<SessionNews> {
         match outcome {
-            Outcome::Corrected(status) => Some(self.watch.observe(input, status)),
+            Outcome::Corrected(status) => Some(self.watch.observe(
+                input,
+                status,
+                self.corrector.took_poses_missing(),
+            )),
             _ => None,
         }
     }
@@ -630,7 +634,7 @@ pub fn restore(dir: &Path, setup: &SessionSetup) -> Result<Session, RestoreError
                     .as_mut()
                     .filter(|_| again.status != Status::InvalidInput)
                 {
-                    watch.observe(&r.input, &again.status);
+                    watch.observe(&r.input, &again.status, corrector.took_poses_missing());
                 }
                 last_seq = Some(r.input.seq);
             }

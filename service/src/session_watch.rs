@@ -115,9 +115,16 @@ impl SessionWatch {
         }
     }
 
-    /// Takes a pose the session answered with a correction (`status`, any but invalid input);
-    /// returns what it told, and raises it.
-    pub fn observe(&mut self, input: &OdomPose, status: &Status) -> SessionNews {
+    /// Takes a pose the session answered with a correction (`status`, any but invalid input),
+    /// and whether its corrector took the step to it for poses missing (`took_poses_missing`:
+    /// [`lanealign_core::source_corrector::SourceCorrector::took_poses_missing`]); returns what
+    /// it told, and raises it.
+    pub fn observe(
+        &mut self,
+        input: &OdomPose,
+        status: &Status,
+        took_poses_missing: bool,
+    ) -> SessionNews {
         let source = self
             .source
             .observe(input.stamp_s(), &Pose3::from_row_major(&input.pose));
@@ -129,8 +136,12 @@ impl SessionWatch {
         // it there).
         let judged = attempts < REFUSALS_TOLD && self.alignments.attempts == REFUSALS_TOLD;
         let refusals = self.refusals_warning().filter(|_| judged);
-        let jumped = matches!(status, Status::OdometryJump { .. });
-        self.raise(source, refusals, jumped)
+        let step = if matches!(status, Status::OdometryJump { .. }) {
+            Some(Warning::Jumped)
+        } else {
+            took_poses_missing.then_some(Warning::PosesMissing)
+        };
+        self.raise(source, refusals, step)
     }
 
     /// What the watch tells where the session ends (see [`SourceWatch::finish`]), and, if it
@@ -140,12 +151,18 @@ impl SessionWatch {
         let refusals = self
             .refusals_warning()
             .filter(|_| self.alignments.attempts < REFUSALS_TOLD);
-        self.raise(source, refusals, false)
+        self.raise(source, refusals, None)
     }
 
-    /// Raises what `source` told, the `refusals` warning and a jump (`jumped`), and returns
-    /// them as news.
-    fn raise(&mut self, source: SourceNews, refusals: Option<String>, jumped: bool) -> SessionNews {
+    /// Raises what `source` told, the `refusals` warning and what the step to the pose was
+    /// (`step`: [`Warning::Jumped`], [`Warning::PosesMissing`], or `None` for motion), and
+    /// returns them as news.
+    fn raise(
+        &mut self,
+        source: SourceNews,
+        refusals: Option<String>,
+        step: Option<Warning>,
+    ) -> SessionNews {
         let rate = source.rate_hz.and_then(|r| rate_warning(r, &self.params));
         for (raised, warning) in [
             (source.axis_warning.is_some(), Warning::Axes),
@@ -153,7 +170,8 @@ impl SessionWatch {
             (source.pace_warning.is_some(), Warning::Pace),
             (refusals.is_some(), Warning::Refusals),
             (!source.speed_changes.is_empty(), Warning::LostTrack),
-            (jumped, Warning::Jumped),
+            (step == Some(Warning::Jumped), Warning::Jumped),
+            (step == Some(Warning::PosesMissing), Warning::PosesMissing),
         ] {
             if raised {
                 self.raised |= warning.bit();
@@ -239,7 +257,7 @@ mod tests {
                 0 => rejected(),
                 _ => Status::Carried { window_len: 150 },
             };
-            let news = watch.observe(&pose(i + 1, 0.1 * i as f64, i as f64), &status);
+            let news = watch.observe(&pose(i + 1, 0.1 * i as f64, i as f64), &status, false);
             if !news.warnings.is_empty() {
                 told.push((i, news.warnings));
             }
@@ -258,7 +276,11 @@ mod tests {
         let params = Preset::KissIcp.robust_params();
         let mut watch = SessionWatch::new(&params, AxisConvention::Flu);
         for i in 0..30u64 {
-            let news = watch.observe(&pose(i + 1, 0.5 * i as f64, 5.0 * i as f64), &rejected());
+            let news = watch.observe(
+                &pose(i + 1, 0.5 * i as f64, 5.0 * i as f64),
+                &rejected(),
+                false,
+            );
             assert_eq!(news, SessionNews::default(), "pose {i}");
         }
         let end = watch.finish();
@@ -272,5 +294,35 @@ mod tests {
             watch.raised(),
             Warning::Rate.bit() | Warning::Refusals.bit()
         );
+    }
+
+    /// A step the corrector took for poses missing raises its own bit, and a jump its own: a
+    /// client that reads the answers knows that a pose may have been a glitch straight ahead
+    /// (before 2026-12-02 only the daemon's log and the widened covariance said so). Neither is
+    /// a warning in words: the worker's log tells those steps, rate-limited.
+    #[test]
+    fn a_step_over_poses_missing_raises_its_bit_and_a_jump_its_own() {
+        let params = Preset::KissIcp.robust_params();
+        let carried = Status::Carried { window_len: 150 };
+        let mut watch = SessionWatch::new(&params, AxisConvention::Flu);
+        for i in 0..20u64 {
+            let news = watch.observe(&pose(i + 1, 0.1 * i as f64, i as f64), &carried, i == 12);
+            assert_eq!(news, SessionNews::default(), "pose {i}");
+            let expected = if i < 12 {
+                0
+            } else {
+                Warning::PosesMissing.bit()
+            };
+            assert_eq!(watch.raised(), expected, "pose {i}");
+        }
+        let jump = Status::OdometryJump { window_len: 150 };
+        watch.observe(&pose(21, 2.0, 20.0), &jump, false);
+        assert_eq!(
+            watch.raised(),
+            Warning::PosesMissing.bit() | Warning::Jumped.bit()
+        );
+        let mut watch = SessionWatch::new(&params, AxisConvention::Flu);
+        watch.observe(&pose(1, 0.0, 0.0), &jump, false);
+        assert_eq!(watch.raised(), Warning::Jumped.bit());
     }
 }

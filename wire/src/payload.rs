@@ -196,17 +196,23 @@ pub enum Warning {
     LostTrack = 1 << 4,
     /// The odometry jumped (an answer's status was `odometry_jump`).
     Jumped = 1 << 5,
+    /// A step of the odometry was longer than the vehicle drives in one period, without stamps
+    /// that time it: the corrector took it for poses missing from the input and drove on, and
+    /// published that pose's covariance widened by the distance beyond one usual step (a pose
+    /// that glitched straight ahead reads the same). Stamps would tell the two apart.
+    PosesMissing = 1 << 6,
 }
 
 impl Warning {
     /// Every warning, by bit.
-    pub const ALL: [Warning; 6] = [
+    pub const ALL: [Warning; 7] = [
         Warning::Axes,
         Warning::Rate,
         Warning::Pace,
         Warning::Refusals,
         Warning::LostTrack,
         Warning::Jumped,
+        Warning::PosesMissing,
     ];
 
     /// Its bit in [`CorrectedPose::warnings`].
@@ -223,6 +229,7 @@ impl Warning {
             Warning::Refusals => "refusals",
             Warning::LostTrack => "lost_track",
             Warning::Jumped => "jumped",
+            Warning::PosesMissing => "poses_missing",
         }
     }
 
@@ -247,6 +254,11 @@ impl Warning {
                  poses after it may be off along the road"
             }
             Warning::Jumped => "its odometry jumped (status odometry_jump)",
+            Warning::PosesMissing => {
+                "a step of its odometry was longer than the vehicle drives in one period and was \
+                 taken for poses missing from the input (a pose that glitched straight ahead \
+                 reads the same): send the poses' stamps"
+            }
         }
     }
 
