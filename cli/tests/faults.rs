@@ -21,7 +21,7 @@ use lanealign_core::se2::Se2;
 use lanealign_core::trajectory::{read, write, Format, Trajectory};
 use lanealign_tests::shared_data;
 use lanealign_wire::clock::monotonic_ns;
-use lanealign_wire::payload::StatusCode;
+use lanealign_wire::payload::{CorrectedPose, StatusCode, Warning};
 
 static SERIAL: Mutex<()> = Mutex::new(());
 
@@ -554,6 +554,44 @@ fn a_restored_session_warns_as_if_its_daemon_had_run_on() {
     logs.push(daemon.log());
     let got: Vec<String> = logs.iter().flat_map(|l| warnings(l, killed)).collect();
     assert_eq!(got, expected);
+    assert!(daemon.stop().unwrap());
+}
+
+/// A session restored after its daemon was killed keeps the warning a pose raised after its last
+/// snapshot: the town's drive paused for 30 poses on its straight and sent without stamps (the
+/// pose after the pause, seq 201, a step taken for poses missing), the daemon killed two poses
+/// later (no snapshot yet: the restore replays the session's records through its watch), and
+/// every answer of the restored session carries `poses_missing`, as the killed one's did.
+#[test]
+fn a_restored_session_keeps_the_poses_missing_it_took() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, odometry) = synthetic::drive(1, 42);
+    let paused: Vec<Pose3> = odometry[..200]
+        .iter()
+        .chain(&odometry[230..300])
+        .copied()
+        .collect();
+    let t = town_driven(town_setup, paused);
+    let missing = |a: &CorrectedPose| a.warnings & Warning::PosesMissing.bit() != 0;
+    let mut daemon = start(&t.setup);
+    let mut conn = connect(&t.setup, &t.name);
+    wait_for_daemon(&mut conn);
+    for (i, pose) in t.poses[..203].iter().enumerate() {
+        let answer = answer_of(&mut conn, pose);
+        assert_eq!(missing(&answer), answer.seq > 201, "pose {i}");
+    }
+    daemon.kill().unwrap();
+    daemon = start(&t.setup);
+    assert!(
+        daemon.log().contains("session restored"),
+        "{}",
+        daemon.log()
+    );
+    for pose in &t.poses[203..] {
+        let answer = answer_of(&mut conn, pose);
+        assert!(missing(&answer), "seq {}", answer.seq);
+    }
+    closed(conn, &daemon, 0);
     assert!(daemon.stop().unwrap());
 }
 
