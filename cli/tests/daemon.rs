@@ -576,10 +576,11 @@ fn a_session_stamped_in_microseconds_is_asked_about_them() {
 /// Always runs: `lanealign replay` warns of what `lanealign correct` would, from the daemon's
 /// answers: a drive 5 km beside the town's map (no correction accepted: a wrong anchor or
 /// frame), a drive whose odometry jumps 300 m at pose 200 (told with its sequence number,
-/// 201), a drive in centimetres (what the daemon raised in its answers: its pace) and a drive
-/// that paused on a straight without stamps (raised: a step taken for poses missing; before
-/// 2026-12-02 `correct` warned of it and `replay` did not). The town's drive as it is warns of
-/// none.
+/// 201), a drive in centimetres (what the daemon raised in its answers: its pace, judged at the
+/// 64th pose and carried from the next) and a drive that paused on a straight without stamps
+/// (raised: a step taken for poses missing, at seq 201; before 2026-12-02 `correct` warned of it
+/// and `replay` did not). Each raised warning names the first answer that carries it. The
+/// town's drive as it is warns of none.
 #[test]
 fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -636,8 +637,8 @@ fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     );
     assert!(
         paced[1].contains(
-            "the daemon raised in this session's answers: pace (its poses move faster than \
-             any vehicle: are its positions in metres"
+            "the daemon raised in this session's answers: pace from sequence number 65 on (its \
+             poses move faster than any vehicle: are its positions in metres"
         ),
         "{paced:?}"
     );
@@ -646,8 +647,8 @@ fn replay_warns_of_a_setup_gone_wrong_and_of_jumps() {
     assert_eq!(paused.len(), 1, "{paused:?}");
     assert!(
         paused[0].contains(
-            "the daemon raised in this session's answers: poses_missing (a step of its odometry \
-             was longer than the vehicle drives in one period"
+            "the daemon raised in this session's answers: poses_missing from sequence number \
+             202 on (a step of its odometry was longer than the vehicle drives in one period"
         ),
         "{paused:?}"
     );

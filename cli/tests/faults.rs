@@ -429,7 +429,8 @@ fn killed_daemons_lose_nothing_of_an_odometry_that_glitches() {
     let summary = killed_daemons(&t.setup, &t.name, &t.input, &t.poses, 15, "800");
     // Those that landed ahead are raised in the answers through the kills, and replay says so.
     assert!(
-        summary.contains("poses_missing (a step of its odometry was longer than"),
+        summary.contains("poses_missing from sequence number")
+            && summary.contains("(a step of its odometry was longer than"),
         "{summary}"
     );
 }

@@ -106,12 +106,21 @@ fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
 }
 
 /// The warnings the daemon's watch raised in `answers` ([`CorrectedPose::warnings`]), but for
-/// those [`warnings`] tells from the statuses themselves (refusals and jumps).
+/// those [`warnings`] tells from the statuses themselves (refusals and jumps), each with the
+/// sequence number of the first answer that carries it (the pose before it raised it).
 fn raised_warning(answers: &[CorrectedPose]) -> Option<String> {
     let bits = answers.iter().fold(0, |bits, a| bits | a.warnings);
     let told: Vec<String> = Warning::raised(bits)
         .filter(|w| !matches!(w, Warning::Refusals | Warning::Jumped))
-        .map(|w| format!("{} ({})", w.name(), w.meaning()))
+        .filter_map(|w| {
+            let first = answers.iter().find(|a| a.warnings & w.bit() != 0)?;
+            Some(format!(
+                "{} from sequence number {} on ({})",
+                w.name(),
+                first.seq,
+                w.meaning()
+            ))
+        })
         .collect();
     (!told.is_empty()).then(|| {
         format!(
