@@ -70,6 +70,18 @@ fn daemon_log(setup: &Setup) -> PathBuf {
     setup.dir.path().join(format!("d-{}.log", monotonic_ns()))
 }
 
+/// Kills `daemon` (`kill -9`) and starts another on `setup`, which must restore a session.
+fn killed_and_restored(daemon: DaemonProcess, setup: &Setup) -> DaemonProcess {
+    daemon.kill().unwrap();
+    let daemon = start(setup);
+    assert!(
+        daemon.log().contains("session restored"),
+        "{}",
+        daemon.log()
+    );
+    daemon
+}
+
 /// Kills `lanealign replay` clients at random moments, three times; then a replay runs to its
 /// end. The killed sessions leave no trace in its output, the daemon cleans up after them, and
 /// the replays that finished closed their sessions.
@@ -301,15 +313,7 @@ fn a_daemon_restarted_between_poses_is_seen_in_its_answers() {
         .map(|p| answer_of(&mut conn, p))
         .collect();
     let idle = conn.events();
-    daemon.kill().unwrap();
-    daemon =
-        DaemonProcess::start_ready(&setup.config, &daemon_log(&setup), Duration::from_secs(20))
-            .unwrap();
-    assert!(
-        daemon.log().contains("session restored"),
-        "{}",
-        daemon.log()
-    );
+    daemon = killed_and_restored(daemon, &setup);
     assert_eq!(conn.events(), idle, "an idle client does nothing");
     answers.extend(poses[300..].iter().map(|p| answer_of(&mut conn, p)));
     let events = conn.events();
@@ -539,13 +543,7 @@ fn a_restored_session_warns_as_if_its_daemon_had_run_on() {
             "killed before the fall at {fall_seq} was told: {log}"
         );
         logs.push(log);
-        daemon.kill().unwrap();
-        daemon = start(&t.setup);
-        assert!(
-            daemon.log().contains("session restored"),
-            "{}",
-            daemon.log()
-        );
+        daemon = killed_and_restored(daemon, &t.setup);
     }
     while next < t.poses.len() {
         answer(&mut conn, next);
@@ -581,13 +579,7 @@ fn a_restored_session_keeps_the_poses_missing_it_took() {
         let answer = answer_of(&mut conn, pose);
         assert_eq!(missing(&answer), answer.seq > 201, "pose {i}");
     }
-    daemon.kill().unwrap();
-    daemon = start(&t.setup);
-    assert!(
-        daemon.log().contains("session restored"),
-        "{}",
-        daemon.log()
-    );
+    daemon = killed_and_restored(daemon, &t.setup);
     for pose in &t.poses[203..] {
         let answer = answer_of(&mut conn, pose);
         assert!(missing(&answer), "seq {}", answer.seq);
