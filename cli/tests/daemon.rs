@@ -236,19 +236,11 @@ fn a_paused_odometry_is_judged_by_its_stamps() {
                 Duration::from_secs(10),
             )
             .unwrap();
-            let jumps: Vec<u64> = r
-                .answers
-                .iter()
-                .filter(|a| a.status() == Some(StatusCode::OdometryJump))
-                .map(|a| a.seq)
-                .collect();
+            let jumps = seqs_where(&r.answers, |a| a.status() == Some(StatusCode::OdometryJump));
             // The answers that carry the warning: every one after the step it was raised by.
-            let missing: Vec<u64> = r
-                .answers
-                .iter()
-                .filter(|a| a.warnings & Warning::PosesMissing.bit() != 0)
-                .map(|a| a.seq)
-                .collect();
+            let missing = seqs_where(&r.answers, |a| {
+                a.warnings & Warning::PosesMissing.bit() != 0
+            });
             (poses_of(&r.answers), jumps, missing)
         };
         let (stamped, jumps, missing) = answered(&stamps);

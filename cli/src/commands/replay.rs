@@ -109,8 +109,8 @@ fn warnings(answers: &[CorrectedPose]) -> Vec<String> {
 /// those [`warnings`] tells from the statuses themselves (refusals and jumps), each with the
 /// sequence number of the first answer that carries it (the pose before it raised it).
 fn raised_warning(answers: &[CorrectedPose]) -> Option<String> {
-    let bits = answers.iter().fold(0, |bits, a| bits | a.warnings);
-    let told: Vec<String> = Warning::raised(bits)
+    let told: Vec<String> = Warning::ALL
+        .into_iter()
         .filter(|w| !matches!(w, Warning::Refusals | Warning::Jumped))
         .filter_map(|w| {
             let first = answers.iter().find(|a| a.warnings & w.bit() != 0)?;

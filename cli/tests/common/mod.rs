@@ -386,6 +386,11 @@ pub fn journal_count(setup: &Setup, source: &str) -> usize {
         .unwrap_or(0)
 }
 
+/// The sequence numbers of the answers that `keep` keeps, in order.
+pub fn seqs_where(answers: &[CorrectedPose], keep: impl Fn(&CorrectedPose) -> bool) -> Vec<u64> {
+    answers.iter().filter(|a| keep(a)).map(|a| a.seq).collect()
+}
+
 /// The poses of `answers`.
 pub fn poses_of(answers: &[CorrectedPose]) -> Vec<Pose3> {
     answers
