@@ -3,6 +3,7 @@
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
+use std::process::Command;
 
 /// The normal (not dev, not build) dependencies of the crate in `folder`.
 fn dependencies(folder: &str) -> BTreeSet<String> {
@@ -17,6 +18,9 @@ fn dependencies(folder: &str) -> BTreeSet<String> {
         .map(|d| d.keys().cloned().collect())
         .unwrap_or_default()
 }
+
+/// The crate that pins the third-party dependencies' features for the installed commands.
+const WORKSPACE_HACK: &str = "lanealign-workspace-hack";
 
 fn names(list: &[&str]) -> BTreeSet<String> {
     list.iter().map(|s| s.to_string()).collect()
@@ -38,10 +42,11 @@ fn what_an_odometry_process_links_is_wire_and_iceoryx2_only() {
 
 #[test]
 fn dependencies_point_down() {
+    // The workspace hack holds no code (docs/architecture.md, "Build"): not a layer.
     let lanealign = |folder: &str| -> BTreeSet<String> {
         dependencies(folder)
             .into_iter()
-            .filter(|d| d.starts_with("lanealign"))
+            .filter(|d| d.starts_with("lanealign") && d != WORKSPACE_HACK)
             .collect()
     };
     assert_eq!(lanealign("core"), names(&[]));
@@ -55,6 +60,75 @@ fn dependencies_point_down() {
         assert!(
             !dependencies("core").contains(outside),
             "core depends on {outside}"
+        );
+    }
+}
+
+#[test]
+fn only_the_installed_commands_pin_the_workspaces_features() {
+    // The hack pulls the features of everything the workspace builds (clap's, regex's, the
+    // tests' random numbers) into whoever depends on it: the commands README installs, and
+    // no library another program links.
+    let pinning: BTreeSet<String> = [
+        "core",
+        "map_tools",
+        "wire",
+        "client",
+        "service",
+        "cli",
+        "tests",
+        "fuzzing",
+    ]
+    .into_iter()
+    .filter(|folder| dependencies(folder).contains(WORKSPACE_HACK))
+    .map(String::from)
+    .collect();
+    assert_eq!(pinning, names(&["cli", "map_tools", "service"]));
+}
+
+/// The third-party packages a build of `selection` compiles, each with the features it is
+/// compiled with, as `cargo tree` resolves them (one `name version [features]` a line).
+fn resolved(selection: &[&str]) -> BTreeSet<String> {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let out = Command::new(cargo)
+        .current_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".."))
+        .args([
+            "tree",
+            "--locked",
+            "--prefix",
+            "none",
+            "--format",
+            "{p} [{f}]",
+        ])
+        .args(selection)
+        .output()
+        .expect("cargo runs");
+    assert!(
+        out.status.success(),
+        "cargo tree {selection:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|line| line.replace(" (*)", "").replace(" (proc-macro)", ""))
+        .filter(|line| !line.is_empty() && !line.starts_with("lanealign"))
+        .collect()
+}
+
+#[test]
+fn installing_a_command_compiles_nothing_the_workspace_build_did_not() {
+    // README's install step builds each command's package alone, after (in CI) or instead of
+    // the workspace's build. Cargo resolves a dependency's features for what it builds, so a
+    // package that needs fewer of them than the whole workspace compiles that dependency and
+    // everything above it again (2 min 46 s for the three on this machine). The workspace hack
+    // pins them: when this fails, run `cargo hakari generate` (docs/architecture.md, "Build").
+    let workspace = resolved(&["--workspace", "--edges", "normal,build,dev"]);
+    for package in ["lanealign-cli", "lanealign-map", "lanealign-service"] {
+        let alone = resolved(&["--package", package, "--edges", "normal,build"]);
+        let differing: Vec<&String> = alone.difference(&workspace).collect();
+        assert!(
+            differing.is_empty(),
+            "{package} alone resolves these otherwise than the workspace: {differing:?}"
         );
     }
 }
