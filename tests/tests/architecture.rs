@@ -132,3 +132,29 @@ fn installing_a_command_compiles_nothing_the_workspace_build_did_not() {
         );
     }
 }
+
+#[test]
+fn the_python_package_builds_on_the_workspaces_compiled_dependencies() {
+    // `cargo test` builds the Python package on the workspace's compiled dependencies
+    // (tests/tests/python.rs): those it shares with the workspace must resolve alike there too.
+    // pyo3's macros need more of `syn` than the workspace: one such crate resolved otherwise
+    // makes every crate above it (serde's and clap's derives, so nearly all) compile again.
+    let workspace = resolved(&["--workspace", "--edges", "normal,build,dev"]);
+    let name_and_version = |line: &str| line.split(" [").next().unwrap_or_default().to_owned();
+    let in_workspace: BTreeSet<String> = workspace.iter().map(|l| name_and_version(l)).collect();
+    let python = resolved(&[
+        "--manifest-path",
+        "python/Cargo.toml",
+        "--edges",
+        "normal,build",
+    ]);
+    let differing: Vec<&String> = python
+        .iter()
+        .filter(|line| in_workspace.contains(&name_and_version(line)))
+        .filter(|line| !workspace.contains(*line))
+        .collect();
+    assert!(
+        differing.is_empty(),
+        "the Python package resolves these otherwise than the workspace: {differing:?}"
+    );
+}
