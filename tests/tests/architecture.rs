@@ -1,18 +1,25 @@
 //! The dependency rules of docs/architecture.md, checked on every crate's manifest: what an
-//! odometry process links stays thin, and dependencies point down.
+//! odometry process links stays thin, and dependencies point down. And its "Build": the installed
+//! commands and the Python package resolve their dependencies as the workspace's build does.
 
 use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::process::Command;
 
+/// The workspace's root folder.
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The manifest in `folder` (relative to the workspace's root).
+fn manifest(folder: &str) -> toml::Table {
+    let path = root().join(folder).join("Cargo.toml");
+    std::fs::read_to_string(&path).unwrap().parse().unwrap()
+}
+
 /// The normal (not dev, not build) dependencies of the crate in `folder`.
 fn dependencies(folder: &str) -> BTreeSet<String> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join(folder)
-        .join("Cargo.toml");
-    let manifest: toml::Table = std::fs::read_to_string(&path).unwrap().parse().unwrap();
-    manifest
+    manifest(folder)
         .get("dependencies")
         .and_then(|d| d.as_table())
         .map(|d| d.keys().cloned().collect())
@@ -69,12 +76,8 @@ fn only_the_installed_commands_pin_the_workspaces_features() {
     // The hack pulls the features of everything the workspace builds (clap's, regex's, the
     // tests' random numbers) into whoever depends on it: the commands README installs, and
     // no library another program links.
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let manifest: toml::Table = std::fs::read_to_string(root.join("Cargo.toml"))
-        .unwrap()
-        .parse()
-        .unwrap();
-    let members = manifest["workspace"]["members"]
+    let workspace = manifest(".");
+    let members = workspace["workspace"]["members"]
         .as_array()
         .expect("the workspace lists its members");
     let pinning: BTreeSet<String> = members
@@ -91,7 +94,7 @@ fn only_the_installed_commands_pin_the_workspaces_features() {
 fn resolved(selection: &[&str]) -> BTreeSet<String> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let out = Command::new(cargo)
-        .current_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".."))
+        .current_dir(root())
         .args([
             "tree",
             "--locked",
