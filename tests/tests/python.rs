@@ -18,8 +18,9 @@ fn the_python_package_equals_the_command_line() {
             // The extension is built on what `cargo test` compiled already: the Python crate
             // has the workspace's release profile and dependency versions (below), and the
             // workspace asks for the features it needs (docs/architecture.md, "Build"), so its
-            // third-party dependencies but pyo3, numpy and ndarray are the workspace's own
-            // artifacts (this test 72 s instead of 112 s in CI on a clean clone, 2026-12-02).
+            // third-party dependencies but pyo3, numpy, ndarray and rustc-hash (architecture.md
+            // says why) are the workspace's own artifacts (this test 72 s instead of 112 s in CI
+            // on a clean clone, 2026-12-02).
             .env("CARGO_TARGET_DIR", root.join("target"))
             .output()
             .unwrap_or_else(|e| panic!("{python} is needed for the Python package's tests: {e}"));
