@@ -2,8 +2,8 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::thread::JoinHandle;
 use std::time::Duration;
 
 use lanealign_core::geo::{check_lat_lon, GeoError, MapPlane, Projection};
@@ -158,21 +158,40 @@ pub fn read_input(path: &Path) -> Result<OsmData, CompileError> {
     }
 }
 
-/// A spinner that shows itself on a terminal only when reading takes more than a second.
-fn spinner(message: String) -> (indicatif::ProgressBar, Arc<AtomicBool>) {
-    let bar =
-        indicatif::ProgressBar::with_draw_target(None, indicatif::ProgressDrawTarget::hidden());
-    bar.set_message(message);
-    let done = Arc::new(AtomicBool::new(false));
-    let (late_bar, late_done) = (bar.clone(), done.clone());
-    std::thread::spawn(move || {
-        std::thread::sleep(Duration::from_secs(1));
-        if !late_done.load(Ordering::Relaxed) {
-            late_bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
-            late_bar.enable_steady_tick(Duration::from_millis(120));
-        }
-    });
-    (bar, done)
+/// A spinner that shows itself on a terminal only when reading takes more than a second. Its
+/// thread waits for [`Spinner::finish`] rather than sleeping, and `finish` joins it: a call of
+/// [`compile`] leaves no thread behind (one that slept out its second outlived every quick
+/// read, hundreds at a time in a loop of small compiles).
+struct Spinner {
+    bar: indicatif::ProgressBar,
+    stop: mpsc::Sender<()>,
+    thread: JoinHandle<()>,
+}
+
+impl Spinner {
+    fn start(message: String) -> Spinner {
+        let bar =
+            indicatif::ProgressBar::with_draw_target(None, indicatif::ProgressDrawTarget::hidden());
+        bar.set_message(message);
+        let (stop, stopped) = mpsc::channel::<()>();
+        let late_bar = bar.clone();
+        let thread = std::thread::spawn(move || {
+            if stopped.recv_timeout(Duration::from_secs(1)) == Err(RecvTimeoutError::Timeout) {
+                late_bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                late_bar.enable_steady_tick(Duration::from_millis(120));
+            }
+        });
+        Spinner { bar, stop, thread }
+    }
+
+    /// Ends the spinner's thread and clears the spinner if it was shown.
+    fn finish(self) {
+        let Spinner { bar, stop, thread } = self;
+        drop(stop);
+        // The thread only waits and redraws; a panic in it has been reported by the hook.
+        let _ = thread.join();
+        bar.finish_and_clear();
+    }
 }
 
 /// The bounds of node positions `[min lat, min lon, max lat, max lon]` (nanodegrees), whose
@@ -336,10 +355,9 @@ pub(crate) fn plane_origin(
 pub fn compile(inputs: &[PathBuf], options: &CompileOptions) -> Result<Compiled, CompileError> {
     let mut data = Vec::with_capacity(inputs.len());
     for path in inputs {
-        let (bar, done) = spinner(format!("reading {}", path.display()));
+        let spinner = Spinner::start(format!("reading {}", path.display()));
         let read = read_input(path);
-        done.store(true, Ordering::Relaxed);
-        bar.finish_and_clear();
+        spinner.finish();
         data.push(read?);
     }
     let (lat, lon) = plane_origin(options.origin, || centre(&data))?;
