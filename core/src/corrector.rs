@@ -614,7 +614,9 @@ impl Corrector {
         // (`Params::standstill_speed_mps`), keep the correction in force.
         if (standing || (self.carried as usize) + 1 < p.window_stride()) && !self.window.is_empty()
         {
-            self.carried += 1;
+            // Saturating: a standstill of weeks or a restored state (a tampered journal) may
+            // reach any count, and every count past the stride carries alike.
+            self.carried = self.carried.saturating_add(1);
             return Step {
                 position_in_map: self.map_from_anchored.apply(position_in_anchored),
                 ..self.step(Status::Carried {
@@ -715,7 +717,9 @@ impl Corrector {
                 (RejectReason::ResidualTooLarge, fit.residual_m)
             };
         self.drop_oldest(1);
-        self.failures += 1;
+        // Saturating: a restored state may hold any count (a tampered journal); past
+        // `max_failures` the window resets all the same.
+        self.failures = self.failures.saturating_add(1);
         if self.failures > p.max_failures_at_rate() {
             let keep = min_window - 1;
             self.drop_oldest(self.window.len().saturating_sub(keep));
@@ -977,6 +981,40 @@ mod tests {
         assert!(x.abs() < 1e-6 && (y + 1.0).abs() < 1e-6, "{x} {y}");
         // A corrector restored between alignments continues where it was.
         assert_restores_bit_for_bit(params, &drive, &steps, &[30, 91, 500]);
+    }
+
+    /// A restored state may hold any count (a journal tampered with under its checksum; found by
+    /// the `snapshot` fuzz harness): the next failure resets the window and a standstill carries
+    /// on, as from the largest counts that arise in a run, without an overflow.
+    #[test]
+    fn counts_restored_at_their_largest_saturate() {
+        let mut params = small_params();
+        params.standstill_speed_mps = 1.0;
+        // Driving west on an eastbound-only map: nothing matches.
+        let west: Vec<[f64; 2]> = (0..20).map(|i| [250.0 - i as f64 * 2.0, 0.0]).collect();
+        let mut c = Corrector::new(l_shaped_map(), params);
+        for &p in &west[..19] {
+            c.push(p);
+        }
+        let mut state = c.state();
+        state.failures = u32::MAX;
+        state.carried = u32::MAX;
+        let restore = || Corrector::restore(l_shaped_map(), params, MatchMode::Fast, state.clone());
+        let mut failing = restore();
+        assert!(matches!(
+            failing.push(west[19]).status,
+            Status::Reset {
+                reason: RejectReason::TooFewMatches,
+                ..
+            }
+        ));
+        assert_eq!(failing.failures, 0);
+        let mut standing = restore();
+        assert!(matches!(
+            standing.push(west[18]).status,
+            Status::Carried { window_len: 19 }
+        ));
+        assert_eq!(standing.carried, u32::MAX);
     }
 
     #[test]
