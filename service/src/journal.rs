@@ -46,7 +46,7 @@ use lanealign_core::corrector::CorrectorState;
 use lanealign_core::plausibility::{
     AxisMotion, Pace, SourceWatchState, SpeedChange, SpeedHistory, PACE_STEPS,
 };
-use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::pose::{AxisConvention, Pose3, MAX_COORDINATE_M};
 use lanealign_core::scale::{ScaleEstimate, ScaledOdometry};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{Counts, SourceState};
@@ -105,6 +105,12 @@ const SNAPSHOT_MAGIC_V3: &[u8; 8] = b"LASNAP03";
 const SNAPSHOT_MAGIC_V2: &[u8; 8] = b"LASNAP02";
 /// The largest window a snapshot may hold (poses): the corrector's own limit.
 const MAX_WINDOW: u64 = 1_000_000;
+/// The farthest a position or offset in a snapshot may lie from its frame's origin (metres): a
+/// hundred times the farthest a pose may ([`MAX_COORDINATE_M`]), beyond anything a run produces,
+/// and near enough that no sum or product of a few of them overflows. A snapshot past it was
+/// tampered with under its checksum: restored, its arithmetic reached infinities, and accepted
+/// answers of NaN (found by the `snapshot` fuzz harness).
+const MAX_POSITION_M: f64 = 100.0 * MAX_COORDINATE_M;
 /// The most poses, stamps or speeds a snapshot's stall watch or session watch may hold (they
 /// keep 64 and 16).
 const MAX_WATCH_VALUES: u64 = 1024;
@@ -201,7 +207,7 @@ impl Decoder<'_> {
     fn se2(&mut self) -> Option<Se2> {
         let [c, s, x, y] = self.f64s::<4>()?;
         let norm = c.hypot(s);
-        let finite = [c, s, x, y].iter().all(|v| v.is_finite());
+        let finite = c.is_finite() && s.is_finite() && within_reach(&[x, y]);
         (finite && (norm - 1.0).abs() < 1e-9).then(|| Se2::from_rotation(c, s, x, y))
     }
 }
@@ -531,7 +537,9 @@ impl Snapshot {
             return None;
         }
         let window: Vec<[f64; 2]> = (0..n).map(|_| d.f64s::<2>()).collect::<Option<_>>()?;
-        let finite = window.iter().flatten().all(|v| v.is_finite())
+        // Positions within reach, every other number finite.
+        let finite = window.iter().all(within_reach)
+            && within_reach(&last_position.1)
             && window_path_m.is_finite()
             && travelled_m.is_finite()
             && gate_travelled_m.is_finite()
@@ -540,10 +548,8 @@ impl Snapshot {
             && scale.is_none_or(|s| s.is_valid())
             && published_uncertainty
                 .is_none_or(|(c, x)| c.iter().flatten().chain(&x).all(|v| v.is_finite()))
-            && scaled.offset.iter().all(|v| v.is_finite())
-            && scaled
-                .last_in_anchored
-                .is_none_or(|p| p.iter().all(|v| v.is_finite()));
+            && within_reach(&scaled.offset)
+            && scaled.last_in_anchored.is_none_or(|p| within_reach(&p));
         let state = SourceState {
             corrector: CorrectorState {
                 map_from_anchored,
@@ -583,6 +589,13 @@ pub fn seal(bytes: &mut [u8]) {
     }
 }
 
+/// Whether every value of a position (or offset) is finite and within [`MAX_POSITION_M`].
+fn within_reach(position: &[f64; 2]) -> bool {
+    position
+        .iter()
+        .all(|v| v.is_finite() && v.abs() <= MAX_POSITION_M)
+}
+
 /// Appends a stall watch's state.
 fn encode_stall(e: &mut Encoder, stall: &StallState) {
     e.u64(stall.held.len() as u64);
@@ -601,18 +614,22 @@ fn encode_stall(e: &mut Encoder, stall: &StallState) {
     };
 }
 
-/// A stall watch's state ([`encode_stall`]); `None` unless every part is there and every
-/// number but a held stamp (NaN without stamps) is finite.
+/// A stall watch's state ([`encode_stall`]); `None` unless every part is there, every number but
+/// a held stamp (NaN without stamps) is finite and every position is within reach
+/// ([`MAX_POSITION_M`]).
 fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
     let held: Vec<[f64; 4]> = (0..count(d)?)
-        .map(|_| d.f64s::<4>().filter(|h| finite(&h[1..])))
+        .map(|_| {
+            d.f64s::<4>()
+                .filter(|h| within_reach(&[h[1], h[2]]) && h[3].is_finite())
+        })
         .collect::<Option<_>>()?;
     let judged = decode_judged(d)?;
     let last = (d.u32()?, d.f64s::<2>()?);
     let open = (d.u32()?, d.f64()?, d.f64s::<2>()?, d.f64()?);
-    (finite(&last.1) && finite(&[open.1, open.2[0], open.2[1], open.3])).then_some(())?;
+    (within_reach(&last.1) && finite(&[open.1, open.2[0], open.2[1], open.3])).then_some(())?;
     Some(StallState {
         held,
         judged,
@@ -806,13 +823,18 @@ fn decode_pace(d: &mut Decoder<'_>, seen: Option<usize>) -> Option<Pace> {
 
 /// A session watch's state ([`encode_watch`]; without the tilted path unless `has_tilt`, as
 /// before format 10, and without the pace and the warnings raised unless `has_pace`, as before
-/// format 11); `None` unless every part is there and every number but a stamp (any number a
-/// client sent) is finite.
+/// format 11); `None` unless every part is there, every number but a stamp (any number a client
+/// sent) is finite and every position is within reach ([`MAX_POSITION_M`]).
 fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<SessionWatchState> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
     let axes = if flag(d.u32()?)? {
-        let last = (d.u32()?, d.f64s::<12>().filter(|p| finite(p))?);
+        let last = (
+            d.u32()?,
+            d.f64s::<12>().filter(|p| {
+                finite(p) && [3, 7, 11].iter().all(|&k| p[k].abs() <= MAX_POSITION_M)
+            })?,
+        );
         let mut vertical_and_path_m = [(0.0, 0.0); AxisConvention::ALL.len()];
         for pair in &mut vertical_and_path_m {
             *pair = (d.f64()?, d.f64()?);
@@ -832,7 +854,7 @@ fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<S
     };
     let stamps_s: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
     let held: Vec<[f64; 2]> = (0..count(d)?)
-        .map(|_| d.f64s::<2>().filter(|p| finite(p)))
+        .map(|_| d.f64s::<2>().filter(within_reach))
         .collect::<Option<_>>()?;
     let speed = decode_judged(d)?;
     let mut number = || d.u64().and_then(|v| usize::try_from(v).ok());
