@@ -40,6 +40,48 @@ use crate::stall::Widening;
 /// plane.
 pub type Covariance = [[f64; 3]; 3];
 
+/// The largest magnitude an entry of a covariance may have to be continued from (square metres,
+/// metres times radians, square radians): a position sigma of 1e9 m, a hundred times the
+/// farthest a pose may lie ([`crate::pose::MAX_COORDINATE_M`]) and beyond what any drive
+/// accumulates, while sums and products of a few entries stay finite.
+pub const MAX_COVARIANCE_ENTRY: f64 = 1e18;
+
+/// Whether `matrix` is a covariance a filter can continue from (one restored from a saved
+/// state): every entry finite and within [`MAX_COVARIANCE_ENTRY`], symmetric and positive
+/// semi-definite, both within rounding (relative 1e-9). A matrix that is not would turn the
+/// filter's variances negative or infinite. A 2x2 covariance is checked as the upper left of a
+/// 3x3 one with zeros elsewhere.
+pub fn is_covariance(matrix: &Covariance) -> bool {
+    is_joint_covariance(matrix, [0.0; 3], 0.0)
+}
+
+/// Whether the pose's `covariance`, its covariance with the odometry's scale error
+/// (`scale_cross`, [`PoseUncertainty::scale_cross`]) and the scale's variance make one joint
+/// covariance a filter can continue from (as [`is_covariance`], of the 4x4 matrix).
+pub fn is_joint_covariance(
+    covariance: &Covariance,
+    scale_cross: [f64; 3],
+    scale_variance: f64,
+) -> bool {
+    let joint = Matrix4::from_fn(|r, c| match (r, c) {
+        (3, 3) => scale_variance,
+        (3, k) | (k, 3) => scale_cross[k],
+        (r, c) => covariance[r][c],
+    });
+    if !joint
+        .iter()
+        .all(|v| v.is_finite() && v.abs() <= MAX_COVARIANCE_ENTRY)
+    {
+        return false;
+    }
+    let tolerance = 1e-9 * joint.amax();
+    (joint - joint.transpose()).amax() <= tolerance
+        && joint
+            .symmetric_eigenvalues()
+            .iter()
+            .all(|&e| e >= -tolerance)
+}
+
 /// How far a car wanders about the centreline of the lane it drives in, independently of the
 /// map (metres, 1 sigma).
 pub const WANDER_SIGMA_M: f64 = 0.3;
@@ -588,6 +630,39 @@ mod tests {
             for k in 0..3 {
                 assert!((c[r][k] - expected[r][k]).abs() < 1e-12, "{c:?}");
             }
+        }
+    }
+
+    #[test]
+    fn a_covariance_to_continue_from_is_symmetric_positive_semi_definite_and_bounded() {
+        let good = [
+            [4.5, 0.003, 1e-4],
+            [0.003, 1.09, 0.007],
+            [1e-4, 0.007, 3e-4],
+        ];
+        assert!(is_covariance(&good));
+        assert!(is_covariance(&[[0.0; 3]; 3]));
+        // Rounding: an asymmetry or a negative eigenvalue of 1e-12 of the largest entry.
+        let mut rounded = good;
+        rounded[0][1] += 4.5e-12;
+        assert!(is_covariance(&rounded));
+        let map_error = [[0.375, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]];
+        assert!(is_covariance(&map_error));
+        let mut bad = Vec::new();
+        for (r, c, v) in [
+            (1, 1, -1.0),     // a negative variance
+            (0, 1, 0.5),      // asymmetric
+            (2, 2, f64::NAN), // not a number
+            (0, 0, 1.3e19),   // beyond MAX_COVARIANCE_ENTRY
+        ] {
+            let mut m = good;
+            m[r][c] = v;
+            bad.push(m);
+        }
+        // Every entry fine alone, the whole indefinite: a correlation above 1.
+        bad.push([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        for m in bad {
+            assert!(!is_covariance(&m), "{m:?}");
         }
     }
 }

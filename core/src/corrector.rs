@@ -983,6 +983,29 @@ mod tests {
         assert_restores_bit_for_bit(params, &drive, &steps, &[30, 91, 500]);
     }
 
+    /// Every covariance a run saves is one a restored corrector continues from, before the first
+    /// alignment, while aligned and after the road turns.
+    #[test]
+    fn every_saved_covariance_is_one_to_continue_from() {
+        let mut params = crate::params::Preset::OrbSlam3.robust_params();
+        params.min_window = 20;
+        let mut c = Corrector::new(l_shaped_map(), params);
+        for p in l_drive([0.5, 1.0]) {
+            c.push(p);
+            let state = c.state();
+            assert!(
+                crate::confidence::is_covariance(&state.covariance),
+                "{state:?}"
+            );
+            let (published, cross) = state.published_uncertainty.expect("the scale is estimated");
+            let scale = state.scale.expect("the scale is estimated");
+            assert!(
+                crate::confidence::is_joint_covariance(&published, cross, scale.variance),
+                "{state:?}"
+            );
+        }
+    }
+
     /// A restored state may hold any count (a journal tampered with under its checksum; found by
     /// the `snapshot` fuzz harness): the next failure resets the window and a standstill carries
     /// on, as from the largest counts that arise in a run, without an overflow.

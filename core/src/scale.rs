@@ -130,14 +130,20 @@ impl ScaleEstimate {
         change
     }
 
-    /// Whether the estimate is one a corrector can continue from: finite, the factor positive.
+    /// Whether the estimate is one a corrector can continue from (one restored from a saved
+    /// state): the factor within [`MAX_SCALE_OFF`] times either way of 1, the variance
+    /// non-negative and at most `MAX_SCALE_OFF` (both finite). Beyond, the scaled steps and the
+    /// covariance overflowed into infinities.
     pub fn is_valid(&self) -> bool {
-        self.factor.is_finite()
-            && self.factor > 0.0
-            && self.variance.is_finite()
-            && self.variance >= 0.0
+        (1.0 / MAX_SCALE_OFF..=MAX_SCALE_OFF).contains(&self.factor)
+            && (0.0..=MAX_SCALE_OFF).contains(&self.variance)
     }
 }
+
+/// How far a scale estimate may be off to be continued from (a ratio; [`ScaleEstimate::is_valid`]):
+/// a million times, far past any odometry lanes could correct, while a scaled step of the
+/// farthest a pose may lie ([`crate::pose::MAX_COORDINATE_M`]) stays finite.
+pub const MAX_SCALE_OFF: f64 = 1e6;
 
 /// The anchored odometry with its steps multiplied by the scale estimate (frame `scaled`, the
 /// plane the corrector works in): each position is the last one's plus the step since, scaled.

@@ -41,8 +41,10 @@ use std::sync::Arc;
 
 use memmap2::MmapMut;
 
+use lanealign_core::confidence::{is_covariance, is_joint_covariance};
 use lanealign_core::continuity::{BeforeGlitch, Continuity};
 use lanealign_core::corrector::CorrectorState;
+use lanealign_core::params::{MAX_ODOMETRY_RATE_HZ, MIN_ODOMETRY_RATE_HZ};
 use lanealign_core::plausibility::{
     AxisMotion, Pace, SourceWatchState, SpeedChange, SpeedHistory, PACE_STEPS,
 };
@@ -537,17 +539,22 @@ impl Snapshot {
             return None;
         }
         let window: Vec<[f64; 2]> = (0..n).map(|_| d.f64s::<2>()).collect::<Option<_>>()?;
-        // Positions within reach, every other number finite.
-        let finite = window.iter().all(within_reach)
+        // Positions within reach, covariances ones a filter continues from, every other number
+        // finite.
+        let finite = window.iter().all(|p| within_reach(p))
             && within_reach(&last_position.1)
             && window_path_m.is_finite()
             && travelled_m.is_finite()
             && gate_travelled_m.is_finite()
-            && covariance.iter().flatten().all(|v| v.is_finite())
-            && map_error.iter().flatten().all(|v| v.is_finite())
+            && is_covariance(&covariance)
+            && is_covariance(&[
+                [map_error[0][0], map_error[0][1], 0.0],
+                [map_error[1][0], map_error[1][1], 0.0],
+                [0.0; 3],
+            ])
             && scale.is_none_or(|s| s.is_valid())
             && published_uncertainty
-                .is_none_or(|(c, x)| c.iter().flatten().chain(&x).all(|v| v.is_finite()))
+                .is_none_or(|(c, x)| is_joint_covariance(&c, x, scale.map_or(0.0, |s| s.variance)))
             && within_reach(&scaled.offset)
             && scaled.last_in_anchored.is_none_or(|p| within_reach(&p));
         let state = SourceState {
@@ -589,9 +596,10 @@ pub fn seal(bytes: &mut [u8]) {
     }
 }
 
-/// Whether every value of a position (or offset) is finite and within [`MAX_POSITION_M`].
-fn within_reach(position: &[f64; 2]) -> bool {
-    position
+/// Whether every value of a position, an offset, a distance or a speed is finite and within
+/// [`MAX_POSITION_M`] (metres, or metres per second).
+fn within_reach(values: &[f64]) -> bool {
+    values
         .iter()
         .all(|v| v.is_finite() && v.abs() <= MAX_POSITION_M)
 }
@@ -629,7 +637,11 @@ fn decode_stall(d: &mut Decoder<'_>) -> Option<StallState> {
     let judged = decode_judged(d)?;
     let last = (d.u32()?, d.f64s::<2>()?);
     let open = (d.u32()?, d.f64()?, d.f64s::<2>()?, d.f64()?);
-    (within_reach(&last.1) && finite(&[open.1, open.2[0], open.2[1], open.3])).then_some(())?;
+    // A stall under way: a speed and a distance missed within reach, and a unit heading.
+    let heading_norm = open.2[0].hypot(open.2[1]);
+    let open_valid = within_reach(&[open.1, open.3])
+        && (open.0 == 0 || (open.1 >= 0.0 && open.3 >= 0.0 && (heading_norm - 1.0).abs() < 1e-9));
+    (within_reach(&last.1) && finite(&open.2) && open_valid).then_some(())?;
     Some(StallState {
         held,
         judged,
@@ -678,7 +690,8 @@ fn count(d: &mut Decoder<'_>) -> Option<u64> {
 }
 
 /// What [`encode_judged`] appended (`Some(None)`: not judged yet); `None` unless every part is
-/// there, every number is finite, the rate positive, and every pose it names one it has seen.
+/// there, every number is finite, the rate one a corrector may be set for, and every pose it
+/// names one it has seen.
 fn decode_judged(d: &mut Decoder<'_>) -> Option<Option<(f64, SpeedHistory)>> {
     let flag = |f: u32| (f <= 1).then_some(f == 1);
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
@@ -695,12 +708,12 @@ fn decode_judged(d: &mut Decoder<'_>) -> Option<Option<(f64, SpeedHistory)>> {
     let change = (d.u32()?, d.u64()?, d.f64s::<3>()?, d.u64()?);
     // Every pose it names is one it has seen, and it has seen fewer than any session sends.
     let seen_pose = |pose: u64| pose < seen as u64;
-    let valid = rate_hz.is_finite()
-        && rate_hz > 0.0
+    // A judged rate is a plausible stamped one or a corrector's setting: within the settings'.
+    let valid = (MIN_ODOMETRY_RATE_HZ..=MAX_ODOMETRY_RATE_HZ).contains(&rate_hz)
         && finite(&last.1)
-        && finite(&speeds)
+        && within_reach(&speeds)
         && ends.len() == speeds.len()
-        && finite(&change.2)
+        && within_reach(&change.2)
         && seen < MAX_POSES_SEEN
         && ends.iter().all(|&end| seen_pose(end as u64))
         && (change.0 == 0 || (seen_pose(change.1) && seen_pose(change.3)));
@@ -854,7 +867,7 @@ fn decode_watch(d: &mut Decoder<'_>, has_tilt: bool, has_pace: bool) -> Option<S
     };
     let stamps_s: Vec<f64> = (0..count(d)?).map(|_| d.f64()).collect::<Option<_>>()?;
     let held: Vec<[f64; 2]> = (0..count(d)?)
-        .map(|_| d.f64s::<2>().filter(within_reach))
+        .map(|_| d.f64s::<2>().filter(|p| within_reach(p)))
         .collect::<Option<_>>()?;
     let speed = decode_judged(d)?;
     let mut number = || d.u64().and_then(|v| usize::try_from(v).ok());
@@ -1302,7 +1315,7 @@ mod tests {
                     }),
                     published_uncertainty: Some((
                         [[0.6, 0.1, 1e-3], [0.1, 0.9, -2e-3], [1e-3, -2e-3, 2e-4]],
-                        [0.02, -0.01, 1e-5],
+                        [0.005, -0.002, 1e-6],
                     )),
                 },
                 smoothed: None,
