@@ -7,6 +7,7 @@ use std::path::Path;
 
 use lanealign_core::plausibility::SpeedChange;
 use lanealign_core::pose::Pose3;
+use lanealign_core::se2::Se2;
 use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Format, Trajectory};
 use lanealign_map::osm::read_xml;
@@ -245,6 +246,78 @@ pub fn cases() -> Vec<Case> {
         bytes: unseen.encode(),
         refused_with: Some("unreadable snapshot"),
     });
+    // A snapshot whose corrector has failed as often as its count holds (found by the
+    // `snapshot` harness once its sessions aligned: the next failure overflowed the count, and a
+    // daemon restarting from such a journal would have crashed at that pose on every restart).
+    let mut failed = Snapshot::decode(&stalled).expect("the seed decodes");
+    failed.state.corrector.failures = u32::MAX;
+    cases.push(Case {
+        name: "snapshot_failure_count_at_its_largest.bin",
+        target: Target::Snapshot,
+        bytes: failed.encode(),
+        refused_with: None,
+    });
+    // A snapshot whose last odometry pose lies 4e307 m away, finite (found by the `snapshot`
+    // harness once its sessions aligned). Restored, the next pose's jump from it put the
+    // correction 4e307 m off and the covariance at NaN; the harness's input, off in more
+    // bytes, went on to accept poses of NaN.
+    let mut far = Snapshot::decode(&stalled).expect("the seed decodes");
+    let last = far
+        .state
+        .continuity
+        .last
+        .as_mut()
+        .expect("the seed has a last pose");
+    let (cos, sin) = last.0.rotation();
+    last.0 = Se2::from_rotation(cos, sin, 39.0, -3.9e307);
+    cases.push(Case {
+        name: "snapshot_last_pose_out_of_reach.bin",
+        target: Target::Snapshot,
+        bytes: far.encode(),
+        refused_with: Some("unreadable snapshot"),
+    });
+    // Snapshots whose numbers are finite but no run makes them (found by the `snapshot` harness
+    // once its sessions aligned and it checked every corrected answer against docs/wire.md).
+    // Restored, each turned a corrected answer's covariance negative, infinite or NaN.
+    type Tamper = fn(&mut Snapshot);
+    let tampered: [(&'static str, Tamper); 4] = [
+        ("snapshot_covariance_not_positive.bin", |s| {
+            // A correlation of the heading with the scale above 1.
+            if let Some((_, cross)) = &mut s.state.corrector.published_uncertainty {
+                cross[2] = 0.068;
+            }
+        }),
+        ("snapshot_scale_variance_out_of_reach.bin", |s| {
+            if let Some(scale) = &mut s.state.corrector.scale {
+                scale.variance = 4.5e305;
+            }
+        }),
+        ("snapshot_speed_judged_at_no_rate.bin", |s| {
+            if let Some((rate_hz, _)) = s.state.stall.as_mut().and_then(|w| w.judged.as_mut()) {
+                *rate_hz = 8e-260;
+            }
+        }),
+        ("snapshot_stall_heading_not_a_direction.bin", |s| {
+            if let Some(open) = s.state.stall.as_mut().and_then(|w| w.open.as_mut()) {
+                open.heading[0] = 1.7e308;
+            }
+        }),
+    ];
+    for (name, tamper) in tampered {
+        let mut snapshot = Snapshot::decode(&stalled).expect("the seed decodes");
+        let before = snapshot.encode();
+        tamper(&mut snapshot);
+        assert!(
+            snapshot.encode() != before,
+            "{name}: the seed has the part tampered with"
+        );
+        cases.push(Case {
+            name,
+            target: Target::Snapshot,
+            bytes: snapshot.encode(),
+            refused_with: Some("unreadable snapshot"),
+        });
+    }
     // A pose of NaNs first in the Python package's `correct` (found by reading a panic, then by
     // the `pose_array` harness): the anchor check asked the lane map what is near it, and the
     // map's tie search underflowed on the empty answer.

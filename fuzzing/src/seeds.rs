@@ -207,10 +207,34 @@ pub fn odom_pose_bytes(p: &OdomPose) -> Vec<u8> {
     out
 }
 
-/// Two interleaved sessions streaming the drive, the second started afresh mid-way; then the
-/// first says goodbye and sends one pose more (a session the daemon no longer runs).
+/// The payload of [`ODOM_POSE_BYTES`] bytes as [`odom_pose_bytes`] writes them (its inverse).
+pub fn odom_pose_from_bytes(chunk: &[u8; ODOM_POSE_BYTES]) -> OdomPose {
+    let u64_at = |k: usize| {
+        let mut b = [0; 8];
+        b.copy_from_slice(&chunk[8 * k..8 * k + 8]);
+        u64::from_le_bytes(b)
+    };
+    let u32_at = |at: usize| {
+        let mut b = [0; 4];
+        b.copy_from_slice(&chunk[at..at + 4]);
+        u32::from_le_bytes(b)
+    };
+    OdomPose {
+        session: u64_at(0),
+        seq: u64_at(1),
+        stamp_ns: u64_at(2) as i64,
+        sent_mono_ns: u64_at(3),
+        pose: std::array::from_fn(|k| f64::from_bits(u64_at(4 + k))),
+        flags: u32_at(128),
+        reserved: u32_at(132),
+    }
+}
+
+/// Two interleaved sessions streaming the drive's 40 poses on the seed lanes, the second started
+/// afresh at the 13th (both aligned once their windows are full); then the first says goodbye and
+/// sends one pose more (a session the daemon no longer runs).
 pub fn wire_stream() -> Vec<u8> {
-    let drive = drive(24);
+    let drive = drive(40);
     let mut out = Vec::new();
     for (i, pose) in drive.iter().enumerate() {
         for session in [1u64, 2] {

@@ -12,7 +12,7 @@ use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::{MapPlane, Projection};
 use lanealign_core::grid::{self, EncodedGrid, Grid, GridCell, GridSpec};
 use lanealign_core::lane_map::LaneMap;
-use lanealign_core::params::{CorrectorConfig, Method, Params, Preset};
+use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{CorrectedPose, Placement, SourceCorrector};
@@ -27,7 +27,7 @@ use lanealign_map::pbf::read_pbf;
 use lanealign_service::config::Config;
 use lanealign_service::journal::{self, Header};
 use lanealign_service::session::{self, Session, SessionSetup};
-use lanealign_wire::payload::{OdomPose, StatusCode, FLAG_END_SESSION};
+use lanealign_wire::payload::{self, OdomPose, StatusCode, FLAG_END_SESSION};
 
 use crate::seeds::{self, ODOM_POSE_BYTES};
 
@@ -405,7 +405,7 @@ fn grid_cell(bytes: &[u8]) -> Outcome {
     use_map(&with);
     let mut corrector = SourceCorrector::new(
         with.clone(),
-        Preset::KissIcp.params(),
+        harness_params(Preset::KissIcp, Method::Robust),
         MatchMode::Fast,
         placement(),
     );
@@ -441,6 +441,22 @@ fn seed_map() -> Arc<LaneMap> {
     MAP.get_or_init(|| Arc::new(seeds::lane_map())).clone()
 }
 
+/// The parameters the harnesses correct with: `method`'s for `preset` (the robust method is the
+/// product's default), with a window of [`HARNESS_MIN_WINDOW`] poses instead of the presets'
+/// 150, so that the seed drives, whose lanes end after 42 m, are aligned: with 150 the
+/// corrector would only ever warm up and refuse on them, and the matching, the ICP, the
+/// covariance and the corrections applied would never see a mutant.
+pub fn harness_params(preset: Preset, method: Method) -> Params {
+    Params {
+        min_window: HARNESS_MIN_WINDOW,
+        ..method.params(preset)
+    }
+}
+
+/// The harnesses' window before the first alignment (poses); a daemon's configuration may set
+/// the same (`min_window`).
+pub const HARNESS_MIN_WINDOW: usize = 20;
+
 fn placement() -> Placement {
     Placement {
         convention: AxisConvention::Flu,
@@ -465,7 +481,7 @@ fn pose_array(bytes: &[u8]) -> Outcome {
         .iter()
         .map(|row| Pose3::from_row_major(&std::array::from_fn(|k| row[1 + k])))
         .collect();
-    let config = CorrectorConfig::new(
+    let params = harness_params(
         if options & 4 != 0 {
             Preset::OrbSlam3
         } else {
@@ -477,7 +493,6 @@ fn pose_array(bytes: &[u8]) -> Outcome {
             Method::Robust
         },
     );
-    let params = config.params().map_err(|e| e.to_string())?;
     let convention = if options & 8 != 0 {
         AxisConvention::KittiCamera
     } else {
@@ -533,7 +548,7 @@ fn correct(poses: &[Pose3], stamps_s: Option<&[f64]>) -> Outcome {
     let run = correct_as_the_command_does(
         poses,
         stamps_s,
-        Preset::KissIcp.params(),
+        harness_params(Preset::KissIcp, Method::Robust),
         AxisConvention::Flu,
     )?;
     assert!(
@@ -543,13 +558,14 @@ fn correct(poses: &[Pose3], stamps_s: Option<&[f64]>) -> Outcome {
     Ok(())
 }
 
-/// The source a snapshot harness's session belongs to: the orb-slam3 preset, whose sessions
-/// estimate the odometry's scale and watch for stalls, so that every part of a snapshot is used.
+/// The source a snapshot harness's session belongs to: the orb-slam3 preset in the robust
+/// method, whose sessions estimate the odometry's scale and watch for stalls, so that every part
+/// of a snapshot is used.
 pub fn snapshot_setup() -> SessionSetup {
     SessionSetup {
         map: seed_map(),
         grid: None,
-        params: Preset::OrbSlam3.params(),
+        params: harness_params(Preset::OrbSlam3, Method::Robust),
         mode: MatchMode::Fast,
         placement: placement(),
         journal_dir: None,
@@ -581,13 +597,7 @@ fn restored(bytes: &[u8]) -> Outcome {
         let stamp_ns = 1_000_000_000 + k as i64 * 100_000_000;
         let input = seeds::odom_pose(1, session.expected_seq(), stamp_ns, pose);
         let (handled, _) = session.handle(&input, 0, &setup, || false);
-        let a = handled.answer;
-        if a.status() == Some(StatusCode::Accepted) {
-            assert!(
-                a.pose.iter().chain(&a.map_from_odom).all(|v| v.is_finite()),
-                "an accepted answer is finite"
-            );
-        }
+        keeps_the_contract(&handled.answer);
         session.watch_answered(&input, &handled.outcome);
     }
     session.watch.finish();
@@ -614,10 +624,10 @@ fn journaled(bytes: &[u8]) -> Outcome {
         ..snapshot_setup()
     };
     let mut live: Option<Session> = None;
-    for chunk in bytes.chunks_exact(ODOM_POSE_BYTES) {
+    for chunk in bytes.as_chunks::<ODOM_POSE_BYTES>().0 {
         let input = OdomPose {
             session: 1,
-            ..odom_pose(chunk)
+            ..seeds::odom_pose_from_bytes(chunk)
         };
         if input.flags & FLAG_END_SESSION != 0 {
             continue;
@@ -633,6 +643,7 @@ fn journaled(bytes: &[u8]) -> Outcome {
             continue;
         };
         let (handled, _) = session.handle(&input, 0, &streaming, || false);
+        keeps_the_contract(&handled.answer);
         session.watch_answered(&input, &handled.outcome);
         session.prepare(&streaming);
     }
@@ -681,45 +692,58 @@ fn journaled(bytes: &[u8]) -> Outcome {
     Ok(())
 }
 
-fn odom_pose(chunk: &[u8]) -> OdomPose {
-    let u64_at = |k: usize| {
-        let mut b = [0; 8];
-        b.copy_from_slice(&chunk[8 * k..8 * k + 8]);
-        u64::from_le_bytes(b)
-    };
-    let u32_at = |at: usize| {
-        let mut b = [0; 4];
-        b.copy_from_slice(&chunk[at..at + 4]);
-        u32::from_le_bytes(b)
-    };
-    OdomPose {
-        session: u64_at(0),
-        seq: u64_at(1),
-        stamp_ns: u64_at(2) as i64,
-        sent_mono_ns: u64_at(3),
-        pose: std::array::from_fn(|k| f64::from_bits(u64_at(4 + k))),
-        flags: u32_at(128),
-        reserved: u32_at(132),
+/// Checks what docs/wire.md promises of an answer: a known status, and unless the answer is
+/// flagged, a gap or passed through, a finite pose, correction, anchor rotation and scale, and
+/// a covariance with no negative variance.
+fn keeps_the_contract(a: &payload::CorrectedPose) {
+    let status = StatusCode::from_code(a.status).expect("a known status");
+    let corrected = !matches!(
+        status,
+        StatusCode::InvalidInput
+            | StatusCode::DuplicateSeq
+            | StatusCode::OutOfOrderSeq
+            | StatusCode::PassThrough
+            | StatusCode::Gap
+    );
+    if corrected {
+        let numbers = a.pose.iter().chain(&a.map_from_odom).chain(&a.covariance);
+        assert!(
+            numbers
+                .chain(&[a.anchor_yaw, a.odometry_scale, a.odometry_scale_sd])
+                .all(|v| v.is_finite()),
+            "a corrected answer ({status:?}) is finite: {a:?}"
+        );
+        let [xx, _, _, yy, _, yaw_yaw] = a.covariance;
+        assert!(
+            xx >= 0.0 && yy >= 0.0 && yaw_yaw >= 0.0,
+            "a variance is negative: {a:?}"
+        );
     }
 }
 
-/// Serves a byte stream of payloads as the worker does (a session starts at its first pose or
-/// afresh on request, and ends at a goodbye), checking what every answer must satisfy.
-fn serve(bytes: &[u8]) {
-    let setup = SessionSetup {
+/// The source the wire harness's sessions belong to: the kiss-icp preset in the robust method
+/// (the default method), without a journal.
+pub fn wire_setup() -> SessionSetup {
+    SessionSetup {
         map: seed_map(),
         grid: None,
-        params: Preset::KissIcp.params(),
+        params: harness_params(Preset::KissIcp, Method::Robust),
         mode: MatchMode::Fast,
         placement: placement(),
         journal_dir: None,
         fingerprint: 0,
         persistence: None,
         daemon_epoch: 1,
-    };
+    }
+}
+
+/// Serves a byte stream of payloads as the worker does (a session starts at its first pose or
+/// afresh on request, and ends at a goodbye), checking what every answer must satisfy.
+fn serve(bytes: &[u8]) {
+    let setup = wire_setup();
     let mut sessions: BTreeMap<u64, Session> = BTreeMap::new();
-    for chunk in bytes.chunks_exact(ODOM_POSE_BYTES) {
-        let input = odom_pose(chunk);
+    for chunk in bytes.as_chunks::<ODOM_POSE_BYTES>().0 {
+        let input = seeds::odom_pose_from_bytes(chunk);
         if input.flags & FLAG_END_SESSION != 0 {
             sessions.remove(&input.session);
             continue;
@@ -750,13 +774,6 @@ fn serve(bytes: &[u8]) {
             session.expected_seq() >= before,
             "the expected number never goes back"
         );
-        let status = StatusCode::from_code(a.status).expect("a known status");
-        if status == StatusCode::Accepted {
-            assert!(
-                a.pose.iter().all(|v| v.is_finite()),
-                "an accepted pose is finite"
-            );
-            assert!(a.map_from_odom.iter().all(|v| v.is_finite()));
-        }
+        keeps_the_contract(&a);
     }
 }
