@@ -47,10 +47,11 @@ pub type Covariance = [[f64; 3]; 3];
 pub const MAX_COVARIANCE_ENTRY: f64 = 1e18;
 
 /// Whether `matrix` is a covariance a filter can continue from (one restored from a saved
-/// state): every entry finite and within [`MAX_COVARIANCE_ENTRY`], symmetric and positive
-/// semi-definite, both within rounding (relative 1e-9). A matrix that is not would turn the
-/// filter's variances negative or infinite. A 2x2 covariance is checked as the upper left of a
-/// 3x3 one with zeros elsewhere.
+/// state): every entry finite and within [`MAX_COVARIANCE_ENTRY`], the variances non-negative,
+/// and symmetric and positive semi-definite within rounding (1e-9, measured on the matrix of
+/// correlations, so that a large variance does not hide a small one's errors). A matrix that
+/// is not would turn the filter's variances negative or infinite. A 2x2 covariance is checked
+/// as the upper left of a 3x3 one with zeros elsewhere.
 pub fn is_covariance(matrix: &Covariance) -> bool {
     is_joint_covariance(matrix, [0.0; 3], 0.0)
 }
@@ -63,23 +64,40 @@ pub fn is_joint_covariance(
     scale_cross: [f64; 3],
     scale_variance: f64,
 ) -> bool {
-    let joint = Matrix4::from_fn(|r, c| match (r, c) {
+    const ROUNDING: f64 = 1e-9;
+    let joint = |r: usize, c: usize| match (r, c) {
         (3, 3) => scale_variance,
         (3, k) | (k, 3) => scale_cross[k],
         (r, c) => covariance[r][c],
+    };
+    let entries_valid = (0..4).all(|r| {
+        (0..4).all(|c| {
+            let v = joint(r, c);
+            v.is_finite() && v.abs() <= MAX_COVARIANCE_ENTRY
+        })
     });
-    if !joint
-        .iter()
-        .all(|v| v.is_finite() && v.abs() <= MAX_COVARIANCE_ENTRY)
-    {
+    if !entries_valid || (0..4).any(|k| joint(k, k) < 0.0) {
         return false;
     }
-    let tolerance = 1e-9 * joint.amax();
-    (joint - joint.transpose()).amax() <= tolerance
-        && joint
+    // Correlations: each entry over the product of its variances' square roots; an entry
+    // beside a zero variance must be zero (within 1e-300, past which nothing is a variance).
+    let sd: [f64; 4] = std::array::from_fn(|k| joint(k, k).sqrt());
+    let mut correlation = Matrix4::zeros();
+    for r in 0..4 {
+        for c in 0..4 {
+            let scale = sd[r] * sd[c];
+            if scale > 1e-300 {
+                correlation[(r, c)] = joint(r, c) / scale;
+            } else if joint(r, c).abs() > 1e-300 {
+                return false;
+            }
+        }
+    }
+    (correlation - correlation.transpose()).amax() <= ROUNDING
+        && correlation
             .symmetric_eigenvalues()
             .iter()
-            .all(|&e| e >= -tolerance)
+            .all(|&e| e >= -ROUNDING)
 }
 
 /// How far a car wanders about the centreline of the lane it drives in, independently of the

@@ -553,6 +553,7 @@ impl Snapshot {
                 [0.0; 3],
             ])
             && scale.is_none_or(|s| s.is_valid())
+            && published_uncertainty.is_some() == scale.is_some()
             && published_uncertainty
                 .is_none_or(|(c, x)| is_joint_covariance(&c, x, scale.map_or(0.0, |s| s.variance)))
             && within_reach(&scaled.offset)
