@@ -280,12 +280,27 @@ pub fn cases() -> Vec<Case> {
     // once its sessions aligned and it checked every corrected answer against docs/wire.md).
     // Restored, each turned a corrected answer's covariance negative, infinite or NaN.
     type Tamper = fn(&mut Snapshot);
-    let tampered: [(&'static str, Tamper); 4] = [
+    let tampered: [(&'static str, Tamper); 6] = [
         ("snapshot_covariance_not_positive.bin", |s| {
             // A correlation of the heading with the scale above 1.
             if let Some((_, cross)) = &mut s.state.corrector.published_uncertainty {
                 cross[2] = 0.068;
             }
+        }),
+        (
+            "snapshot_covariance_asymmetric_beside_a_large_variance.bin",
+            |s| {
+                // Found by a coverage-guided run: asymmetric by 6e4 beside a variance of 3e17, which
+                // a tolerance relative to the largest entry let through.
+                if let Some((covariance, _)) = &mut s.state.corrector.published_uncertainty {
+                    covariance[0][0] = 2.9e17;
+                    covariance[2][1] = 5.9e4;
+                }
+            },
+        ),
+        ("snapshot_published_covariance_without_a_scale.bin", |s| {
+            // The covariance with the scale kept, the scale not.
+            s.state.corrector.scale = None;
         }),
         ("snapshot_scale_variance_out_of_reach.bin", |s| {
             if let Some(scale) = &mut s.state.corrector.scale {
