@@ -153,7 +153,7 @@ impl Target {
                 Ok(())
             }
             Target::Wire => {
-                serve(bytes);
+                serve(bytes, &wire_setup());
                 Ok(())
             }
             Target::Snapshot => restored(bytes),
@@ -694,18 +694,10 @@ fn journaled(bytes: &[u8]) -> Outcome {
 
 /// Checks what docs/wire.md promises of an answer: a known status, and unless the answer is
 /// flagged, a gap or passed through, a finite pose, correction, anchor rotation and scale, and
-/// a covariance with no negative variance.
-fn keeps_the_contract(a: &payload::CorrectedPose) {
+/// a covariance with no negative variance; returns the status.
+fn keeps_the_contract(a: &payload::CorrectedPose) -> StatusCode {
     let status = StatusCode::from_code(a.status).expect("a known status");
-    let corrected = !matches!(
-        status,
-        StatusCode::InvalidInput
-            | StatusCode::DuplicateSeq
-            | StatusCode::OutOfOrderSeq
-            | StatusCode::PassThrough
-            | StatusCode::Gap
-    );
-    if corrected {
+    if !(status.is_flagged() || matches!(status, StatusCode::PassThrough | StatusCode::Gap)) {
         let numbers = a.pose.iter().chain(&a.map_from_odom).chain(&a.covariance);
         assert!(
             numbers
@@ -719,6 +711,7 @@ fn keeps_the_contract(a: &payload::CorrectedPose) {
             "a variance is negative: {a:?}"
         );
     }
+    status
 }
 
 /// The source the wire harness's sessions belong to: the kiss-icp preset in the robust method
@@ -737,11 +730,12 @@ pub fn wire_setup() -> SessionSetup {
     }
 }
 
-/// Serves a byte stream of payloads as the worker does (a session starts at its first pose or
-/// afresh on request, and ends at a goodbye), checking what every answer must satisfy.
-fn serve(bytes: &[u8]) {
-    let setup = wire_setup();
+/// Serves a byte stream of payloads on `setup` as the worker does (a session starts at its first
+/// pose or afresh on request, and ends at a goodbye; at most four at once), checking what every
+/// answer must satisfy; returns each session's statuses in the order answered.
+pub fn serve(bytes: &[u8], setup: &SessionSetup) -> BTreeMap<u64, Vec<StatusCode>> {
     let mut sessions: BTreeMap<u64, Session> = BTreeMap::new();
+    let mut answered: BTreeMap<u64, Vec<StatusCode>> = BTreeMap::new();
     for chunk in bytes.as_chunks::<ODOM_POSE_BYTES>().0 {
         let input = seeds::odom_pose_from_bytes(chunk);
         if input.flags & FLAG_END_SESSION != 0 {
@@ -754,16 +748,13 @@ fn serve(bytes: &[u8]) {
                 continue;
             }
             let first = session::first_seq(&input);
-            sessions.insert(
-                input.session,
-                Session::start(input.session, first, &setup).0,
-            );
+            sessions.insert(input.session, Session::start(input.session, first, setup).0);
         }
         let Some(session) = sessions.get_mut(&input.session) else {
             continue;
         };
         let before = session.expected_seq();
-        let (handled, _) = session.handle(&input, 0, &setup, || false);
+        let (handled, _) = session.handle(&input, 0, setup, || false);
         let a = handled.answer;
         assert_eq!(
             (a.session, a.seq),
@@ -774,6 +765,8 @@ fn serve(bytes: &[u8]) {
             session.expected_seq() >= before,
             "the expected number never goes back"
         );
-        keeps_the_contract(&a);
+        let status = keeps_the_contract(&a);
+        answered.entry(input.session).or_default().push(status);
     }
+    answered
 }

@@ -3,40 +3,16 @@
 //! covariance or a correction applied (the presets' window of 150 poses never filled on the
 //! seed lanes until the harnesses took a window of their own).
 
-use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
-use lanealign_fuzzing::seeds::{self, ODOM_POSE_BYTES};
-use lanealign_fuzzing::targets::{harness_params, snapshot_setup, wire_setup};
-use lanealign_service::session::{self, Session, SessionSetup};
-use lanealign_wire::payload::{StatusCode, FLAG_END_SESSION};
-use std::sync::Arc;
-
-/// The statuses a stream of payloads gets, session by session, served on `setup`.
-fn statuses(stream: &[u8], setup: &SessionSetup) -> BTreeMap<u64, Vec<StatusCode>> {
-    let mut sessions: BTreeMap<u64, Session> = BTreeMap::new();
-    let mut answered: BTreeMap<u64, Vec<StatusCode>> = BTreeMap::new();
-    for chunk in stream.as_chunks::<ODOM_POSE_BYTES>().0 {
-        let input = seeds::odom_pose_from_bytes(chunk);
-        if input.flags & FLAG_END_SESSION != 0 {
-            sessions.remove(&input.session);
-            continue;
-        }
-        if session::starts_afresh(&input) || !sessions.contains_key(&input.session) {
-            let (s, _) = Session::start(input.session, session::first_seq(&input), setup);
-            sessions.insert(input.session, s);
-        }
-        let s = sessions.get_mut(&input.session).expect("started above");
-        let (handled, _) = s.handle(&input, 0, setup, || false);
-        let status = handled.answer.status().expect("a known status");
-        answered.entry(input.session).or_default().push(status);
-    }
-    answered
-}
+use lanealign_fuzzing::seeds;
+use lanealign_fuzzing::targets::{harness_params, serve, snapshot_setup, wire_setup};
+use lanealign_wire::payload::StatusCode;
 
 fn accepted(statuses: &[StatusCode]) -> usize {
     statuses
@@ -47,7 +23,7 @@ fn accepted(statuses: &[StatusCode]) -> usize {
 
 #[test]
 fn the_wire_seed_is_aligned_in_both_sessions() {
-    let answered = statuses(&seeds::wire_stream(), &wire_setup());
+    let answered = serve(&seeds::wire_stream(), &wire_setup());
     // Session 1: 40 poses, then one after its goodbye; session 2 starts afresh at the 13th.
     assert_eq!(accepted(&answered[&1]), 21, "{:?}", answered[&1]);
     assert_eq!(accepted(&answered[&2]), 9, "{:?}", answered[&2]);
@@ -57,7 +33,7 @@ fn the_wire_seed_is_aligned_in_both_sessions() {
 fn the_journal_seed_is_aligned_while_it_is_on_the_lanes() {
     let setup = snapshot_setup();
     assert!(setup.params.scale_sigma > 0.0 && setup.params.watch_stalls);
-    let answered = statuses(&seeds::long_stream(), &setup);
+    let answered = serve(&seeds::long_stream(), &setup);
     let n = accepted(&answered[&1]);
     assert!((20..=100).contains(&n), "{n} accepted of 600");
 }

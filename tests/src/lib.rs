@@ -4,7 +4,9 @@
 //! `LANEALIGN_REQUIRE_DATA=1` (set by `.ci/run` wherever the data exists), where it fails.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use lanealign_core::geo::Anchor;
 
 /// The ten KITTI sequences with ground truth in the shared data.
 pub const SEQUENCES: [&str; 10] = ["00", "01", "02", "04", "05", "06", "07", "08", "09", "10"];
@@ -42,4 +44,20 @@ pub fn shared_data() -> Option<PathBuf> {
         dir.display()
     );
     None
+}
+
+/// Where KITTI sequence `name`'s odometry frame lies on Earth (`kitti/georef.csv` in `data`).
+///
+/// # Panics
+/// When the file or the sequence's line is missing or malformed: the shared data is broken.
+pub fn kitti_anchor(data: &Path, name: &str) -> Anchor {
+    let georef = std::fs::read_to_string(data.join("kitti/georef.csv")).unwrap();
+    let line = georef
+        .lines()
+        .find(|l| l.starts_with(&format!("{name},")))
+        .unwrap();
+    let f: Vec<&str> = line.split(',').collect();
+    format!("{},{},{},{},{}", f[1], f[2], f[4], f[5], f[6])
+        .parse()
+        .unwrap()
 }

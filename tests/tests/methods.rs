@@ -21,7 +21,7 @@ use lanealign_core::source_corrector::{
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::osm_lanes::LaneOptions;
-use lanealign_tests::{shared_data, SEQUENCES};
+use lanealign_tests::{kitti_anchor, shared_data, SEQUENCES};
 
 struct Sequence {
     name: &'static str,
@@ -49,36 +49,24 @@ fn sequences(data: &std::path::Path) -> Vec<Sequence> {
 }
 
 fn sequence(data: &std::path::Path, name: &'static str) -> Sequence {
-    let georef = std::fs::read_to_string(data.join("kitti/georef.csv")).unwrap();
-    {
-        {
-            let line = georef
-                .lines()
-                .find(|l| l.starts_with(&format!("{name},")))
-                .unwrap();
-            let f: Vec<&str> = line.split(',').collect();
-            let anchor: Anchor = format!("{},{},{},{},{}", f[1], f[2], f[4], f[5], f[6])
-                .parse()
-                .unwrap();
-            let osm = data.join(format!("osm/kitti_{name}.osm"));
-            let lanes = |lanes: LaneOptions| {
-                let options = CompileOptions {
-                    origin: Some((anchor.lat(), anchor.lon())),
-                    projection: Projection::Kitti,
-                    lanes,
-                };
-                Arc::new(compile(std::slice::from_ref(&osm), &options).unwrap().map)
-            };
-            let gt = read(&data.join(format!("kitti/poses/{name}.txt")), Format::Kitti).unwrap();
-            Sequence {
-                name,
-                paper_map: lanes(LaneOptions::for_method(Method::Paper)),
-                map: lanes(LaneOptions::for_method(Method::Robust)),
-                anchor,
-                plane: MapPlane::new(Projection::Kitti, anchor.lat(), anchor.lon()),
-                gt: gt.poses,
-            }
-        }
+    let anchor = kitti_anchor(data, name);
+    let osm = data.join(format!("osm/kitti_{name}.osm"));
+    let lanes = |lanes: LaneOptions| {
+        let options = CompileOptions {
+            origin: Some((anchor.lat(), anchor.lon())),
+            projection: Projection::Kitti,
+            lanes,
+        };
+        Arc::new(compile(std::slice::from_ref(&osm), &options).unwrap().map)
+    };
+    let gt = read(&data.join(format!("kitti/poses/{name}.txt")), Format::Kitti).unwrap();
+    Sequence {
+        name,
+        paper_map: lanes(LaneOptions::for_method(Method::Paper)),
+        map: lanes(LaneOptions::for_method(Method::Robust)),
+        anchor,
+        plane: MapPlane::new(Projection::Kitti, anchor.lat(), anchor.lon()),
+        gt: gt.poses,
     }
 }
 

@@ -7,27 +7,14 @@
 
 use lanealign_cli::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
-use lanealign_core::geo::{Anchor, Projection};
+use lanealign_core::geo::Projection;
 use lanealign_core::params::{Method, Preset};
 use lanealign_core::pose::AxisConvention;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
 use lanealign_core::trajectory::{read, Format};
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_service::journal::Snapshot;
-use lanealign_tests::shared_data;
-
-/// The anchor of KITTI sequence `name` (`kitti/georef.csv`).
-fn anchor(data: &std::path::Path, name: &str) -> Anchor {
-    let georef = std::fs::read_to_string(data.join("kitti/georef.csv")).unwrap();
-    let line = georef
-        .lines()
-        .find(|l| l.starts_with(&format!("{name},")))
-        .unwrap();
-    let f: Vec<&str> = line.split(',').collect();
-    format!("{},{},{},{},{}", f[1], f[2], f[4], f[5], f[6])
-        .parse()
-        .unwrap()
-}
+use lanealign_tests::{kitti_anchor, shared_data};
 
 #[test]
 fn every_state_of_a_real_run_is_saved_and_restored() {
@@ -39,7 +26,7 @@ fn every_state_of_a_real_run_is_saved_and_restored() {
     ] {
         let loaded = MapSource::Osm {
             path: data.join(format!("osm/kitti_{name}.osm")),
-            anchor: anchor(&data, name),
+            anchor: kitti_anchor(&data, name),
             projection: Projection::Kitti,
             options: LaneOptions::for_method(Method::Robust),
         }
