@@ -1694,8 +1694,9 @@ fn a_bad_tile_on_sighup_keeps_the_one_the_daemon_has() {
 }
 
 /// Always runs: the same for a grid. The configured link switched to a grid folder with its
-/// manifest cut short, with every cell's bytes changed, or without a manifest: each reload is
-/// refused naming the problem, and new sessions correct on the grid the daemon has.
+/// manifest cut short, with every cell's bytes changed, without a manifest, or with a far cell
+/// listed at more bytes than a tile may have: each reload is refused naming the problem, and
+/// new sessions correct on the grid the daemon has.
 #[test]
 fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
@@ -1708,7 +1709,7 @@ fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
     let dir = setup.dir.path();
     let manifest = |grid: &std::path::Path| grid.join(lanealign_core::grid::MANIFEST);
     type Damage = fn(&std::path::Path);
-    let cases: [(&str, Damage, &str); 3] = [
+    let cases: [(&str, Damage, &str); 4] = [
         (
             "manifest cut short",
             |grid| {
@@ -1735,6 +1736,22 @@ fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
             "no manifest",
             |grid| std::fs::remove_file(grid.join(lanealign_core::grid::MANIFEST)).unwrap(),
             "manifest",
+        ),
+        (
+            // Far from every source, so never loaded: until 2026-12-03 the lengths' sum
+            // overflowed and the daemon aborted.
+            "a far cell listed at 2^64 - 1 bytes",
+            |grid| {
+                let path = grid.join(lanealign_core::grid::MANIFEST);
+                let mut text = std::fs::read_to_string(&path).unwrap();
+                text.push_str(&format!(
+                    "\n[[cells]]\nx = 100000\ny = 100000\nchecksum = \"0123456789abcdef\"\n\
+                     bytes = {}\npoints = 1\n",
+                    u64::MAX
+                ));
+                std::fs::write(&path, text).unwrap();
+            },
+            "longer than a tile",
         ),
     ];
     for (k, (what, damage, named)) in cases.iter().enumerate() {

@@ -105,7 +105,8 @@ pub struct CellEntry {
     pub y: i32,
     /// The tile's checksum (its header's XXH3-64, 16 hex digits).
     pub checksum: String,
-    /// The tile's length (bytes).
+    /// The tile's length (bytes; at most [`tile::MAX_TILE_BYTES`], so that the lengths of every
+    /// cell a manifest can list add up within a `u64`).
     pub bytes: u64,
     /// Lane points in the cell, margin included.
     pub points: u64,
@@ -291,6 +292,15 @@ impl Grid {
                 return Err(bad(format!(
                     "cell {} {}: checksum {:?} is not 16 hex digits",
                     entry.x, entry.y, entry.checksum
+                )));
+            }
+            if entry.bytes > tile::MAX_TILE_BYTES {
+                return Err(bad(format!(
+                    "cell {} {}: {} bytes, longer than a tile may be ({} bytes)",
+                    entry.x,
+                    entry.y,
+                    entry.bytes,
+                    tile::MAX_TILE_BYTES
                 )));
             }
             if cells.insert([entry.x, entry.y], entry.clone()).is_some() {
@@ -865,6 +875,30 @@ mod tests {
             std::fs::write(&path, good.replacen(from, to, 1)).unwrap();
             let e = Grid::open(dir.path()).err().unwrap().to_string();
             assert!(e.contains(what), "{what}: {e}");
+        }
+    }
+
+    /// The daemon sums the listed cells' lengths when it starts on a grid (`Grid::info`), and
+    /// loads only the cells near its sources: a manifest listing far cells of 2^64 - 1 bytes
+    /// each overflowed the sum, and the daemon panicked at every start.
+    #[test]
+    fn a_cell_longer_than_a_tile_may_be_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        grid_of(&town(), dir.path(), 50.0, 10.0);
+        let path = dir.path().join(MANIFEST);
+        let good = std::fs::read_to_string(&path).unwrap();
+        let crafted: String = good
+            .lines()
+            .map(|line| match line.starts_with("bytes = ") {
+                true => format!("bytes = {}\n", u64::MAX),
+                false => format!("{line}\n"),
+            })
+            .collect();
+        assert!(crafted.matches(&u64::MAX.to_string()).count() >= 2);
+        std::fs::write(&path, crafted).unwrap();
+        match Grid::open(dir.path()) {
+            Ok(grid) => panic!("opened, with {} bytes of cells", grid.info().payload_len),
+            Err(e) => assert!(e.to_string().contains("longer than a tile"), "{e}"),
         }
     }
 }
