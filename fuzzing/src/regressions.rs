@@ -147,6 +147,32 @@ pub fn cases() -> Vec<Case> {
         bytes: crate::pbf_writer::write(&seed),
         refused_with: Some("a malformed data block"),
     });
+    // Found by `lane_csv` once the map harnesses corrected on their maps: the drive along a
+    // lane on the coordinates' bound leaves the plane a pose may lie in for its first 16 poses,
+    // and the comparison of the two match modes took their NaN covariances (the answer to a
+    // pose that is none) for a difference.
+    cases.push(Case {
+        name: "lane_on_the_coordinate_bound.csv",
+        target: Target::LaneCsv,
+        bytes: b"lane_id,x,y\n0,0,1e7\n0,3,1e7\n0,6,1e7\n".to_vec(),
+        refused_with: None,
+    });
+    // Read in the code: a grid listing cells of 2^64 - 1 bytes overflowed the sum of the cells'
+    // lengths the daemon takes at start and on SIGHUP, and the daemon aborted.
+    let seed = String::from_utf8(Target::GridManifest.seeds().swap_remove(0)).expect("TOML text");
+    let longest: String = seed
+        .lines()
+        .map(|line| match line.starts_with("bytes = ") {
+            true => format!("bytes = {}\n", u64::MAX),
+            false => format!("{line}\n"),
+        })
+        .collect();
+    cases.push(Case {
+        name: "grid_manifest_cells_of_2_to_the_64_bytes.toml",
+        target: Target::GridManifest,
+        bytes: longest.into_bytes(),
+        refused_with: Some("longer than a tile may be"),
+    });
     let mut far = Pose3::identity();
     far.translation.x = 1e308;
     let zero = Pose3 {

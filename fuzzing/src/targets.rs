@@ -3,14 +3,14 @@
 //! accepts something it should not is caught where it would hurt. Returning an error is a
 //! correct answer; a panic is a bug.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use lanealign_cli::maps::LoadedMap;
-use lanealign_core::corrector::MatchMode;
+use lanealign_core::corrector::{MatchMode, Status};
 use lanealign_core::geo::{MapPlane, Projection};
-use lanealign_core::grid::{self, EncodedGrid, Grid, GridCell, GridSpec};
+use lanealign_core::grid::{self, CellKey, EncodedGrid, Grid, GridCell, GridSpec, LoadPolicy};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{Method, Params, Preset};
 use lanealign_core::pose::{AxisConvention, Pose3};
@@ -21,7 +21,7 @@ use lanealign_core::{lane_csv, plausibility, tile};
 use lanealign_map::compile::{compile, CompileError, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
 use lanealign_map::lanelet2::derive_lanelet_lanes;
-use lanealign_map::osm::{read_xml, OsmData};
+use lanealign_map::osm::read_xml;
 use lanealign_map::osm_lanes::{derive_lanes, LaneOptions};
 use lanealign_map::pbf::read_pbf;
 use lanealign_service::config::Config;
@@ -31,18 +31,23 @@ use lanealign_wire::payload::{self, OdomPose, StatusCode, FLAG_END_SESSION};
 
 use crate::seeds::{self, ODOM_POSE_BYTES};
 
-/// A kind of untrusted input.
+/// A kind of untrusted input. The five that read a lane map (a tile, OSM XML, PBF, Lanelet2,
+/// lane CSV) query it and correct a drive along it in both match modes ([`drive_twins`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Target {
     /// A lane tile.
     Tile,
     /// One cell of a tile grid (listed in the manifest with its own checksum), joined with the
-    /// grid's other cells, corrected on and swapped away from.
+    /// grid's other cells, corrected on and swapped away from, in both match modes.
     GridCell,
     /// Raw OSM XML.
     OsmXml,
     /// OSM PBF.
     Pbf,
+    /// A tile grid's manifest, opened as the daemon opens it at start and on SIGHUP: its
+    /// summary taken, the cells wanted around a drive and far away listed, the seed grid's cells
+    /// it accepts joined and corrected on in both match modes.
+    GridManifest,
     /// OSM PBF compiled into a grid as it streams, against the grid of the map read in memory.
     PbfGrid,
     /// A Lanelet2 map (OSM XML with lanelet relations).
@@ -73,9 +78,10 @@ type Outcome = Result<(), String>;
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 14] = [
+    pub const ALL: [Target; 15] = [
         Target::Tile,
         Target::GridCell,
+        Target::GridManifest,
         Target::OsmXml,
         Target::Pbf,
         Target::PbfGrid,
@@ -95,6 +101,7 @@ impl Target {
         match self {
             Target::Tile => "tile",
             Target::GridCell => "grid_cell",
+            Target::GridManifest => "grid_manifest",
             Target::OsmXml => "osm_xml",
             Target::Pbf => "pbf",
             Target::PbfGrid => "pbf_grid",
@@ -114,21 +121,15 @@ impl Target {
     pub fn run(self, bytes: &[u8]) -> Outcome {
         let err = |e: &dyn std::fmt::Display| e.to_string();
         match self {
-            Target::Tile => {
-                let (map, _) = tile::decode(Path::new("fuzz.tile"), bytes).map_err(|e| err(&e))?;
-                use_map(&map);
+            Target::Tile | Target::OsmXml | Target::Lanelet2 | Target::Pbf | Target::LaneCsv => {
+                let map = self.read_map(bytes)?;
+                query(&map);
+                drive_twins(&Arc::new(map));
                 Ok(())
             }
             Target::GridCell => grid_cell(bytes),
+            Target::GridManifest => grid_manifest(bytes),
             Target::PbfGrid => pbf_grid(bytes),
-            Target::OsmXml | Target::Lanelet2 => {
-                let osm = read_xml(bytes, Path::new("fuzz.osm")).map_err(|e| err(&e))?;
-                derive_all(&osm, self == Target::Lanelet2)
-            }
-            Target::Pbf => {
-                let osm = read_pbf(bytes, Path::new("fuzz.osm.pbf")).map_err(|e| err(&e))?;
-                derive_all(&osm, false)
-            }
             Target::Kitti | Target::Tum => {
                 let format = if self == Target::Kitti {
                     Format::Kitti
@@ -138,12 +139,6 @@ impl Target {
                 let traj =
                     trajectory::parse(bytes, Path::new("fuzz.txt"), format).map_err(|e| err(&e))?;
                 correct(&traj.poses, traj.stamps.as_deref())
-            }
-            Target::LaneCsv => {
-                let lanes = lane_csv::parse(bytes, Path::new("fuzz.csv")).map_err(|e| err(&e))?;
-                let map = LaneMap::new(&lanes).map_err(|e| err(&e))?;
-                use_map(&map);
-                Ok(())
             }
             Target::DaemonToml => {
                 let text = std::str::from_utf8(bytes).map_err(|e| err(&e))?;
@@ -162,6 +157,37 @@ impl Target {
         }
     }
 
+    /// The lane map a reader of maps makes of `bytes` (a tile; OSM XML, PBF or Lanelet2 with
+    /// every lane derived; lane CSV), as the product loads it. `Err` when the reader refuses
+    /// the bytes or the target reads no map.
+    pub fn read_map(self, bytes: &[u8]) -> Result<LaneMap, String> {
+        let err = |e: &dyn std::fmt::Display| e.to_string();
+        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let lanes = match self {
+            Target::Tile => {
+                let (map, _) = tile::decode(Path::new("fuzz.tile"), bytes).map_err(|e| err(&e))?;
+                return Ok(map);
+            }
+            Target::OsmXml => {
+                let osm = read_xml(bytes, Path::new("fuzz.osm")).map_err(|e| err(&e))?;
+                derive_lanes(&osm, &plane, &LaneOptions::default()).0
+            }
+            Target::Lanelet2 => {
+                let osm = read_xml(bytes, Path::new("fuzz.osm")).map_err(|e| err(&e))?;
+                derive_lanelet_lanes(&osm, &plane, 3.0).0
+            }
+            Target::Pbf => {
+                let osm = read_pbf(bytes, Path::new("fuzz.osm.pbf")).map_err(|e| err(&e))?;
+                derive_lanes(&osm, &plane, &LaneOptions::default()).0
+            }
+            Target::LaneCsv => {
+                lane_csv::parse(bytes, Path::new("fuzz.csv")).map_err(|e| err(&e))?
+            }
+            _ => return Err(format!("{} reads no lane map", self.name())),
+        };
+        LaneMap::new(&lanes).map_err(|e| err(&e))
+    }
+
     /// The seeds the mutator starts from.
     pub fn seeds(self) -> Vec<Vec<u8>> {
         match self {
@@ -175,6 +201,9 @@ impl Target {
             Target::Kitti => vec![seeds::trajectory_text(Format::Kitti)],
             Target::Tum => vec![seeds::trajectory_text(Format::Tum)],
             Target::LaneCsv => vec![seeds::lane_csv()],
+            Target::GridManifest => vec![toml::to_string(&seed_grid().0)
+                .expect("the seed manifest is written")
+                .into_bytes()],
             Target::DaemonToml => vec![seeds::DAEMON_TOML.as_bytes().to_vec()],
             Target::Wire => vec![seeds::wire_stream()],
             Target::Journal => vec![seeds::wire_stream(), seeds::long_stream()],
@@ -228,6 +257,23 @@ impl Target {
                 b"[",
                 b"{",
                 b"}",
+            ],
+            Target::GridManifest => &[
+                b"[[cells]]\n",
+                b"x = 2147483647\n",
+                b"y = -2147483648\n",
+                b"bytes = 18446744073709551615\n",
+                b"checksum = \"0000000000000000\"\n",
+                b"points = 18446744073709551615\n",
+                b"cell_size_m = 1e5\n",
+                b"margin_m = 4e5\n",
+                b"unmarked_offset_scale = nan\n",
+                b"bounds = [nan, inf, -inf, 1e308]\n",
+                b"projection = \"kitti\"\n",
+                b"traffic = \"left\"\n",
+                b"nan",
+                b"1e308",
+                b"-0",
             ],
             Target::Kitti | Target::Tum | Target::LaneCsv => &NUMBERS,
             Target::Tile
@@ -328,8 +374,23 @@ fn same_files(a: &Path, b: &Path) -> bool {
     listing(a) == listing(b)
 }
 
-/// Queries a loaded map the way the corrector does.
-fn use_map(map: &LaneMap) {
+/// Corrects a drive along `map`'s first lane ([`drive_along`]) in both match modes, which must
+/// agree ([`same_answer`]), and returns how many of its poses were aligned (accepted).
+pub fn drive_twins(map: &Arc<LaneMap>) -> usize {
+    let mut fast = twin(map, MatchMode::Fast);
+    let mut reference = twin(map, MatchMode::Reference);
+    let mut accepted = 0;
+    for (i, pose) in drive_along(map, DRIVE_ALONG_POSES).iter().enumerate() {
+        let (answer, _) = fast.correct(pose);
+        same_answer(i, &answer, &reference.correct(pose).0);
+        accepted += usize::from(matches!(answer.status, Status::Accepted { .. }));
+    }
+    accepted
+}
+
+/// Asks `map` for the nearest points and the distance to its lanes, as the corrector and the
+/// plausibility checks do, near and far.
+fn query(map: &LaneMap) {
     let mut out = Vec::new();
     for p in [[0.0, 0.0], [20.0, 3.0], [-1e6, 1e6], [f64::MAX, 0.0]] {
         map.nearest(p, 8, &mut out);
@@ -341,17 +402,73 @@ fn use_map(map: &LaneMap) {
     }
 }
 
-/// Derives lanes (raw OSM or Lanelet2) and builds the map from them.
-fn derive_all(osm: &OsmData, lanelet2: bool) -> Outcome {
-    let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
-    let lanes = if lanelet2 {
-        derive_lanelet_lanes(osm, &plane, 3.0).0
-    } else {
-        derive_lanes(osm, &plane, &LaneOptions::default()).0
+/// The poses of the drive [`drive_twins`] corrects on a map: with a window of
+/// [`HARNESS_MIN_WINDOW`], eleven alignments (from the 20th pose on).
+const DRIVE_ALONG_POSES: usize = HARNESS_MIN_WINDOW + 10;
+
+/// A corrector of the default method on `map` (the harnesses' window), matching in `mode`.
+fn twin(map: &Arc<LaneMap>, mode: MatchMode) -> SourceCorrector {
+    SourceCorrector::new(
+        map.clone(),
+        harness_params(Preset::KissIcp, Method::Robust),
+        mode,
+        placement(),
+    )
+}
+
+/// The seed drive ([`seeds::drive`], `n` poses) moved to start on `map`'s first point, heading
+/// along its first segment: on any map a reader accepts, the corrector then has lanes to match.
+fn drive_along(map: &LaneMap, n: usize) -> Vec<Pose3> {
+    let points = map.points();
+    let start = points[0];
+    let heading = match map.lane_offsets() {
+        [0, end, ..] if *end >= 2 => (points[1][1] - start[1]).atan2(points[1][0] - start[0]),
+        _ => 0.0,
     };
-    let map = LaneMap::new(&lanes).map_err(|e| e.to_string())?;
-    use_map(&map);
-    Ok(())
+    let onto_map = Se2::new(heading, start[0], start[1]);
+    seeds::drive(n)
+        .iter()
+        .map(|pose| {
+            let [x, y] = onto_map.apply([pose.translation.x, pose.translation.y]);
+            Pose3::planar(x, y, heading + pose.planar_heading(), pose.translation.z)
+        })
+        .collect()
+}
+
+/// The fast matcher changes the work, never the answer (docs/performance.md, where the two
+/// agree bit for bit on the real runs): the two match modes' answers to pose `i` have the same
+/// status and the same pose, correction and covariance, bit for bit (NaN where both are NaN:
+/// the answer to a pose that is none).
+fn same_answer(i: usize, fast: &CorrectedPose, reference: &CorrectedPose) {
+    assert_eq!(
+        fast.status, reference.status,
+        "pose {i}: the match modes' statuses differ"
+    );
+    let same = |a: &f64, b: &f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+    let (f, r) = (fast.map_from_odom, reference.map_from_odom);
+    let pose = |c: &CorrectedPose| c.pose.to_row_major();
+    let correction = |s: Se2| [s.translation()[0], s.translation()[1], s.yaw()];
+    assert!(
+        pose(fast)
+            .iter()
+            .zip(&pose(reference))
+            .all(|(a, b)| same(a, b))
+            && correction(f)
+                .iter()
+                .zip(&correction(r))
+                .all(|(a, b)| same(a, b)),
+        "pose {i}: the match modes' corrections differ: {f:?} against {r:?}"
+    );
+    let covariances = |c: &CorrectedPose| c.covariance.concat();
+    assert!(
+        covariances(fast)
+            .iter()
+            .zip(&covariances(reference))
+            .all(|(a, b)| same(a, b)),
+        "pose {i}: the match modes' covariances differ: {:?} against {:?}",
+        fast.covariance,
+        reference.covariance
+    );
 }
 
 /// The seed lanes as a grid of 20 m cells (margin 4 m): its manifest and cells.
@@ -402,16 +519,12 @@ fn grid_cell(bytes: &[u8]) -> Outcome {
         .collect();
     let with: Vec<Arc<GridCell>> = others.iter().cloned().chain([mutant]).collect();
     let with = Arc::new(grid::assemble(&grid, &with).map_err(|e| err(&e))?);
-    use_map(&with);
-    let mut corrector = SourceCorrector::new(
-        with.clone(),
-        harness_params(Preset::KissIcp, Method::Robust),
-        MatchMode::Fast,
-        placement(),
-    );
+    query(&with);
+    let mut fast = twin(&with, MatchMode::Fast);
+    let mut reference = twin(&with, MatchMode::Reference);
     let poses = seeds::drive(60);
-    for pose in &poses[..30] {
-        corrector.correct(pose);
+    for (i, pose) in poses[..30].iter().enumerate() {
+        same_answer(i, &fast.correct(pose).0, &reference.correct(pose).0);
     }
     if !others.is_empty() {
         let without = Arc::new(grid::assemble(&grid, &others).map_err(|e| err(&e))?);
@@ -424,15 +537,51 @@ fn grid_cell(bytes: &[u8]) -> Outcome {
                 );
             }
         }
-        corrector.replace_map(without);
+        fast.replace_map(without.clone());
+        reference.replace_map(without);
     }
-    for pose in &poses[30..] {
-        let (record, _) = corrector.correct(pose);
+    for (i, pose) in poses.iter().enumerate().skip(30) {
+        let (answer, _) = fast.correct(pose);
         assert!(
-            record.pose.is_finite(),
+            answer.pose.is_finite(),
             "a non-finite corrected pose on a grid"
         );
+        same_answer(i, &answer, &reference.correct(pose).0);
     }
+    Ok(())
+}
+
+/// Opens `bytes` as a grid's manifest ([`Grid::from_manifest`]), takes its summary as the
+/// daemon does at start ([`Grid::info`]), lists the cells wanted around the seed drive and far
+/// from it (each must be a cell the manifest lists), and joins the seed grid's cells the
+/// manifest accepts (those it lists unchanged) into a map that is queried and corrected on.
+fn grid_manifest(bytes: &[u8]) -> Outcome {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let grid = Grid::from_manifest(Path::new("fuzz-grid"), bytes).map_err(|e| err(&e))?;
+    let _ = grid.info();
+    let listed: HashSet<CellKey> = grid.cells().collect();
+    let drive: Vec<[f64; 2]> = seeds::drive(40)
+        .iter()
+        .map(|p| [p.translation.x, p.translation.y])
+        .collect();
+    for window in [&drive[..], &[[1e7, -1e7], [-1e7, 1e7]], &[[f64::NAN, 0.0]]] {
+        let wanted = grid.wanted(window, &LoadPolicy::default());
+        assert!(
+            wanted.iter().all(|key| listed.contains(key)),
+            "a cell wanted that the manifest does not list"
+        );
+    }
+    let (_, cells) = seed_grid();
+    let accepted: Vec<Arc<GridCell>> = cells
+        .iter()
+        .filter_map(|(key, b)| grid.cell_from_bytes(*key, b).ok().map(Arc::new))
+        .collect();
+    if accepted.is_empty() {
+        return Err("no seed cell is this grid's".into());
+    }
+    let map = grid::assemble(&grid, &accepted).map_err(|e| err(&e))?;
+    query(&map);
+    drive_twins(&Arc::new(map));
     Ok(())
 }
 
@@ -769,4 +918,48 @@ pub fn serve(bytes: &[u8], setup: &SessionSetup) -> BTreeMap<u64, Vec<StatusCode
         answered.entry(input.session).or_default().push(status);
     }
     answered
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn answer_on_the_seed_lanes() -> CorrectedPose {
+        let mut corrector = twin(&seed_map(), MatchMode::Fast);
+        let drive = seeds::drive(DRIVE_ALONG_POSES);
+        drive
+            .iter()
+            .map(|pose| corrector.correct(pose).0)
+            .last()
+            .expect("a drive")
+    }
+
+    #[test]
+    fn the_same_answer_passes_and_the_answer_to_no_pose_equals_itself() {
+        let answer = answer_on_the_seed_lanes();
+        assert!(matches!(answer.status, Status::Accepted { .. }));
+        same_answer(0, &answer, &answer);
+        let mut corrector = twin(&seed_map(), MatchMode::Fast);
+        let (none, _) = corrector.correct(&Pose3::planar(f64::NAN, 0.0, 0.0, 0.0));
+        assert!(none.covariance[0][0].is_nan());
+        same_answer(0, &none, &none);
+    }
+
+    #[test]
+    #[should_panic(expected = "corrections differ")]
+    fn a_correction_a_nanometre_off_is_caught() {
+        let answer = answer_on_the_seed_lanes();
+        let mut off = answer;
+        off.map_from_odom = Se2::new(0.0, 1e-9, 0.0) * answer.map_from_odom;
+        same_answer(0, &answer, &off);
+    }
+
+    #[test]
+    #[should_panic(expected = "covariances differ")]
+    fn a_covariance_changed_in_its_last_digit_is_caught() {
+        let answer = answer_on_the_seed_lanes();
+        let mut off = answer;
+        off.covariance[0][0] = f64::from_bits(off.covariance[0][0].to_bits() + 1);
+        same_answer(0, &answer, &off);
+    }
 }

@@ -123,6 +123,11 @@ fn grid_cell() {
 }
 
 #[test]
+fn grid_manifest() {
+    fuzz(Target::GridManifest);
+}
+
+#[test]
 fn osm_xml() {
     fuzz(Target::OsmXml);
 }

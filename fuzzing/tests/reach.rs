@@ -11,7 +11,9 @@ use lanealign_core::pose::AxisConvention;
 use lanealign_core::se2::Se2;
 use lanealign_core::source_corrector::{Placement, SourceCorrector};
 use lanealign_fuzzing::seeds;
-use lanealign_fuzzing::targets::{harness_params, serve, snapshot_setup, wire_setup};
+use lanealign_fuzzing::targets::{
+    drive_twins, harness_params, serve, snapshot_setup, wire_setup, Target,
+};
 use lanealign_wire::payload::StatusCode;
 
 fn accepted(statuses: &[StatusCode]) -> usize {
@@ -59,6 +61,24 @@ fn the_drive_is_aligned_with_either_method_and_preset() {
                 .filter(|pose| matches!(corrector.correct(pose).0.status, Status::Accepted { .. }))
                 .count();
             assert_eq!(n, 21, "{preset:?} {method:?}");
+        }
+    }
+}
+
+#[test]
+fn the_map_readers_seeds_are_aligned_along_their_first_lane() {
+    for target in [
+        Target::Tile,
+        Target::OsmXml,
+        Target::Lanelet2,
+        Target::Pbf,
+        Target::LaneCsv,
+    ] {
+        for (k, seed) in target.seeds().iter().enumerate() {
+            let map = target.read_map(seed).expect("a seed is read");
+            // 30 poses: the window fills at the 20th, and every pose from there is aligned.
+            let n = drive_twins(&Arc::new(map));
+            assert_eq!(n, 11, "{} seed {k}", target.name());
         }
     }
 }
