@@ -21,8 +21,8 @@ const INTERESTING: [u64; 10] = [
 ];
 
 /// One edit of `data`: a bit flip, an interesting byte, word or number written over it, a
-/// dictionary token inserted or written over it, a range deleted, duplicated or cut off, or a
-/// splice of `other`.
+/// number in text replaced whole by an interesting one, a dictionary token inserted or written
+/// over it, a range deleted, duplicated or cut off, or a splice of `other`.
 fn edit(rng: &mut SmallRng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u8]) {
     let at = |rng: &mut SmallRng, len: usize| {
         if len == 0 {
@@ -32,7 +32,7 @@ fn edit(rng: &mut SmallRng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u
         }
     };
     let len = data.len();
-    match rng.random_range(0..10) {
+    match rng.random_range(0..11) {
         0 if len > 0 => {
             let i = at(rng, len);
             data[i] ^= 1 << rng.random_range(0..8);
@@ -76,6 +76,19 @@ fn edit(rng: &mut SmallRng, data: &mut Vec<u8>, dictionary: &[&[u8]], other: &[u
             data.truncate(i);
             data.extend_from_slice(&other[j..]);
         }
+        9 if len > 0 => {
+            // The next run of digits from a random place, so that text formats get the values
+            // binary headers get: a value, not a token inserted beside one.
+            let i = at(rng, len);
+            if let Some(start) = data[i..].iter().position(u8::is_ascii_digit).map(|k| i + k) {
+                let end = data[start..]
+                    .iter()
+                    .position(|b| !b.is_ascii_digit())
+                    .map_or(len, |k| start + k);
+                let v = INTERESTING[rng.random_range(0..INTERESTING.len())].to_string();
+                data.splice(start..end, v.bytes());
+            }
+        }
         _ => {
             let i = at(rng, len + 1);
             let digit = b"0123456789.e-+"[rng.random_range(0..14)];
@@ -110,5 +123,19 @@ mod tests {
         assert_eq!(run(7), run(7));
         assert_ne!(run(7), run(8));
         assert!(run(7).iter().any(|m| m.windows(3).any(|w| w == b"nan")));
+    }
+
+    /// A number in text is replaced whole, its line otherwise kept: the mutant a manifest's
+    /// overflowing cell length needed (docs/robustness.md).
+    #[test]
+    fn a_number_in_text_is_replaced_whole() {
+        let mut rng = SmallRng::seed_from_u64(3);
+        let whole = format!("x = 1\nbytes = {}\npoints = 9\n", u64::MAX);
+        let found = (0..5000).any(|_| {
+            let mut data = b"x = 1\nbytes = 4096\npoints = 9\n".to_vec();
+            edit(&mut rng, &mut data, &[], b"");
+            data == whole.as_bytes()
+        });
+        assert!(found);
     }
 }
