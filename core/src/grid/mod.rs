@@ -268,6 +268,20 @@ impl Grid {
             )));
         }
         check_spec(manifest.cell_size_m, manifest.margin_m).map_err(|e| bad(e.to_string()))?;
+        // What every cell's header must also hold (`tile::read_info`), named here rather than
+        // as every cell refused for not being the grid's.
+        if !(manifest.spacing_m.is_finite() && manifest.spacing_m >= 0.0) {
+            return Err(bad(format!(
+                "spacing_m = {}: a distance of 0 metres or more",
+                manifest.spacing_m
+            )));
+        }
+        if let Some(scale) = manifest
+            .unmarked_offset_scale
+            .filter(|s| !(0.0..=2.0).contains(s))
+        {
+            return Err(bad(format!("unmarked_offset_scale = {scale}: 0 to 2")));
+        }
         let projection: Projection = manifest
             .projection
             .parse()
@@ -870,6 +884,13 @@ mod tests {
                 "margin_m = 10.0",
                 "margin_m = 10.0\nextra = 1",
                 "unknown field",
+            ),
+            ("spacing_m = 3.0", "spacing_m = nan", "spacing_m = NaN"),
+            ("spacing_m = 3.0", "spacing_m = -3.0", "spacing_m = -3"),
+            (
+                "unmarked_offset_scale = 0.5",
+                "unmarked_offset_scale = inf",
+                "unmarked_offset_scale = inf",
             ),
         ] {
             std::fs::write(&path, good.replacen(from, to, 1)).unwrap();
