@@ -9,7 +9,6 @@ use std::sync::{Arc, OnceLock};
 
 use lanealign_cli::maps::LoadedMap;
 use lanealign_core::corrector::{MatchMode, Status};
-use lanealign_core::geo::{MapPlane, Projection};
 use lanealign_core::grid::{self, CellKey, EncodedGrid, Grid, GridCell, GridSpec, LoadPolicy};
 use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{Method, Params, Preset};
@@ -162,7 +161,7 @@ impl Target {
     /// the bytes or the target reads no map.
     pub fn read_map(self, bytes: &[u8]) -> Result<LaneMap, String> {
         let err = |e: &dyn std::fmt::Display| e.to_string();
-        let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+        let (plane, _) = seeds::tile_plane_and_geometry();
         let lanes = match self {
             Target::Tile => {
                 let (map, _) = tile::decode(Path::new("fuzz.tile"), bytes).map_err(|e| err(&e))?;
