@@ -277,6 +277,30 @@ impl LaneInfo {
     }
 }
 
+/// The largest unmarked-street offset scale lanes may be derived with: an unmarked street has a
+/// lane each way, nominally half a lane width from the way line; at 2 they lie on the road's
+/// edges, beyond it off the road. 0 puts both on the way line.
+pub const MAX_UNMARKED_OFFSET_SCALE: f64 = 2.0;
+
+/// An unmarked-street offset scale outside `[0, MAX_UNMARKED_OFFSET_SCALE]` (or NaN).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error(
+    "the unmarked-street offset scale {0} is outside [0, {max}]",
+    max = MAX_UNMARKED_OFFSET_SCALE
+)]
+pub struct UnmarkedOffsetScaleError(pub f64);
+
+/// Checks an unmarked-street offset scale (a factor on the nominal lane offset, unitless): in
+/// `[0, MAX_UNMARKED_OFFSET_SCALE]`. Every reader of one (tile header, grid manifest, config,
+/// command line, Python) checks it here, so that they agree on what a map may hold.
+pub fn check_unmarked_offset_scale(scale: f64) -> Result<(), UnmarkedOffsetScaleError> {
+    if (0.0..=MAX_UNMARKED_OFFSET_SCALE).contains(&scale) {
+        Ok(())
+    } else {
+        Err(UnmarkedOffsetScaleError(scale))
+    }
+}
+
 /// How a map's lanes were derived (what a tile records about them).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LaneGeometry {
@@ -318,6 +342,24 @@ impl std::fmt::Display for LaneGeometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_unmarked_offset_scale_is_a_factor_from_0_to_2() {
+        for ok in [0.0, -0.0, 0.5, 1.0, MAX_UNMARKED_OFFSET_SCALE] {
+            assert_eq!(check_unmarked_offset_scale(ok), Ok(()), "{ok}");
+        }
+        for bad in [
+            -1e-300,
+            2.000_000_1,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ] {
+            let err = check_unmarked_offset_scale(bad).unwrap_err();
+            assert_eq!(err.0.to_bits(), bad.to_bits());
+            assert!(err.to_string().contains("outside [0, 2]"), "{err}");
+        }
+    }
 
     #[test]
     fn names_are_the_serde_names_and_osm_values() {

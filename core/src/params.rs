@@ -771,7 +771,7 @@ impl CorrectorConfig {
         let params = self.overrides.apply(self.method.params(self.preset));
         params.validate()?;
         if let Some(scale) = self.unmarked_offset_scale {
-            if !(0.0..=2.0).contains(&scale) {
+            if crate::lane_geometry::check_unmarked_offset_scale(scale).is_err() {
                 return Err(ParamsError::Invalid {
                     key: "unmarked_offset_scale",
                     value: scale.to_string(),

@@ -599,7 +599,7 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     };
     let scale = f64_at(bytes, 64);
     let unmarked_offset_scale = if flags & FLAG_OSM_LANES != 0 {
-        if !(0.0..=2.0).contains(&scale) {
+        if crate::lane_geometry::check_unmarked_offset_scale(scale).is_err() {
             return Err(bad("unmarked offset scale", scale.to_string()));
         }
         Some(scale)

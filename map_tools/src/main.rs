@@ -223,9 +223,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let key = sign.as_deref().map(read_secret_key).transpose()?;
             lanealign_core::lane_map::check_spacing(spacing)
                 .map_err(|e| anyhow!("--spacing: {e}"))?;
-            if !(0.0..=2.0).contains(&unmarked_offset_scale) {
-                bail!("--unmarked-offset-scale must be between 0 and 2");
-            }
+            lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)
+                .map_err(|e| anyhow!("--unmarked-offset-scale: {e}"))?;
             let classes = match classes {
                 Some(list) => RoadClasses::parse_list(&list).context("--classes")?,
                 None => RoadClasses::DEFAULT,

@@ -157,6 +157,34 @@ fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
     }
 }
 
+/// The scale is checked where every reader of a tile checks it (`check_unmarked_offset_scale`),
+/// so that compile never writes a tile that the corrector would refuse.
+#[test]
+fn compile_refuses_an_unmarked_offset_scale_off_the_road() {
+    let dir = tempfile::tempdir().unwrap();
+    for scale in ["-0.1", "NaN", "inf", "2.01"] {
+        let out = compile_small(dir.path(), &[&format!("--unmarked-offset-scale={scale}")]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{scale}: {err}");
+        assert!(
+            err.contains("error: --unmarked-offset-scale: the unmarked-street offset scale")
+                && err.contains(" is outside [0, 2]"),
+            "{scale}: {err}"
+        );
+        assert!(!dir.path().join("small.tile").exists());
+    }
+    for scale in ["0", "2"] {
+        let out = compile_small(dir.path(), &[&format!("--unmarked-offset-scale={scale}")]);
+        assert!(out.status.success(), "{scale}: {}", stderr(&out));
+        let tile = std::fs::read(dir.path().join("small.tile")).unwrap();
+        let info = lanealign_core::tile::read_info(&dir.path().join("small.tile"), &tile).unwrap();
+        assert_eq!(
+            info.geometry.unmarked_offset_scale,
+            Some(scale.parse().unwrap())
+        );
+    }
+}
+
 /// An output that names an input (itself, or through a link) is refused before anything is
 /// read, and the input is left as it was: the output replaces its file whole.
 #[test]

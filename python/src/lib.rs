@@ -511,11 +511,8 @@ fn compile_map<'py>(
     }
     lanealign_core::lane_map::check_spacing(spacing)
         .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
-    if !(0.0..=2.0).contains(&unmarked_offset_scale) {
-        return Err(PyValueError::new_err(
-            "unmarked_offset_scale must be between 0 and 2",
-        ));
-    }
+    lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)
+        .map_err(|e| PyValueError::new_err(format!("unmarked_offset_scale: {e}")))?;
     let options = CompileOptions {
         origin,
         projection: parsed("projection", projection)?,

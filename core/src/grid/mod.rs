@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::geo::{check_lat_lon, MapPlane, Projection};
 use crate::input::InputError;
-use crate::lane_geometry::{LaneGeometry, RoadClasses, Traffic};
+use crate::lane_geometry::{check_unmarked_offset_scale, LaneGeometry, RoadClasses, Traffic};
 use crate::lane_map::{LaneMap, LaneMapError};
 use crate::tile::{self, TileError, TileInfo};
 
@@ -276,11 +276,9 @@ impl Grid {
                 manifest.spacing_m
             )));
         }
-        if let Some(scale) = manifest
-            .unmarked_offset_scale
-            .filter(|s| !(0.0..=2.0).contains(s))
-        {
-            return Err(bad(format!("unmarked_offset_scale = {scale}: 0 to 2")));
+        if let Some(scale) = manifest.unmarked_offset_scale {
+            check_unmarked_offset_scale(scale)
+                .map_err(|e| bad(format!("unmarked_offset_scale: {e}")))?;
         }
         let projection: Projection = manifest
             .projection
@@ -890,7 +888,7 @@ mod tests {
             (
                 "unmarked_offset_scale = 0.5",
                 "unmarked_offset_scale = inf",
-                "unmarked_offset_scale = inf",
+                "unmarked_offset_scale: the unmarked-street offset scale inf is outside [0, 2]",
             ),
         ] {
             std::fs::write(&path, good.replacen(from, to, 1)).unwrap();
