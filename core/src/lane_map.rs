@@ -17,6 +17,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
 use crate::grid::Coverage;
 use crate::lane_geometry::LaneInfo;
+use crate::pose::MAX_COORDINATE_M;
 use crate::se2::distance;
 
 /// A lane centerline in its direction of travel (metres, map plane).
@@ -56,9 +57,15 @@ pub enum LaneMapError {
     /// The map has no lane points at all.
     #[error("the lane map is empty: no lane has any point")]
     Empty,
-    /// A lane point is NaN or infinite.
-    #[error("lane {lane_id} has a non-finite point ({x:?}, {y:?})")]
-    NonFinite {
+    /// A lane point is NaN, infinite or farther than [`MAX_COORDINATE_M`] from the map's
+    /// origin on either axis. Beyond it a local plane means nothing, and a segment's squared
+    /// length overflowed (its chord error was NaN at 1e155 m).
+    #[error(
+        "lane {lane_id} has a point ({x:?}, {y:?}) that is not finite or beyond {max:e} m of the \
+         map's origin",
+        max = MAX_COORDINATE_M
+    )]
+    PointOutOfRange {
         /// The lane's identifier.
         lane_id: u64,
         /// x in metres.
@@ -216,18 +223,6 @@ impl LaneMap {
         if total > MAX_POINTS {
             return Err(LaneMapError::TooManyPoints(total));
         }
-        if let Some((lane, p)) = lanes.iter().find_map(|l| {
-            l.points
-                .iter()
-                .find(|p| !(p[0].is_finite() && p[1].is_finite()))
-                .map(|p| (l, p))
-        }) {
-            return Err(LaneMapError::NonFinite {
-                lane_id: lane.id,
-                x: p[0],
-                y: p[1],
-            });
-        }
         let mut points = Vec::with_capacity(total);
         let mut lane_offsets = Vec::with_capacity(lanes.len() + 1);
         lane_offsets.push(0u32);
@@ -242,8 +237,8 @@ impl LaneMap {
 
     /// A lane map from its flat arrays (what a tile stores): lane `k` holds points
     /// `lane_offsets[k]..lane_offsets[k + 1]`, has id `lane_ids[k]` and info `lane_info[k]`.
-    /// Checks that the arrays agree and every point is finite, derives the segments and builds
-    /// the KD-tree.
+    /// Checks that the arrays agree and every point is finite and within [`MAX_COORDINATE_M`]
+    /// of the origin, derives the segments and builds the KD-tree.
     pub fn from_arrays(
         lane_offsets: Vec<u32>,
         lane_ids: Vec<u64>,
@@ -273,10 +268,10 @@ impl LaneMap {
         }
         if let Some(j) = points
             .iter()
-            .position(|p| !(p[0].is_finite() && p[1].is_finite()))
+            .position(|p| !p.iter().all(|v| v.abs() <= MAX_COORDINATE_M))
         {
             let k = lane_offsets.partition_point(|&o| o as usize <= j) - 1;
-            return Err(LaneMapError::NonFinite {
+            return Err(LaneMapError::PointOutOfRange {
                 lane_id: lane_ids[k],
                 x: points[j][0],
                 y: points[j][1],
@@ -644,12 +639,32 @@ mod tests {
     }
 
     #[test]
-    fn non_finite_points_are_refused() {
-        let lanes = vec![Lane::new(3, vec![[0.0, f64::NAN]])];
-        assert!(matches!(
-            LaneMap::new(&lanes),
-            Err(LaneMapError::NonFinite { lane_id: 3, .. })
-        ));
+    fn points_not_finite_or_beyond_the_pose_bound_are_refused() {
+        let near = |k: u32| [k as f64, 0.0];
+        for bad in [
+            [0.0, f64::NAN],
+            [f64::INFINITY, 0.0],
+            [-1.000_000_1e7, 0.0],
+            [0.0, 1e155],
+        ] {
+            let lanes = vec![
+                Lane::new(2, (0..3).map(near).collect()),
+                Lane::new(3, vec![near(5), bad]),
+            ];
+            match LaneMap::new(&lanes) {
+                Err(LaneMapError::PointOutOfRange { lane_id: 3, x, y }) => {
+                    assert_eq!([x.to_bits(), y.to_bits()], bad.map(f64::to_bits))
+                }
+                Err(e) => panic!("{bad:?}: {e}"),
+                Ok(_) => panic!("{bad:?}: accepted"),
+            }
+        }
+        let bound = vec![Lane::new(
+            3,
+            vec![[-MAX_COORDINATE_M, MAX_COORDINATE_M], near(0)],
+        )];
+        let map = LaneMap::new(&bound).unwrap();
+        assert!(map.chord_error_m(0).is_finite());
     }
 
     proptest! {

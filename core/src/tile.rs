@@ -909,7 +909,7 @@ mod tests {
         let mut b = bytes.clone();
         let x0 = HEADER_LEN + layout.points.start;
         b[x0..x0 + 8].copy_from_slice(&f64::NAN.to_le_bytes());
-        check(b, "non-finite");
+        check(b, "(NaN, 0.0) that is not finite");
         let mut b = bytes.clone();
         // x of the last point (87 m, the largest) grows a little: the bounds no longer match.
         b[HEADER_LEN + layout.points.start + 16 * 599] ^= 0x10;

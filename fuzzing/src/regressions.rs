@@ -49,6 +49,21 @@ fn tile_cases() -> Vec<Case> {
     tile::seal(&mut point);
     let mut flipped = good.clone();
     flipped[300] ^= 4;
+    // Lane 6's end (0, 30) moved to y = 1e155, with the header's bounds, and resealed: it was
+    // accepted, the squared length of the segment to it overflowed, and the map held NaN chord
+    // errors, which the published covariance adds for a pair kept on that lane.
+    let mut far = good.clone();
+    let end: Vec<u8> = [0.0f64, -3.0, 0.0, 30.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let at = far
+        .windows(end.len())
+        .position(|w| w == end.as_slice())
+        .expect("the seed tile holds lane 6's end");
+    far[at + 24..at + 32].copy_from_slice(&1e155f64.to_le_bytes());
+    put_u64(&mut far, 96, 1e155f64.to_bits());
+    tile::seal(&mut far);
     vec![
         Case {
             name: "tile_size_arithmetic_wraps.tile",
@@ -73,6 +88,12 @@ fn tile_cases() -> Vec<Case> {
             target: Target::Tile,
             bytes: flipped,
             refused_with: Some("checksum mismatch"),
+        },
+        Case {
+            name: "tile_point_beyond_the_pose_bound.tile",
+            target: Target::Tile,
+            bytes: far,
+            refused_with: Some("lane 6 has a point (0.0, 1e155) that is not finite or beyond"),
         },
         Case {
             name: "tile_truncated.tile",
