@@ -30,6 +30,7 @@ use crate::geo::{check_lat_lon, MapPlane, Projection};
 use crate::input::InputError;
 use crate::lane_geometry::{check_unmarked_offset_scale, LaneGeometry, RoadClasses, Traffic};
 use crate::lane_map::{LaneMap, LaneMapError};
+use crate::pose::MAX_COORDINATE_M;
 use crate::tile::{self, TileError, TileInfo};
 
 pub mod cells;
@@ -279,6 +280,15 @@ impl Grid {
         if let Some(scale) = manifest.unmarked_offset_scale {
             check_unmarked_offset_scale(scale)
                 .map_err(|e| bad(format!("unmarked_offset_scale: {e}")))?;
+        }
+        // What `inspect` prints as the map's extent: a box a tile's points could have.
+        let [x0, y0, x1, y1] = manifest.bounds;
+        let in_plane = manifest.bounds.iter().all(|v| v.abs() <= MAX_COORDINATE_M);
+        if !(in_plane && x0 <= x1 && y0 <= y1) {
+            return Err(bad(format!(
+                "bounds = {:?}: [min x, min y, max x, max y], within {MAX_COORDINATE_M:e} m",
+                manifest.bounds
+            )));
         }
         let projection: Projection = manifest
             .projection
@@ -885,6 +895,17 @@ mod tests {
             ),
             ("spacing_m = 3.0", "spacing_m = nan", "spacing_m = NaN"),
             ("spacing_m = 3.0", "spacing_m = -3.0", "spacing_m = -3"),
+            (
+                "bounds = [-20.0,",
+                "bounds = [nan,",
+                "bounds = [NaN, -30.0, ",
+            ),
+            (
+                "bounds = [-20.0,",
+                "bounds = [-1e8,",
+                "bounds = [-100000000.0, ",
+            ),
+            ("bounds = [-20.0,", "bounds = [500.0,", "bounds = [500.0, "),
             (
                 "unmarked_offset_scale = 0.5",
                 "unmarked_offset_scale = inf",
