@@ -142,9 +142,19 @@ pub struct Manifest {
     /// Lane points in the whole map.
     pub points: u64,
     /// Bounding box of every lane point `[min x, min y, max x, max y]` (metres, map plane).
+    #[serde(deserialize_with = "four_numbers")]
     pub bounds: [f64; 4],
     /// The cells that hold any lane point, in `(x, y)` order.
     pub cells: Vec<CellEntry>,
+}
+
+/// Reads an array of exactly four numbers. The TOML reader fills a `[f64; 4]` from the first
+/// four numbers of a longer array and drops the rest, so a manifest's `bounds` is read as a list
+/// and its length checked.
+fn four_numbers<'de, D: serde::Deserializer<'de>>(reader: D) -> Result<[f64; 4], D::Error> {
+    let numbers = Vec::<f64>::deserialize(reader)?;
+    <[f64; 4]>::try_from(numbers.as_slice())
+        .map_err(|_| serde::de::Error::invalid_length(numbers.len(), &"four numbers"))
 }
 
 /// Calls `visit` with every cell of `existing` whose square the square of half-side `half`
@@ -906,6 +916,11 @@ mod tests {
                 "bounds = [-100000000.0, ",
             ),
             ("bounds = [-20.0,", "bounds = [500.0,", "bounds = [500.0, "),
+            (
+                "bounds = [-20.0, -30.0, 451.0,",
+                "bounds = [-20.0, -30.0, 451.0, 452.0,",
+                "invalid length 5, expected four numbers",
+            ),
             (
                 "unmarked_offset_scale = 0.5",
                 "unmarked_offset_scale = inf",
