@@ -75,6 +75,16 @@ pub enum MetricsError {
         /// The pose's index.
         index: usize,
     },
+    /// The normalised errors squared add up beyond what a number holds: a covariance far
+    /// smaller than its error (1e-300 m^2 against 10 km).
+    #[error(
+        "the covariance of pose {index} is too small for its error: the sum of the normalised \
+         errors squared overflows"
+    )]
+    NeesOverflow {
+        /// The pose at which the sum overflowed.
+        index: usize,
+    },
 }
 
 /// APE-2D of paired planar poses (`gt[i]` with `est[i]`).
@@ -187,6 +197,10 @@ pub fn calibration(
         whitened.push([w0, w1]);
         let nees = w0 * w0 + w1 * w1;
         nees_sum += nees;
+        // Bounds the autocorrelation's sums of products too: each is at most this sum.
+        if !nees_sum.is_finite() {
+            return Err(MetricsError::NeesOverflow { index });
+        }
         if nees <= CHI2_2DOF_95 {
             inside += 1;
         }
@@ -610,6 +624,21 @@ mod tests {
             calibration(&gt[..1], &est[..1], &[singular]),
             Err(MetricsError::NotPositiveDefinite { index: 0 })
         );
+    }
+
+    /// A status CSV's covariance of 1e-300 m^2 across 10 km of error: each NEES is finite, their
+    /// sum is not, and `eval` printed a mean NEES of inf.
+    #[test]
+    fn a_covariance_too_small_for_its_error_is_refused() {
+        let gt = [at(0.0, 0.0, 0.0); 3];
+        let est = [at(1e4, 0.0, 0.0); 3];
+        let tiny = [[1e-300, 0.0], [0.0, 1e290]];
+        assert_eq!(
+            calibration(&gt, &est, &[tiny; 3]),
+            Err(MetricsError::NeesOverflow { index: 1 })
+        );
+        let c = calibration(&gt[..1], &est[..1], &[tiny]).unwrap();
+        assert!(c.nees_mean.is_finite() && c.independent_samples.is_finite());
     }
 
     /// White noise is as many samples as it has; an AR(1) series of coefficient `phi` has the

@@ -487,6 +487,13 @@ def test_kitti_07_equals_correct_and_eval_bit_for_bit(tmp_path):
         with pytest.raises(ValueError, match=re.escape(
                 f"the covariance of pose 9 is not symmetric: [{min(r, k)}, {max(r, k)}] = ")):
             lanealign.eval(got.poses, got.poses, covariance=skewed, anchor_yaw=0.0)
+    # A covariance far smaller than its error (1e-307 m^2 across a metre or so) is refused: the
+    # normalised errors squared were summed to inf and reported as the mean NEES.
+    tiny = np.zeros_like(got.covariance)
+    tiny[:, 0, 0], tiny[:, 1, 1], tiny[:, 2, 2] = 1e-307, 1e290, 1.0
+    with pytest.raises(ValueError, match="too small for its error"):
+        lanealign.eval(np.loadtxt(gt_path).reshape(-1, 3, 4), got.poses, frame="kitti-camera",
+                       covariance=tiny, anchor_yaw=0.0)
     rounded = got.covariance.copy()
     rounded[9, 0, 1] *= 1 + 1e-12
     assert lanealign.eval(got.poses, got.poses, covariance=rounded, anchor_yaw=0.0)["poses"] == \
