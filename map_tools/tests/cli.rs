@@ -135,22 +135,32 @@ fn compile_skips_roads_too_far_from_the_planes_origin() {
     }
 }
 
+/// `compile FLAG=VALUE` for each of `values` exits 1 with an error holding every one of `parts`,
+/// and writes no tile.
+fn assert_compile_refuses(dir: &Path, flag: &str, values: &[&str], parts: &[&str]) {
+    for value in values {
+        let out = compile_small(dir, &[&format!("{flag}={value}")]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{value}: {err}");
+        assert!(parts.iter().all(|p| err.contains(p)), "{value}: {err}");
+        assert!(!dir.join("small.tile").exists());
+    }
+}
+
 /// A spacing of 1e300 m made a tile of one point a lane ("0.0 lane-km"), which no pose can
 /// match; 100 m one that corrects KITTI 00 worse than its raw odometry.
 #[test]
 fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
     let dir = tempfile::tempdir().unwrap();
-    for spacing in ["0", "NaN", "inf", "10.5", "100", "1e300"] {
-        let out = compile_small(dir.path(), &[&format!("--spacing={spacing}")]);
-        let err = stderr(&out);
-        assert_eq!(out.status.code(), Some(1), "{spacing}: {err}");
-        assert!(
-            err.contains("error: --spacing: the lane point spacing")
-                && err.contains(" m is outside (0, 10] m"),
-            "{spacing}: {err}"
-        );
-        assert!(!dir.path().join("small.tile").exists());
-    }
+    assert_compile_refuses(
+        dir.path(),
+        "--spacing",
+        &["0", "NaN", "inf", "10.5", "100", "1e300"],
+        &[
+            "error: --spacing: the lane point spacing",
+            " m is outside (0, 10] m",
+        ],
+    );
     for spacing in ["0.5", "10"] {
         let out = compile_small(dir.path(), &[&format!("--spacing={spacing}")]);
         assert!(out.status.success(), "{spacing}: {}", stderr(&out));
@@ -162,22 +172,20 @@ fn compile_refuses_a_spacing_that_loses_the_roads_shape() {
 #[test]
 fn compile_refuses_an_unmarked_offset_scale_off_the_road() {
     let dir = tempfile::tempdir().unwrap();
-    for scale in ["-0.1", "NaN", "inf", "2.01"] {
-        let out = compile_small(dir.path(), &[&format!("--unmarked-offset-scale={scale}")]);
-        let err = stderr(&out);
-        assert_eq!(out.status.code(), Some(1), "{scale}: {err}");
-        assert!(
-            err.contains("error: --unmarked-offset-scale: the unmarked-street offset scale")
-                && err.contains(" is outside [0, 2]"),
-            "{scale}: {err}"
-        );
-        assert!(!dir.path().join("small.tile").exists());
-    }
+    assert_compile_refuses(
+        dir.path(),
+        "--unmarked-offset-scale",
+        &["-0.1", "NaN", "inf", "2.01"],
+        &[
+            "error: --unmarked-offset-scale: the unmarked-street offset scale",
+            " is outside [0, 2]",
+        ],
+    );
     for scale in ["0", "2"] {
         let out = compile_small(dir.path(), &[&format!("--unmarked-offset-scale={scale}")]);
         assert!(out.status.success(), "{scale}: {}", stderr(&out));
-        let tile = std::fs::read(dir.path().join("small.tile")).unwrap();
-        let info = lanealign_core::tile::read_info(&dir.path().join("small.tile"), &tile).unwrap();
+        let tile = dir.path().join("small.tile");
+        let info = lanealign_core::tile::read_info(&tile, &std::fs::read(&tile).unwrap()).unwrap();
         assert_eq!(
             info.geometry.unmarked_offset_scale,
             Some(scale.parse().unwrap())
