@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use crate::input::{quote, InputError, Lines};
 use crate::lane_map::Lane;
-use crate::pose::MAX_COORDINATE_M;
+use crate::pose::within_coordinate_bound;
 
 /// A lane CSV that could not be read.
 #[derive(Debug, thiserror::Error)]
@@ -76,7 +76,7 @@ where
         })?;
         let coord = |s: &str| -> Result<f64, LaneCsvError> {
             match s.parse::<f64>() {
-                Ok(v) if v.is_finite() && v.abs() <= MAX_COORDINATE_M => Ok(v),
+                Ok(v) if within_coordinate_bound(v) => Ok(v),
                 _ => Err(error(format!(
                     "'{}' is not a finite number within 1e7 m",
                     quote(s)

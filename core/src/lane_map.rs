@@ -17,7 +17,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
 use crate::grid::Coverage;
 use crate::lane_geometry::LaneInfo;
-use crate::pose::MAX_COORDINATE_M;
+use crate::pose::{within_coordinate_bound, MAX_COORDINATE_M};
 use crate::se2::distance;
 
 /// A lane centerline in its direction of travel (metres, map plane).
@@ -268,7 +268,7 @@ impl LaneMap {
         }
         if let Some(j) = points
             .iter()
-            .position(|p| !p.iter().all(|v| v.abs() <= MAX_COORDINATE_M))
+            .position(|p| !p.iter().all(|&v| within_coordinate_bound(v)))
         {
             let k = lane_offsets.partition_point(|&o| o as usize <= j) - 1;
             return Err(LaneMapError::PointOutOfRange {

@@ -11,6 +11,12 @@ use crate::se2::Se2;
 
 /// The largest coordinate a pose may have (metres): beyond it a pose is no odometry.
 pub const MAX_COORDINATE_M: f64 = 1e7;
+
+/// True for a coordinate (metres) a pose or a lane point may have: within
+/// [`MAX_COORDINATE_M`] of the origin, so false for NaN and infinities too.
+pub fn within_coordinate_bound(v: f64) -> bool {
+    v.abs() <= MAX_COORDINATE_M
+}
 /// How far a rotation may be from orthonormal (largest entry of `|R^T R - I|`). Odometry files
 /// print 6 to 7 significant digits: the shared stereo visual odometry run reaches 1.6e-5, so the
 /// bound is 1e-4, well below what a scaled (1.01: 2e-2) or zero (1) matrix gives.
@@ -98,7 +104,11 @@ impl Pose3 {
         if !self.is_finite() {
             return Some("a number is not finite".into());
         }
-        if let Some(v) = self.translation.iter().find(|v| v.abs() > MAX_COORDINATE_M) {
+        if let Some(v) = self
+            .translation
+            .iter()
+            .find(|v| !within_coordinate_bound(**v))
+        {
             return Some(format!("coordinate {v:.3e} m is beyond 1e7 m"));
         }
         let error = self.rotation_error();

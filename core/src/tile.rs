@@ -376,6 +376,12 @@ fn payload(map: &LaneMap, pieces: Option<&[PieceOrigin]>) -> Vec<u8> {
     out
 }
 
+/// True for a lane point spacing (metres) a tile header or a grid manifest may record: finite and
+/// 0 or more.
+pub fn is_recorded_spacing(spacing_m: f64) -> bool {
+    spacing_m.is_finite() && spacing_m >= 0.0
+}
+
 /// The bytes of a tile of `map` in `plane`, resampled at `spacing_m`, derived as `geometry`.
 pub fn encode(map: &LaneMap, plane: &MapPlane, spacing_m: f64, geometry: &LaneGeometry) -> Vec<u8> {
     encode_parts(map, plane, spacing_m, geometry, None)
@@ -570,7 +576,7 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
     };
     let (lat, lon, spacing_m) = (f64_at(bytes, 24), f64_at(bytes, 32), f64_at(bytes, 40));
     check_lat_lon(lat, lon).map_err(|e| bad("origin", e.to_string()))?;
-    if !(spacing_m.is_finite() && spacing_m >= 0.0) {
+    if !is_recorded_spacing(spacing_m) {
         return Err(bad("spacing", spacing_m.to_string()));
     }
     let flags = u32_at(bytes, 116);

@@ -30,7 +30,7 @@ use crate::geo::{check_lat_lon, MapPlane, Projection};
 use crate::input::InputError;
 use crate::lane_geometry::{check_unmarked_offset_scale, LaneGeometry, RoadClasses, Traffic};
 use crate::lane_map::{LaneMap, LaneMapError};
-use crate::pose::MAX_COORDINATE_M;
+use crate::pose::{within_coordinate_bound, MAX_COORDINATE_M};
 use crate::tile::{self, TileError, TileInfo};
 
 pub mod cells;
@@ -281,7 +281,7 @@ impl Grid {
         check_spec(manifest.cell_size_m, manifest.margin_m).map_err(|e| bad(e.to_string()))?;
         // What every cell's header must also hold (`tile::read_info`), named here rather than
         // as every cell refused for not being the grid's.
-        if !(manifest.spacing_m.is_finite() && manifest.spacing_m >= 0.0) {
+        if !tile::is_recorded_spacing(manifest.spacing_m) {
             return Err(bad(format!(
                 "spacing_m = {}: a distance of 0 metres or more",
                 manifest.spacing_m
@@ -293,7 +293,7 @@ impl Grid {
         }
         // What `inspect` prints as the map's extent: a box a tile's points could have.
         let [x0, y0, x1, y1] = manifest.bounds;
-        let in_plane = manifest.bounds.iter().all(|v| v.abs() <= MAX_COORDINATE_M);
+        let in_plane = manifest.bounds.iter().all(|&v| within_coordinate_bound(v));
         if !(in_plane && x0 <= x1 && y0 <= y1) {
             return Err(bad(format!(
                 "bounds = {:?}: [min x, min y, max x, max y], within {MAX_COORDINATE_M:e} m",
