@@ -17,6 +17,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use lanealign_core::confidence::{position_covariance_in, Covariance};
+use lanealign_core::geo::is_anchor_yaw_rad;
 use lanealign_core::input::{Lines, Outputs};
 use lanealign_core::number_text::push_separated;
 use lanealign_core::se2::Se2;
@@ -189,6 +190,12 @@ pub fn read_position_covariances(path: &Path) -> anyhow::Result<Vec<[[f64; 2]; 2
             })
         };
         let (xx, xy, yy, yaw) = (value(0)?, value(1)?, value(2)?, value(3)?);
+        if !is_anchor_yaw_rad(yaw) {
+            bail!(
+                "{}:{number}: anchor_yaw {yaw:?} is not an angle in [-2 pi, 2 pi] radians",
+                path.display()
+            );
+        }
         let covariance = [[xx, xy, 0.0], [xy, yy, 0.0], [0.0, 0.0, 0.0]];
         out.push(position_covariance_in_odom(yaw, &covariance));
     }

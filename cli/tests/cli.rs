@@ -630,6 +630,101 @@ fn eval_reports_how_well_the_covariance_describes_the_errors() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("99 rows"));
 }
 
+/// Always runs: a status CSV given to `eval --status` that is not one `correct` wrote is refused
+/// naming the file and, for a row, its line: empty, a column missing, a row cut short, a number
+/// that is not one, a covariance that is none, and an `anchor_yaw` that is no angle (1e300 was
+/// taken, as whatever its sine is, where the Python package's `eval` refused it). The rows as
+/// written are read.
+#[test]
+fn a_status_csv_that_is_not_one_is_refused_naming_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let (gt, est) = (dir.path().join("gt.txt"), dir.path().join("est.txt"));
+    let pose = |x: f64| format!("1 0 0 {x} 0 1 0 0 0 0 1 0\n");
+    std::fs::write(&gt, (0..3).map(|i| pose(i as f64)).collect::<String>()).unwrap();
+    std::fs::write(
+        &est,
+        (0..3).map(|i| pose(i as f64 + 0.5)).collect::<String>(),
+    )
+    .unwrap();
+    // index .. applied_directions, cov_xx, cov_xy, cov_xyaw, cov_yy, cov_yyaw, cov_yawyaw,
+    // anchor_yaw, odometry_scale, odometry_scale_sd
+    let row = |i: usize, cov_xx: &str, anchor_yaw: &str| {
+        format!("{i},accepted,,0.1,1,3,0,0,0,3,{cov_xx},0,0,1,0,0.01,{anchor_yaw},1,0\n")
+    };
+    let header = lanealign_cli::status_file::HEADER;
+    let csv = |rows: [String; 3]| format!("{header}\n{}", rows.concat());
+    let good = || [row(0, "1", "0"), row(1, "1", "0"), row(2, "1", "0")];
+    let eval = |name: &str, text: &str| {
+        let status = dir.path().join(name);
+        std::fs::write(&status, text).unwrap();
+        let args = [
+            "eval",
+            "--gt",
+            s(&gt),
+            "--est",
+            s(&est),
+            "--status",
+            s(&status),
+        ];
+        lanealign(&[&args[..], &["--frame", "kitti-camera", "--json"]].concat())
+    };
+    let out = eval("good.csv", &csv(good()));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert!(
+        (v["nees_mean"].as_f64().unwrap() - 0.25).abs() < 1e-12,
+        "{v}"
+    );
+
+    let with_row_1 = |bad: String| {
+        let mut rows = good();
+        rows[1] = bad;
+        csv(rows)
+    };
+    let cases = [
+        (
+            "empty.csv",
+            String::new(),
+            "empty.csv: empty, not a status CSV",
+        ),
+        (
+            "column.csv",
+            csv(good()).replacen("cov_xx", "cov_x", 1),
+            "column.csv: no column cov_xx",
+        ),
+        (
+            "short.csv",
+            with_row_1("1,accepted,,0.1,1,3,0,0,0,3,1,0\n".into()),
+            "short.csv:3: too few columns",
+        ),
+        (
+            "word.csv",
+            with_row_1(row(1, "one", "0")),
+            "word.csv:3: one is not a number",
+        ),
+        (
+            "nan.csv",
+            with_row_1(row(1, "NaN", "0")),
+            "not finite and positive definite",
+        ),
+        (
+            "yaw.csv",
+            with_row_1(row(1, "1", "1e300")),
+            "yaw.csv:3: anchor_yaw 1e300 is not an angle",
+        ),
+    ];
+    for (name, text, says) in cases {
+        let out = eval(name, &text);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(says), "{name}: {err}");
+    }
+}
+
 /// `correct --results DIR --gt GT` keeps each run in a folder of its own with `latest` pointing
 /// at the newest: the corrected trajectory and status, every effective parameter (what
 /// `lanealign params` prints for the same flags), the metrics `eval --status` reports (APE-2D and

@@ -180,6 +180,14 @@ pub enum GeoError {
 /// it a yaw is a mistake (1e300 degrees was taken, as whatever its sine is).
 pub const MAX_YAW_DEG: f64 = 360.0;
 
+/// Whether `yaw_rad` (radians) is a yaw an anchor may turn an odometry frame by: within
+/// [`MAX_YAW_DEG`] either way. For the anchor yaws read back in radians (a status CSV's
+/// `anchor_yaw`, the Python package's `eval`).
+pub fn is_anchor_yaw_rad(yaw_rad: f64) -> bool {
+    let max = MAX_YAW_DEG.to_radians();
+    (-max..=max).contains(&yaw_rad)
+}
+
 /// The largest offset an anchor may place an odometry origin at (metres): beyond it a local
 /// plane is meaningless (Earth's circumference is 4e7 m).
 pub const MAX_OFFSET_M: f64 = 1e7;

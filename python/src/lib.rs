@@ -447,9 +447,7 @@ fn position_covariances(
             array.shape()
         )));
     }
-    // The anchor's yaw rule (`geo::MAX_YAW_DEG`), in the radians `eval` takes.
-    let max_yaw = lanealign_core::geo::MAX_YAW_DEG.to_radians();
-    if !(-max_yaw..=max_yaw).contains(&anchor_yaw) {
+    if !lanealign_core::geo::is_anchor_yaw_rad(anchor_yaw) {
         return Err(PyValueError::new_err(format!(
             "anchor_yaw: {anchor_yaw:?} is not an angle in [-2 pi, 2 pi] radians"
         )));
