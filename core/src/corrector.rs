@@ -983,26 +983,32 @@ mod tests {
         assert_restores_bit_for_bit(params, &drive, &steps, &[30, 91, 500]);
     }
 
-    /// Every covariance a run saves is one a restored corrector continues from, before the first
-    /// alignment, while aligned and after the road turns.
+    /// Every covariance and scale estimate a run saves is one a restored corrector continues
+    /// from, before the first alignment, while aligned and after the road turns, with the
+    /// preset's scale drift and with the largest a corrector may be set for.
     #[test]
     fn every_saved_covariance_is_one_to_continue_from() {
-        let mut params = crate::params::Preset::OrbSlam3.robust_params();
-        params.min_window = 20;
-        let mut c = Corrector::new(l_shaped_map(), params);
-        for p in l_drive([0.5, 1.0]) {
-            c.push(p);
-            let state = c.state();
-            assert!(
-                crate::confidence::is_covariance(&state.covariance),
-                "{state:?}"
-            );
-            let (published, cross) = state.published_uncertainty.expect("the scale is estimated");
-            let scale = state.scale.expect("the scale is estimated");
-            assert!(
-                crate::confidence::is_joint_covariance(&published, cross, scale.variance),
-                "{state:?}"
-            );
+        for scale_drift in [1e-7, crate::scale::MAX_SCALE_DRIFT_VAR_PER_M] {
+            let mut params = crate::params::Preset::OrbSlam3.robust_params();
+            params.min_window = 20;
+            params.scale_drift_var_per_m = scale_drift;
+            let mut c = Corrector::new(l_shaped_map(), params);
+            for p in l_drive([0.5, 1.0]) {
+                c.push(p);
+                let state = c.state();
+                assert!(
+                    crate::confidence::is_covariance(&state.covariance),
+                    "{state:?}"
+                );
+                let (published, cross) =
+                    state.published_uncertainty.expect("the scale is estimated");
+                let scale = state.scale.expect("the scale is estimated");
+                assert!(
+                    crate::confidence::is_joint_covariance(&published, cross, scale.variance)
+                        && scale.is_valid(),
+                    "{scale_drift}: {state:?}"
+                );
+            }
         }
     }
 

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::corrector::MatchMode;
 use crate::lane_geometry::LaneGeometry;
+use crate::scale::MAX_SCALE_DRIFT_VAR_PER_M;
 use crate::smoothing::Smoothing;
 
 /// Every tunable of the corrector. Lengths in metres.
@@ -118,7 +119,8 @@ pub struct Params {
     /// (the odometry's scale is taken as it is).
     pub scale_sigma: f64,
     /// Beyond the paper: how fast the odometry's scale drifts, as a random walk (a ratio squared
-    /// of variance per metre travelled; 1e-7 is 1 % in a kilometre).
+    /// of variance per metre travelled; 1e-7 is 1 % in a kilometre; at most
+    /// [`MAX_SCALE_DRIFT_VAR_PER_M`]).
     pub scale_drift_var_per_m: f64,
 }
 
@@ -438,7 +440,6 @@ impl Params {
             ("min_evidence_ratio", self.min_evidence_ratio),
             ("alignment_spacing_m", self.alignment_spacing_m),
             ("standstill_speed_mps", self.standstill_speed_mps),
-            ("scale_drift_var_per_m", self.scale_drift_var_per_m),
         ] {
             if !finite_nonneg(v) {
                 return Err(invalid(key, v, "must be finite and non-negative"));
@@ -492,6 +493,13 @@ impl Params {
                 "scale_sigma",
                 self.scale_sigma,
                 "must be between 0 (off) and 0.5",
+            ));
+        }
+        if !(0.0..=MAX_SCALE_DRIFT_VAR_PER_M).contains(&self.scale_drift_var_per_m) {
+            return Err(invalid(
+                "scale_drift_var_per_m",
+                self.scale_drift_var_per_m,
+                "must be between 0 and 0.25 (a ratio squared per metre)",
             ));
         }
         if self.icp_max_iterations == 0 || self.icp_max_iterations > 100_000 {
@@ -867,6 +875,22 @@ mod tests {
         for hz in [MIN_ODOMETRY_RATE_HZ, 0.1, 10.0, MAX_ODOMETRY_RATE_HZ] {
             p.odometry_rate_hz = hz;
             assert!(p.validate().is_ok(), "{hz} Hz refused");
+        }
+    }
+
+    /// A scale drift beyond a variance of 0.25 a metre is refused: at 1e100 the published
+    /// covariances were NaN, and from 1e3 a session's scale variance passed what its snapshot may
+    /// hold within a kilometre.
+    #[test]
+    fn a_scale_drift_beyond_its_bound_is_refused() {
+        let mut p = Preset::OrbSlam3.robust_params();
+        for var in [1e100, 0.26, -1e-9, f64::NAN, f64::INFINITY] {
+            p.scale_drift_var_per_m = var;
+            assert!(p.validate().is_err(), "{var} accepted");
+        }
+        for var in [0.0, 1e-7, MAX_SCALE_DRIFT_VAR_PER_M] {
+            p.scale_drift_var_per_m = var;
+            assert!(p.validate().is_ok(), "{var} refused");
         }
     }
 

@@ -140,6 +140,14 @@ impl ScaleEstimate {
     }
 }
 
+/// The largest random walk of the scale a corrector may be set for
+/// ([`crate::params::Params::scale_drift_var_per_m`], a ratio squared per metre): the variance
+/// of the largest `scale_sigma` (0.5) added in every metre driven. Beyond it the estimate is
+/// noise, and its variance soon passed what a saved state may hold ([`MAX_SCALE_OFF`]; at 1e3
+/// within the first kilometre of KITTI 07, so that the session's snapshot did not restore) and
+/// then overflowed (at 1e100 the published covariances were NaN).
+pub const MAX_SCALE_DRIFT_VAR_PER_M: f64 = 0.25;
+
 /// How far a scale estimate may be off to be continued from (a ratio; [`ScaleEstimate::is_valid`]):
 /// a million times, far past any odometry lanes could correct, while a scaled step of the
 /// farthest a pose may lie ([`crate::pose::MAX_COORDINATE_M`]) stays finite.
