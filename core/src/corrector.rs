@@ -800,7 +800,11 @@ impl Corrector {
         ) else {
             return false;
         };
+        let before = scale.estimate.variance;
         let change = scale.estimate.update(&evidence, share);
+        scale
+            .published
+            .scale_measured(before, scale.estimate.variance);
         if change == 0.0 {
             return false;
         }
