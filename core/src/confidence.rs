@@ -93,11 +93,12 @@ pub fn is_joint_covariance(
             }
         }
     }
+    // Every eigenvalue at least -ROUNDING: the shifted matrix has a Cholesky factor (a tenth of
+    // the cost of the eigenvalues, so that every update of the filter can be checked).
     (correlation - correlation.transpose()).amax() <= ROUNDING
-        && correlation
-            .symmetric_eigenvalues()
-            .iter()
-            .all(|&e| e >= -ROUNDING)
+        && (correlation + Matrix4::identity() * ROUNDING)
+            .cholesky()
+            .is_some()
 }
 
 /// How far a car wanders about the centreline of the lane it drives in, independently of the
@@ -590,9 +591,11 @@ impl PoseUncertainty {
             let mut pose = joint_information.fixed_view_mut::<3, 3>(0, 0);
             pose += information * share;
             if let Some(updated) = joint_information.try_inverse() {
-                self.covariance = updated.fixed_view::<3, 3>(0, 0).into_owned();
-                self.scale_cross = updated.fixed_view::<3, 1>(0, 3).into_owned();
-                self.symmetrize();
+                self.take(
+                    updated.fixed_view::<3, 3>(0, 0).into_owned(),
+                    updated.fixed_view::<3, 1>(0, 3).into_owned(),
+                    scale_variance,
+                );
             }
             return;
         }
@@ -600,8 +603,21 @@ impl PoseUncertainty {
             return;
         };
         if let Some(covariance) = (prior_information + information * share).try_inverse() {
+            self.take(covariance, self.scale_cross, 0.0);
+        }
+    }
+
+    /// Takes an update's `covariance` and `scale_cross` (symmetrised), unless the arithmetic
+    /// could not carry it: the inverses of a covariance whose variances lie many orders of
+    /// magnitude apart (a position sigma of 1e-300 m beside a heading sigma of 1e6 degrees, both
+    /// allowed) lose every digit, and the result had negative variances. The pose then keeps
+    /// the wider covariance it had, which is what a consumer may be given.
+    fn take(&mut self, covariance: Matrix3<f64>, scale_cross: Vector3<f64>, scale_variance: f64) {
+        let covariance = (covariance + covariance.transpose()) * 0.5;
+        let entries = std::array::from_fn(|r| std::array::from_fn(|c| covariance[(r, c)]));
+        if is_joint_covariance(&entries, scale_cross.into(), scale_variance) {
             self.covariance = covariance;
-            self.symmetrize();
+            self.scale_cross = scale_cross;
         }
     }
 

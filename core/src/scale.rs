@@ -121,12 +121,21 @@ impl ScaleEstimate {
 
     /// Folds in `evidence`, `share` of it new (the Kalman gain of its information against the
     /// variance), and returns the relative change of scale the window is to take (`1 +` it
-    /// multiplies the window's distances to its newest pose).
+    /// multiplies the window's distances to its newest pose). Evidence that would leave an
+    /// estimate no corrector may continue from ([`ScaleEstimate::is_valid`]) is not taken (0 is
+    /// returned): with a variance of a few (a drift set near its bound), a window's misfit read
+    /// as a change of scale below -1 turned the factor negative, the odometry's steps backwards.
     pub fn update(&mut self, evidence: &ScaleEvidence, share: f64) -> f64 {
         let r = self.variance * evidence.information * share;
         let change = r / (1.0 + r) * evidence.scale_change;
-        self.factor *= 1.0 + change;
-        self.variance /= 1.0 + r;
+        let updated = ScaleEstimate {
+            factor: self.factor * (1.0 + change),
+            variance: self.variance / (1.0 + r),
+        };
+        if !updated.is_valid() {
+            return 0.0;
+        }
+        *self = updated;
         change
     }
 
@@ -303,6 +312,28 @@ mod tests {
         assert!((change + 0.015).abs() < 1e-12, "{change}");
         assert!((estimate.factor - 0.985).abs() < 1e-12);
         assert!((estimate.variance - 2.5e-4).abs() < 1e-15);
+    }
+
+    /// Evidence that would turn the factor negative (a change below -1, which a window's
+    /// misfit gives once the variance is a few) is not taken: the estimate stays as it was.
+    #[test]
+    fn evidence_that_would_turn_the_steps_backwards_is_not_taken() {
+        let mut estimate = ScaleEstimate {
+            factor: 1.0,
+            variance: 4.0,
+        };
+        let evidence = ScaleEvidence {
+            scale_change: -1.5,
+            information: 10.0,
+        };
+        assert_eq!(estimate.update(&evidence, 1.0), 0.0);
+        assert_eq!(
+            estimate,
+            ScaleEstimate {
+                factor: 1.0,
+                variance: 4.0
+            }
+        );
     }
 
     #[test]
