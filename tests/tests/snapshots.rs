@@ -23,58 +23,20 @@ use lanealign_tests::{kitti_anchor, shared_data};
 #[test]
 fn every_state_of_a_real_run_is_saved_and_restored() {
     let Some(data) = shared_data() else { return };
-    for (odometry, preset, name) in [
-        ("stereo_vo", Preset::OrbSlam3, "00"),
-        ("stereo_vo", Preset::OrbSlam3, "01"),
-        ("lidar", Preset::KissIcp, "00"),
+    for (run, preset) in [
+        (("stereo_vo", "00"), Preset::OrbSlam3),
+        (("stereo_vo", "01"), Preset::OrbSlam3),
+        (("lidar", "00"), Preset::KissIcp),
     ] {
-        let loaded = MapSource::Osm {
-            path: data.join(format!("osm/kitti_{name}.osm")),
-            anchor: kitti_anchor(&data, name),
-            projection: Projection::Kitti,
-            options: LaneOptions::for_method(Method::Robust),
-        }
-        .load()
-        .unwrap();
-        let placement = Placement {
-            convention: AxisConvention::KittiCamera,
-            anchored_from_odom: loaded.anchored_from_odom,
-            smoothing: None,
-        };
-        let mut corrector = SourceCorrector::new(
-            loaded.map.clone(),
-            Method::Robust.params(preset),
-            MatchMode::Fast,
-            placement,
-        );
-        let poses = read(
-            &data.join(format!("odometry/{odometry}/{name}.txt")),
-            Format::Kitti,
-        )
-        .unwrap()
-        .poses;
-        for (i, pose) in poses.iter().enumerate() {
-            corrector.correct(pose);
-            let saved = Snapshot {
-                last_seq: i as u64 + 1,
-                next_segment: 1,
-                state: corrector.state(),
-                watch: None,
-            }
-            .encode();
-            let restored = Snapshot::decode(&saved).map(|s| s.encode());
-            assert!(
-                restored.as_ref() == Some(&saved),
-                "{odometry} {name}, pose {i}: {:?}",
-                corrector.state()
-            );
-        }
+        let params = Method::Robust.params(preset);
+        assert_every_state_restores(&data, run, &[(preset.name().to_string(), params)]);
     }
 }
 
-/// A run of `odometry`/`name` (KITTI) corrected with `params`, its map and placement loaded as
-/// the daemon loads them: after each pose, the answer's pose, covariance and scale are finite
-/// and the state saved as a snapshot restores byte for byte. `what` names the run in failures.
+/// A run of `odometry`/`name` (KITTI) corrected with each of `settings` (a name for failures,
+/// the parameters), its map and placement loaded as the daemon loads them: after each pose, the
+/// answer's pose, covariance and scale are finite and the state saved as a snapshot restores
+/// byte for byte.
 fn assert_every_state_restores(
     data: &Path,
     (odometry, name): (&str, &str),
