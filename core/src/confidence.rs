@@ -609,9 +609,9 @@ impl PoseUncertainty {
 
     /// Takes an update's `covariance` and `scale_cross` (symmetrised), unless the arithmetic
     /// could not carry it: the inverses of a covariance whose variances lie many orders of
-    /// magnitude apart (a position sigma of 1e-300 m beside a heading sigma of 1e6 degrees, both
-    /// allowed) lose every digit, and the result had negative variances. The pose then keeps
-    /// the wider covariance it had, which is what a consumer may be given.
+    /// magnitude apart (a position sigma of 1e6 m beside a heading sigma of 180 degrees and no
+    /// drift, all allowed) lose their digits, and the result was no covariance. The pose then
+    /// keeps the wider covariance it had, which is what a consumer may be given.
     fn take(&mut self, covariance: Matrix3<f64>, scale_cross: Vector3<f64>, scale_variance: f64) {
         let covariance = (covariance + covariance.transpose()) * 0.5;
         let entries = std::array::from_fn(|r| std::array::from_fn(|c| covariance[(r, c)]));

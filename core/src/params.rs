@@ -70,7 +70,8 @@ pub struct Params {
     pub yaw_drift_var_per_m: f64,
     /// Uncertainty of the anchor's placement at the first pose: position (metres, 1 sigma).
     pub initial_sigma_m: f64,
-    /// Uncertainty of the anchor's placement at the first pose: heading (degrees, 1 sigma).
+    /// Uncertainty of the anchor's placement at the first pose: heading (degrees, 1 sigma; at
+    /// most [`MAX_SIGMA_YAW_DEG`]).
     pub initial_sigma_yaw_deg: f64,
     /// Beyond the paper: a direction of the proposed correction is applied only where the
     /// window's information outweighs the pose's current uncertainty by this ratio (0 applies
@@ -123,6 +124,14 @@ pub struct Params {
     /// [`MAX_SCALE_DRIFT_VAR_PER_M`]).
     pub scale_drift_var_per_m: f64,
 }
+
+/// The largest uncertainty of the anchor's heading a corrector may start from
+/// ([`Params::initial_sigma_yaw_deg`], degrees, 1 sigma): a half turn, a heading not known at
+/// all. Beyond it the variance says nothing more and only strains the arithmetic: at 1e6
+/// degrees, KITTI 08's position and heading errors became one (their correlation 1 within
+/// rounding) within 1.6 km, rounding made their covariance indefinite, and the session's
+/// snapshot did not restore.
+pub const MAX_SIGMA_YAW_DEG: f64 = 180.0;
 
 /// The odometry rate the presets' pose counts were chosen for (Hz): KITTI's.
 pub const PRESET_RATE_HZ: f64 = 10.0;
@@ -475,11 +484,17 @@ impl Params {
             ("drift_var_per_m", self.drift_var_per_m),
             ("yaw_drift_var_per_m", self.yaw_drift_var_per_m),
             ("initial_sigma_m", self.initial_sigma_m),
-            ("initial_sigma_yaw_deg", self.initial_sigma_yaw_deg),
         ] {
             if !(v.is_finite() && v > 0.0 && v < 1e6) {
                 return Err(invalid(key, v, "must be positive and below 1e6"));
             }
+        }
+        if !(self.initial_sigma_yaw_deg > 0.0 && self.initial_sigma_yaw_deg <= MAX_SIGMA_YAW_DEG) {
+            return Err(invalid(
+                "initial_sigma_yaw_deg",
+                self.initial_sigma_yaw_deg,
+                "must be positive and at most 180 (degrees)",
+            ));
         }
         if !(MIN_ODOMETRY_RATE_HZ..=MAX_ODOMETRY_RATE_HZ).contains(&self.odometry_rate_hz) {
             return Err(invalid(
@@ -891,6 +906,21 @@ mod tests {
         for var in [0.0, 1e-7, MAX_SCALE_DRIFT_VAR_PER_M] {
             p.scale_drift_var_per_m = var;
             assert!(p.validate().is_ok(), "{var} refused");
+        }
+    }
+
+    /// A heading sigma beyond a half turn is refused: at 1e6 degrees rounding made the filter's
+    /// covariance indefinite within 1.6 km of KITTI 08 (`tests/tests/snapshots.rs`).
+    #[test]
+    fn a_heading_sigma_beyond_a_half_turn_is_refused() {
+        let mut p = Preset::KissIcp.robust_params();
+        for deg in [999_999.0, 180.1, 0.0, -1.0, f64::NAN, f64::INFINITY] {
+            p.initial_sigma_yaw_deg = deg;
+            assert!(p.validate().is_err(), "{deg} accepted");
+        }
+        for deg in [1e-300, 1.0, MAX_SIGMA_YAW_DEG] {
+            p.initial_sigma_yaw_deg = deg;
+            assert!(p.validate().is_ok(), "{deg} refused");
         }
     }
 
