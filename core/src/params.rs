@@ -66,7 +66,8 @@ pub struct Params {
     /// Position drift of the odometry as a random walk (m^2 of variance per metre travelled), for
     /// the covariance (see [`crate::confidence`]).
     pub drift_var_per_m: f64,
-    /// Heading drift of the odometry as a random walk (rad^2 of variance per metre travelled).
+    /// Heading drift of the odometry as a random walk (rad^2 of variance per metre travelled; at
+    /// most [`MAX_YAW_DRIFT_VAR_PER_M`]).
     pub yaw_drift_var_per_m: f64,
     /// Uncertainty of the anchor's placement at the first pose: position (metres, 1 sigma).
     pub initial_sigma_m: f64,
@@ -124,6 +125,14 @@ pub struct Params {
     /// [`MAX_SCALE_DRIFT_VAR_PER_M`]).
     pub scale_drift_var_per_m: f64,
 }
+
+/// The fastest heading drift a corrector may be set for ([`Params::yaw_drift_var_per_m`],
+/// square radians per metre): a heading sigma of a radian gained over every metre, far past any
+/// odometry. The position's variance grows with the cube of the distance driven without an
+/// alignment times this; at 1e6 (allowed until 2026-12-03) it passed what a snapshot may hold
+/// ([`crate::confidence::MAX_COVARIANCE_ENTRY`]) after 16 km without lanes; at 1, by the same
+/// growth, after some 1400 km.
+pub const MAX_YAW_DRIFT_VAR_PER_M: f64 = 1.0;
 
 /// The largest uncertainty of the anchor's heading a corrector may start from
 /// ([`Params::initial_sigma_yaw_deg`], degrees, 1 sigma): a half turn, a heading not known at
@@ -482,12 +491,19 @@ impl Params {
         }
         for (key, v) in [
             ("drift_var_per_m", self.drift_var_per_m),
-            ("yaw_drift_var_per_m", self.yaw_drift_var_per_m),
             ("initial_sigma_m", self.initial_sigma_m),
         ] {
             if !(v.is_finite() && v > 0.0 && v < 1e6) {
                 return Err(invalid(key, v, "must be positive and below 1e6"));
             }
+        }
+        if !(self.yaw_drift_var_per_m > 0.0 && self.yaw_drift_var_per_m <= MAX_YAW_DRIFT_VAR_PER_M)
+        {
+            return Err(invalid(
+                "yaw_drift_var_per_m",
+                self.yaw_drift_var_per_m,
+                "must be positive and at most 1 (square radians per metre)",
+            ));
         }
         if !(self.initial_sigma_yaw_deg > 0.0 && self.initial_sigma_yaw_deg <= MAX_SIGMA_YAW_DEG) {
             return Err(invalid(
@@ -921,6 +937,21 @@ mod tests {
         for deg in [1e-300, 1.0, MAX_SIGMA_YAW_DEG] {
             p.initial_sigma_yaw_deg = deg;
             assert!(p.validate().is_ok(), "{deg} refused");
+        }
+    }
+
+    /// A heading drift beyond a radian squared a metre is refused: at 1e6 a drive of 16 km
+    /// without lanes gave a covariance no snapshot may hold (`tests/tests/snapshots.rs`).
+    #[test]
+    fn a_heading_drift_beyond_its_bound_is_refused() {
+        let mut p = Preset::KissIcp.robust_params();
+        for var in [999_999.0, 1.01, 0.0, -1.0, f64::NAN, f64::INFINITY] {
+            p.yaw_drift_var_per_m = var;
+            assert!(p.validate().is_err(), "{var} accepted");
+        }
+        for var in [1e-300, 1.2e-7, MAX_YAW_DRIFT_VAR_PER_M] {
+            p.yaw_drift_var_per_m = var;
+            assert!(p.validate().is_ok(), "{var} refused");
         }
     }
 
