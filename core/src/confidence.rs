@@ -613,11 +613,12 @@ impl PoseUncertainty {
     /// drift, all allowed) lose their digits, and the result was no covariance. The pose then
     /// keeps the wider covariance it had, which is what a consumer may be given.
     fn take(&mut self, covariance: Matrix3<f64>, scale_cross: Vector3<f64>, scale_variance: f64) {
-        let covariance = (covariance + covariance.transpose()) * 0.5;
-        let entries = std::array::from_fn(|r| std::array::from_fn(|c| covariance[(r, c)]));
-        if is_joint_covariance(&entries, scale_cross.into(), scale_variance) {
-            self.covariance = covariance;
-            self.scale_cross = scale_cross;
+        let updated = PoseUncertainty {
+            covariance: symmetric(&covariance),
+            scale_cross,
+        };
+        if is_joint_covariance(&updated.covariance(), updated.scale_cross(), scale_variance) {
+            *self = updated;
         }
     }
 
@@ -640,8 +641,13 @@ impl PoseUncertainty {
     }
 
     fn symmetrize(&mut self) {
-        self.covariance = (self.covariance + self.covariance.transpose()) * 0.5;
+        self.covariance = symmetric(&self.covariance);
     }
+}
+
+/// The symmetric part of `m`: what rounding took out of a covariance's symmetry put back.
+fn symmetric(m: &Matrix3<f64>) -> Matrix3<f64> {
+    (m + m.transpose()) * 0.5
 }
 
 /// How a pose error (x, y, yaw) changes when the pose moves by `motion` (metres, map plane): the

@@ -497,20 +497,23 @@ impl Params {
                 return Err(invalid(key, v, "must be positive and below 1e6"));
             }
         }
-        if !(self.yaw_drift_var_per_m > 0.0 && self.yaw_drift_var_per_m <= MAX_YAW_DRIFT_VAR_PER_M)
-        {
-            return Err(invalid(
+        for (key, v, max, reason) in [
+            (
                 "yaw_drift_var_per_m",
                 self.yaw_drift_var_per_m,
+                MAX_YAW_DRIFT_VAR_PER_M,
                 "must be positive and at most 1 (square radians per metre)",
-            ));
-        }
-        if !(self.initial_sigma_yaw_deg > 0.0 && self.initial_sigma_yaw_deg <= MAX_SIGMA_YAW_DEG) {
-            return Err(invalid(
+            ),
+            (
                 "initial_sigma_yaw_deg",
                 self.initial_sigma_yaw_deg,
+                MAX_SIGMA_YAW_DEG,
                 "must be positive and at most 180 (degrees)",
-            ));
+            ),
+        ] {
+            if !(v > 0.0 && v <= max) {
+                return Err(invalid(key, v, reason));
+            }
         }
         if !(MIN_ODOMETRY_RATE_HZ..=MAX_ODOMETRY_RATE_HZ).contains(&self.odometry_rate_hz) {
             return Err(invalid(

@@ -17,6 +17,7 @@ pub const MAX_COORDINATE_M: f64 = 1e7;
 pub fn within_coordinate_bound(v: f64) -> bool {
     v.abs() <= MAX_COORDINATE_M
 }
+
 /// How far a rotation may be from orthonormal (largest entry of `|R^T R - I|`). Odometry files
 /// print 6 to 7 significant digits: the shared stereo visual odometry run reaches 1.6e-5, so the
 /// bound is 1e-4, well below what a scaled (1.01: 2e-2) or zero (1) matrix gives.

@@ -6,10 +6,12 @@
 //! kiss-icp preset on 00.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use lanealign_cli::maps::MapSource;
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
+use lanealign_core::lane_map::LaneMap;
 use lanealign_core::params::{
     Method, Params, Preset, MAX_ODOMETRY_RATE_HZ, MAX_SIGMA_YAW_DEG, MAX_YAW_DRIFT_VAR_PER_M,
     MIN_ODOMETRY_RATE_HZ,
@@ -36,15 +38,9 @@ fn every_state_of_a_real_run_is_saved_and_restored() {
     }
 }
 
-/// A run of `odometry`/`name` (KITTI) corrected with each of `settings` (a name for failures,
-/// the parameters), its map and placement loaded as the daemon loads them: after each pose, the
-/// answer's pose, covariance and scale are finite and the state saved as a snapshot restores
-/// byte for byte.
-fn assert_every_state_restores(
-    data: &Path,
-    (odometry, name): (&str, &str),
-    settings: &[(String, Params)],
-) {
+/// KITTI sequence `name`'s OSM lanes, loaded as the daemon loads them, and the placement its
+/// anchor gives an odometry in `convention`.
+fn kitti_map(data: &Path, name: &str, convention: AxisConvention) -> (Arc<LaneMap>, Placement) {
     let loaded = MapSource::Osm {
         path: data.join(format!("osm/kitti_{name}.osm")),
         anchor: kitti_anchor(data, name),
@@ -54,10 +50,54 @@ fn assert_every_state_restores(
     .load()
     .unwrap();
     let placement = Placement {
-        convention: AxisConvention::KittiCamera,
+        convention,
         anchored_from_odom: loaded.anchored_from_odom,
         smoothing: None,
     };
+    (loaded.map, placement)
+}
+
+/// `poses` corrected on `map` with `params` (named `what` in failures): after each pose, the
+/// answer's pose, covariance and scale are finite and the state saved as a snapshot restores
+/// byte for byte.
+fn assert_states_restore(
+    (map, placement): &(Arc<LaneMap>, Placement),
+    (what, params): &(String, Params),
+    poses: impl IntoIterator<Item = Pose3>,
+) {
+    params.validate().unwrap_or_else(|e| panic!("{what}: {e}"));
+    let mut corrector = SourceCorrector::new(map.clone(), *params, MatchMode::Fast, *placement);
+    for (i, pose) in poses.into_iter().enumerate() {
+        let (answer, _) = corrector.correct(&pose);
+        let finite = answer.pose.is_finite()
+            && answer.covariance.iter().flatten().all(|v| v.is_finite())
+            && answer.odometry_scale.is_finite()
+            && answer.odometry_scale_sd.is_finite();
+        assert!(finite, "{what}, pose {i}: {answer:?}");
+        let saved = Snapshot {
+            last_seq: i as u64 + 1,
+            next_segment: 1,
+            state: corrector.state(),
+            watch: None,
+        }
+        .encode();
+        let restored = Snapshot::decode(&saved).map(|s| s.encode());
+        assert!(
+            restored.as_ref() == Some(&saved),
+            "{what}, pose {i}: {:?}",
+            corrector.state()
+        );
+    }
+}
+
+/// The run of `odometry`/`name` (KITTI, camera axes) corrected with each of `settings` (a name
+/// for failures, the parameters): every state restores ([`assert_states_restore`]).
+fn assert_every_state_restores(
+    data: &Path,
+    (odometry, name): (&str, &str),
+    settings: &[(String, Params)],
+) {
+    let map = kitti_map(data, name, AxisConvention::KittiCamera);
     let poses = read(
         &data.join(format!("odometry/{odometry}/{name}.txt")),
         Format::Kitti,
@@ -65,30 +105,8 @@ fn assert_every_state_restores(
     .unwrap()
     .poses;
     for (what, params) in settings {
-        params.validate().unwrap_or_else(|e| panic!("{what}: {e}"));
-        let mut corrector =
-            SourceCorrector::new(loaded.map.clone(), *params, MatchMode::Fast, placement);
-        for (i, pose) in poses.iter().enumerate() {
-            let (answer, _) = corrector.correct(pose);
-            let finite = answer.pose.is_finite()
-                && answer.covariance.iter().flatten().all(|v| v.is_finite())
-                && answer.odometry_scale.is_finite()
-                && answer.odometry_scale_sd.is_finite();
-            assert!(finite, "{odometry} {name}, {what}, pose {i}: {answer:?}");
-            let saved = Snapshot {
-                last_seq: i as u64 + 1,
-                next_segment: 1,
-                state: corrector.state(),
-                watch: None,
-            }
-            .encode();
-            let restored = Snapshot::decode(&saved).map(|s| s.encode());
-            assert!(
-                restored.as_ref() == Some(&saved),
-                "{odometry} {name}, {what}, pose {i}: {:?}",
-                corrector.state()
-            );
-        }
+        let what = format!("{odometry} {name}, {what}");
+        assert_states_restore(&map, &(what, *params), poses.iter().copied());
     }
 }
 
@@ -238,46 +256,20 @@ fn every_state_restores_with_the_bounds_combined() {
 #[test]
 fn a_long_drive_without_lanes_at_the_drift_bounds_restores() {
     let Some(data) = shared_data() else { return };
-    let loaded = MapSource::Osm {
-        path: data.join("osm/kitti_00.osm"),
-        anchor: kitti_anchor(&data, "00"),
-        projection: Projection::Kitti,
-        options: LaneOptions::for_method(Method::Robust),
-    }
-    .load()
-    .unwrap();
-    let placement = Placement {
-        convention: AxisConvention::Flu,
-        anchored_from_odom: loaded.anchored_from_odom,
-        smoothing: None,
-    };
+    let map = kitti_map(&data, "00", AxisConvention::Flu);
     for preset in [Preset::KissIcp, Preset::OrbSlam3] {
         let mut params = Method::Robust.params(preset);
         params.yaw_drift_var_per_m = MAX_YAW_DRIFT_VAR_PER_M;
         params.drift_var_per_m = 999_999.0;
         params.scale_drift_var_per_m = MAX_SCALE_DRIFT_VAR_PER_M;
-        let mut corrector =
-            SourceCorrector::new(loaded.map.clone(), params, MatchMode::Fast, placement);
-        for i in 0..50_000u64 {
-            let pose = Pose3::planar(
+        let poses = (0..50_000).map(|i| {
+            Pose3::planar(
                 20_000.0 + i as f64 * 2.0,
                 20_000.0 + 5.0 * (i as f64 / 50.0).sin(),
                 0.0,
                 0.0,
-            );
-            let (answer, _) = corrector.correct(&pose);
-            let finite = answer.pose.is_finite()
-                && answer.covariance.iter().flatten().all(|v| v.is_finite());
-            assert!(finite, "{preset:?}, pose {i}: {answer:?}");
-            let saved = Snapshot {
-                last_seq: i + 1,
-                next_segment: 1,
-                state: corrector.state(),
-                watch: None,
-            }
-            .encode();
-            let restored = Snapshot::decode(&saved).map(|s| s.encode());
-            assert!(restored.as_ref() == Some(&saved), "{preset:?}, pose {i}");
-        }
+            )
+        });
+        assert_states_restore(&map, &(format!("{preset:?}"), params), poses);
     }
 }
