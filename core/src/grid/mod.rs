@@ -342,6 +342,16 @@ impl Grid {
         if cells.is_empty() {
             return Err(bad("the grid has no cell".into()));
         }
+        // What `inspect` and the daemon report of the whole map: every lane has a point, and
+        // every point lies in the square (margin included) of the cell that owns it.
+        let held: u128 = manifest.cells.iter().map(|c| u128::from(c.points)).sum();
+        if !(1..=manifest.points).contains(&manifest.lanes) || u128::from(manifest.points) > held {
+            return Err(bad(format!(
+                "lanes = {} and points = {}, its cells hold {held} points: a map of at least one \
+                 lane, each with a point, every point in a cell",
+                manifest.lanes, manifest.points
+            )));
+        }
         let existing = Arc::new(cells.keys().copied().collect());
         Ok(Grid {
             checksum: xxhash_rust::xxh3::xxh3_64(bytes),
@@ -453,6 +463,13 @@ impl Grid {
             )));
         }
         self.check_info(&info, square).map_err(bad)?;
+        if pieces.len() as u64 != entry.points {
+            return Err(bad(format!(
+                "{} lane points, the manifest says {}",
+                pieces.len(),
+                entry.points
+            )));
+        }
         if let Some(&[lane, _]) = origins
             .iter()
             .find(|o| u64::from(o[0]) >= self.manifest.lanes)
@@ -931,6 +948,56 @@ mod tests {
             let e = Grid::open(dir.path()).err().unwrap().to_string();
             assert!(e.contains(what), "{what}: {e}");
         }
+    }
+
+    /// A manifest's counts are what `inspect` and the daemon report of the map: a total its
+    /// cells cannot hold, or a cell's count its tile does not have, is refused, not reported.
+    #[test]
+    fn counts_the_cells_do_not_hold_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let map = town();
+        grid_of(&map, dir.path(), 50.0, 10.0);
+        let path = dir.path().join(MANIFEST);
+        let good = std::fs::read_to_string(&path).unwrap();
+        let (lanes, points) = (map.lane_count(), map.len());
+        for (from, to) in [
+            (format!("lanes = {lanes}\n"), "lanes = 0\n".to_string()),
+            (
+                format!("lanes = {lanes}\n"),
+                format!("lanes = {}\n", points + 1),
+            ),
+            (
+                format!("\npoints = {points}\n"),
+                format!("\npoints = {}\n", u64::MAX),
+            ),
+        ] {
+            assert!(good.contains(&from), "{from}");
+            std::fs::write(&path, good.replacen(&from, &to, 1)).unwrap();
+            let e = Grid::open(dir.path()).err().unwrap().to_string();
+            assert!(e.contains("its cells hold"), "{to}: {e}");
+        }
+        std::fs::write(&path, &good).unwrap();
+        let entry = Grid::open(dir.path()).unwrap().manifest().cells[0].clone();
+        let line = format!("points = {}\n", entry.points);
+        let at = good
+            .find(&format!("checksum = \"{}\"", entry.checksum))
+            .unwrap();
+        let from = at + good[at..].find(&line).unwrap();
+        let crafted = format!(
+            "{}points = {}\n{}",
+            &good[..from],
+            entry.points + 1,
+            &good[from + line.len()..]
+        );
+        std::fs::write(&path, crafted).unwrap();
+        let grid = Grid::open(dir.path()).unwrap();
+        let e = grid
+            .load_cell([entry.x, entry.y])
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("lane points, the manifest says"), "{e}");
+        assert!(grid.map_of(grid.cells().skip(1)).is_ok());
     }
 
     /// The daemon sums the listed cells' lengths when it starts on a grid (`Grid::info`), and
