@@ -17,7 +17,9 @@
 //!   carried steps and for those that align, side by side, with how many steps took a page
 //!   fault; then the step's
 //!   p50 / p99 per block of 500 poses, the daemon's 5 s metrics intervals at 100 Hz (its latency
-//!   bars are per interval, and the drive's middle blocks cost the most).
+//!   bars are per interval, and the drive's middle blocks cost the most); then how long reading
+//!   a 4, 16 and 64 KiB buffer takes back to back and after the same pauses (the machine's
+//!   floor under the bookkeeping: memory left alone for MS milliseconds, whatever reads it).
 //!
 //! Single thread. Times are wall-clock per `Corrector::push`, in microseconds.
 
@@ -198,16 +200,7 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
         let mut steps = Vec::with_capacity(positions.len());
         let mut faulting = 0;
         for &p in &positions {
-            match between {
-                Pause::None => {}
-                Pause::Sleep => std::thread::sleep(pause),
-                Pause::Spin => {
-                    let until = Instant::now() + pause;
-                    while Instant::now() < until {
-                        std::hint::spin_loop();
-                    }
-                }
-            }
+            between.wait(pause);
             let before = minor_faults();
             let step = c.push(p);
             faulting += usize::from(minor_faults() > before);
@@ -265,7 +258,43 @@ fn paced(data: &Path, pause_ms: u64) -> anyhow::Result<()> {
     for row in blocks {
         println!("{row}");
     }
+    memory_floor(pause_ms);
     Ok(())
+}
+
+/// Reads per buffer size and pause of [`memory_floor`].
+const FLOOR_READS: usize = 500;
+
+/// Prints how long reading a buffer (one byte of each 64-byte line) takes back to back and after
+/// the paced runs' pauses: what memory left alone for the pause costs on this machine whatever
+/// code touches it, the floor under the paced steps' bookkeeping.
+fn memory_floor(pause_ms: u64) {
+    let pause = Duration::from_millis(pause_ms);
+    println!();
+    println!("Reading a buffer once (a byte of each 64-byte line) after the same pauses, {FLOOR_READS} reads, p50 / p99 (us): the machine's floor");
+    println!("| buffer | back to back | {pause_ms} ms apart | {pause_ms} ms apart spinning |");
+    println!("|---|---|---|---|");
+    for kib in [4, 16, 64] {
+        let buffer = vec![1u8; kib << 10];
+        let cells: Vec<String> = [Pause::None, Pause::Sleep, Pause::Spin]
+            .into_iter()
+            .map(|between| {
+                let times = (0..FLOOR_READS)
+                    .map(|_| {
+                        between.wait(pause);
+                        let lines = std::hint::black_box(buffer.as_slice());
+                        let start = Instant::now();
+                        let sum = lines.iter().step_by(64).map(|&b| u64::from(b)).sum::<u64>();
+                        std::hint::black_box(sum);
+                        start.elapsed().as_secs_f64() * 1e6
+                    })
+                    .collect();
+                let q = stats(times);
+                format!("{:.2} / {:.2}", q.p50, q.p99)
+            })
+            .collect();
+        println!("| {kib} KiB | {} |", cells.join(" | "));
+    }
 }
 
 /// What the paced runs do between two poses.
@@ -277,6 +306,22 @@ enum Pause {
     Sleep,
     /// Spin on the clock without touching memory (a busy-spinning worker).
     Spin,
+}
+
+impl Pause {
+    /// Waits `pause` this way (`None`: not at all).
+    fn wait(self, pause: Duration) {
+        match self {
+            Pause::None => {}
+            Pause::Sleep => std::thread::sleep(pause),
+            Pause::Spin => {
+                let until = Instant::now() + pause;
+                while Instant::now() < until {
+                    std::hint::spin_loop();
+                }
+            }
+        }
+    }
 }
 
 /// Poses per block of the paced run's second table: the daemon's metrics interval (5 s by
