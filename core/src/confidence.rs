@@ -33,6 +33,7 @@ use crate::lane_geometry::{LaneInfo, RoadClass};
 use crate::lane_map::LaneMap;
 use crate::matching::Correspondence;
 use crate::params::Params;
+use crate::pose::MAX_COORDINATE_M;
 use crate::se2::Se2;
 use crate::stall::Widening;
 
@@ -42,9 +43,22 @@ pub type Covariance = [[f64; 3]; 3];
 
 /// The largest magnitude an entry of a covariance may have to be continued from (square metres,
 /// metres times radians, square radians): a position sigma of 1e9 m, a hundred times the
-/// farthest a pose may lie ([`crate::pose::MAX_COORDINATE_M`]) and beyond what any drive
-/// accumulates, while sums and products of a few entries stay finite.
+/// farthest a pose may lie ([`crate::pose::MAX_COORDINATE_M`]) and beyond what driving
+/// accumulates ([`MAX_DRIVEN_VARIANCES`]), while sums and products of a few entries stay finite.
 pub const MAX_COVARIANCE_ENTRY: f64 = 1e18;
+
+/// The largest variances the covariance of a driven pose reaches (square metres, square metres,
+/// square radians): a position anywhere within the farthest a pose may lie
+/// ([`crate::pose::MAX_COORDINATE_M`]) and a heading anywhere on the circle (a sigma of 180
+/// degrees, [`crate::params::MAX_SIGMA_YAW_DEG`]). A larger variance says nothing more, and
+/// driving grew it without end: the heading's with the distance, the position's with its cube,
+/// past [`MAX_COVARIANCE_ENTRY`] after some 1400 km without a lane at the largest heading drift a
+/// corrector may be set for (a restarted daemon then started the session afresh).
+pub const MAX_DRIVEN_VARIANCES: [f64; 3] = [
+    MAX_COORDINATE_M * MAX_COORDINATE_M,
+    MAX_COORDINATE_M * MAX_COORDINATE_M,
+    std::f64::consts::PI * std::f64::consts::PI,
+];
 
 /// Whether `matrix` is a covariance a filter can continue from (one restored from a saved
 /// state): every entry finite and within [`MAX_COVARIANCE_ENTRY`], the variances non-negative,
@@ -493,6 +507,7 @@ impl PoseUncertainty {
             self.scale_cross = fc + m * scale_variance;
         }
         self.symmetrize();
+        self.bound();
     }
 
     /// The pose moved by `widening`'s missed road (its direction in the map plane) that the
@@ -519,6 +534,7 @@ impl PoseUncertainty {
         self.covariance = f * self.covariance * f.transpose();
         self.scale_cross = f * self.scale_cross;
         self.symmetrize();
+        self.bound();
     }
 
     /// The part of `proposed` (a correction about the same center as `information`) the
@@ -643,6 +659,25 @@ impl PoseUncertainty {
     fn symmetrize(&mut self) {
         self.covariance = symmetric(&self.covariance);
     }
+
+    /// Brings each variance beyond its [`MAX_DRIVEN_VARIANCES`] down to it, its row and column
+    /// (and its covariance with the scale) scaled with it: the correlations stay, and so does a
+    /// positive semi-definite covariance.
+    fn bound(&mut self) {
+        let d = Vector3::from_fn(|i, _| {
+            let v = self.covariance[(i, i)];
+            if v > MAX_DRIVEN_VARIANCES[i] {
+                (MAX_DRIVEN_VARIANCES[i] / v).sqrt()
+            } else {
+                1.0
+            }
+        });
+        if d != Vector3::repeat(1.0) {
+            let d = Matrix3::from_diagonal(&d);
+            self.covariance = symmetric(&(d * self.covariance * d));
+            self.scale_cross = d * self.scale_cross;
+        }
+    }
 }
 
 /// The symmetric part of `m`: what rounding took out of a covariance's symmetry put back.
@@ -731,6 +766,43 @@ mod tests {
                 assert!((c[r][k] - expected[r][k]).abs() < 1e-12, "{c:?}");
             }
         }
+    }
+
+    /// 3000 km without an alignment, the drifts at their bounds and the scale estimated: the
+    /// variances stay within [`MAX_DRIVEN_VARIANCES`] and the joint covariance one a snapshot
+    /// holds. With the heading's variance unbounded, the position's passed
+    /// [`MAX_COVARIANCE_ENTRY`] after about 1400 km.
+    #[test]
+    fn a_drive_without_lanes_keeps_a_covariance_a_snapshot_holds() {
+        let mut params = crate::params::Preset::OrbSlam3.robust_params();
+        params.yaw_drift_var_per_m = crate::params::MAX_YAW_DRIFT_VAR_PER_M;
+        params.drift_var_per_m = 999_999.0;
+        let mut u = PoseUncertainty::new(&params);
+        let mut scale_variance = 0.25;
+        let mut c = u.covariance();
+        for km in 1..=3000 {
+            let heading = 0.1 * (km as f64).sin();
+            u.drive_scaled(
+                [1000.0 * heading.cos(), 1000.0 * heading.sin()],
+                &params,
+                scale_variance,
+            );
+            scale_variance += crate::scale::MAX_SCALE_DRIFT_VAR_PER_M * 1000.0;
+            c = u.covariance();
+            assert!(
+                is_joint_covariance(&c, u.scale_cross(), scale_variance),
+                "{km} km: {c:?}"
+            );
+            for k in 0..3 {
+                assert!(
+                    c[k][k] <= MAX_DRIVEN_VARIANCES[k] * (1.0 + 1e-12),
+                    "{km} km: {c:?}"
+                );
+            }
+        }
+        // The heading's variance met its bound after 10 m; the position's grew to 1e13 m^2.
+        assert!(c[2][2] > MAX_DRIVEN_VARIANCES[2] * 0.99, "{c:?}");
+        assert!(c[0][0] + c[1][1] > 1e13, "{c:?}");
     }
 
     #[test]

@@ -130,8 +130,9 @@ pub struct Params {
 /// square radians per metre): a heading sigma of a radian gained over every metre, far past any
 /// odometry. The position's variance grows with the cube of the distance driven without an
 /// alignment times this; at 1e6 (allowed until 2026-12-03) it passed what a snapshot may hold
-/// ([`crate::confidence::MAX_COVARIANCE_ENTRY`]) after 16 km without lanes; at 1, by the same
-/// growth, after some 1400 km.
+/// ([`crate::confidence::MAX_COVARIANCE_ENTRY`]) after 16 km without lanes, and at 1 after some
+/// 1400 km until the heading's variance was bounded
+/// ([`crate::confidence::MAX_DRIVEN_VARIANCES`]).
 pub const MAX_YAW_DRIFT_VAR_PER_M: f64 = 1.0;
 
 /// The largest uncertainty of the anchor's heading a corrector may start from
