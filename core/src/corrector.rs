@@ -601,7 +601,8 @@ impl Corrector {
                 ];
                 let motion_in_map = self.map_from_anchored.rotate(motion);
                 if let Some(scale) = &mut self.scale {
-                    scale.estimate.drive(moved, p.scale_drift_var_per_m);
+                    let kept = scale.estimate.drive(moved, p.scale_drift_var_per_m);
+                    scale.published.scale_bounded(kept);
                     let variance = scale.estimate.variance;
                     scale.published.drive_scaled(motion_in_map, &p, variance);
                 }

@@ -114,9 +114,18 @@ impl ScaleEstimate {
     }
 
     /// The odometry drove `step_m` metres; its scale drifts by `var_per_m` (a ratio squared) per
-    /// metre.
-    pub fn drive(&mut self, step_m: f64, var_per_m: f64) {
-        self.variance += var_per_m * step_m;
+    /// metre, up to [`MAX_DRIVEN_SCALE_VARIANCE`]. Returns the factor the estimate's standard
+    /// deviation was brought down by to stay within it (1: not at all): the scale's covariance
+    /// with the pose scales with it ([`crate::confidence::PoseUncertainty::scale_bounded`]).
+    pub fn drive(&mut self, step_m: f64, var_per_m: f64) -> f64 {
+        let variance = self.variance + var_per_m * step_m;
+        if variance > MAX_DRIVEN_SCALE_VARIANCE {
+            self.variance = MAX_DRIVEN_SCALE_VARIANCE;
+            (MAX_DRIVEN_SCALE_VARIANCE / variance).sqrt()
+        } else {
+            self.variance = variance;
+            1.0
+        }
     }
 
     /// Folds in `evidence`, `share` of it new (the Kalman gain of its information against the
@@ -156,6 +165,12 @@ impl ScaleEstimate {
 /// within the first kilometre of KITTI 07, so that the session's snapshot did not restore) and
 /// then overflowed (at 1e100 the published covariances were NaN).
 pub const MAX_SCALE_DRIFT_VAR_PER_M: f64 = 0.25;
+
+/// The largest variance driving gives a scale estimate (a ratio squared): a scale off by its whole
+/// self, one sigma. A larger one says nothing more, and at the largest drift
+/// ([`MAX_SCALE_DRIFT_VAR_PER_M`]) it passed what a restore allows ([`MAX_SCALE_OFF`]) after
+/// 4000 km without an alignment.
+pub const MAX_DRIVEN_SCALE_VARIANCE: f64 = 1.0;
 
 /// How far a scale estimate may be off to be continued from (a ratio; [`ScaleEstimate::is_valid`]):
 /// a million times, far past any odometry lanes could correct, while a scaled step of the
@@ -302,7 +317,7 @@ mod tests {
     #[test]
     fn the_estimate_moves_by_its_gain_and_grows_uncertain_as_it_drives() {
         let mut estimate = ScaleEstimate::new(0.02);
-        estimate.drive(1000.0, 1e-7);
+        assert_eq!(estimate.drive(1000.0, 1e-7), 1.0);
         assert!((estimate.variance - (4e-4 + 1e-4)).abs() < 1e-15);
         let evidence = ScaleEvidence {
             scale_change: -0.03,
