@@ -488,8 +488,9 @@ fn seed_grid() -> &'static EncodedGrid {
 }
 
 /// Loads `bytes` as the cell its square names, listed in the manifest with the bytes' own
-/// checksum, length and point count (so that the cell's content, not the manifest check, is what is tested), joins it
-/// with the other seed cells, corrects a drive on the result and swaps to the grid without it.
+/// checksum, length and point count, in bounds that hold its points (so that the cell's content,
+/// not the manifest check, is what is tested), joins it with the other seed cells, corrects a
+/// drive on the result and swaps to the grid without it.
 fn grid_cell(bytes: &[u8]) -> Outcome {
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let (manifest, cells) = seed_grid();
@@ -509,13 +510,17 @@ fn grid_cell(bytes: &[u8]) -> Outcome {
     entry.checksum = format!("{:016x}", info.checksum);
     entry.bytes = bytes.len() as u64;
     entry.points = info.points;
-    // The whole map's totals as the listed cells can hold them (a cell with fewer points).
+    // The whole map's totals and bounds as the listed cells can hold them (a cell with fewer
+    // points, or points farther out).
     let held = listed
         .cells
         .iter()
         .fold(0u64, |sum, c| sum.saturating_add(c.points));
     listed.points = listed.points.min(held);
     listed.lanes = listed.lanes.min(listed.points);
+    let [x0, y0, x1, y1] = listed.bounds;
+    let b = info.bounds;
+    listed.bounds = [x0.min(b[0]), y0.min(b[1]), x1.max(b[2]), y1.max(b[3])];
     let text = toml::to_string(&listed).map_err(|e| err(&e))?;
     let grid = Grid::from_manifest(Path::new("fuzz-grid"), text.as_bytes()).map_err(|e| err(&e))?;
     let mutant = Arc::new(grid.cell_from_bytes(key, bytes).map_err(|e| err(&e))?);

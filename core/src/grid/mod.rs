@@ -462,14 +462,7 @@ impl Grid {
                 entry.bytes
             )));
         }
-        self.check_info(&info, square).map_err(bad)?;
-        if pieces.len() as u64 != entry.points {
-            return Err(bad(format!(
-                "{} lane points, the manifest says {}",
-                pieces.len(),
-                entry.points
-            )));
-        }
+        self.check_info(&info, square, entry).map_err(bad)?;
         if let Some(&[lane, _]) = origins
             .iter()
             .find(|o| u64::from(o[0]) >= self.manifest.lanes)
@@ -487,7 +480,12 @@ impl Grid {
         })
     }
 
-    fn check_info(&self, info: &TileInfo, square: [f64; 4]) -> Result<(), String> {
+    fn check_info(
+        &self,
+        info: &TileInfo,
+        square: [f64; 4],
+        entry: &CellEntry,
+    ) -> Result<(), String> {
         if info.plane != self.plane
             || info.spacing_m.to_bits() != self.manifest.spacing_m.to_bits()
             || info.geometry != self.geometry
@@ -498,6 +496,21 @@ impl Grid {
             return Err(format!(
                 "its square {:?} is not the grid's {square:?} for this cell",
                 info.cell
+            ));
+        }
+        if info.points != entry.points {
+            return Err(format!(
+                "{} lane points, the manifest says {}",
+                info.points, entry.points
+            ));
+        }
+        // Every point of a cell is one of the whole map's.
+        let [x0, y0, x1, y1] = self.manifest.bounds;
+        let b = info.bounds;
+        if !(b[0] >= x0 && b[1] >= y0 && b[2] <= x1 && b[3] <= y1) {
+            return Err(format!(
+                "its points reach {b:?}, beyond the grid's bounds {:?}",
+                self.manifest.bounds
             ));
         }
         Ok(())
@@ -998,6 +1011,47 @@ mod tests {
             .to_string();
         assert!(e.contains("lane points, the manifest says"), "{e}");
         assert!(grid.map_of(grid.cells().skip(1)).is_ok());
+    }
+
+    /// A manifest whose bounds do not hold a cell's points is refused at that cell, which
+    /// `inspect` loads with every other.
+    #[test]
+    fn a_cell_beyond_the_manifests_bounds_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let grid = grid_of(&town(), dir.path(), 50.0, 10.0);
+        let farthest_x: Vec<(CellKey, f64)> = grid
+            .cells()
+            .map(|key| {
+                let cell = grid.load_cell(key).unwrap();
+                let x = cell
+                    .pieces
+                    .points()
+                    .iter()
+                    .map(|p| p[0])
+                    .fold(f64::MIN, f64::max);
+                (key, x)
+            })
+            .collect();
+        let path = dir.path().join(MANIFEST);
+        let good = std::fs::read_to_string(&path).unwrap();
+        let (from, to) = (
+            "bounds = [-20.0, -30.0, 451.0,",
+            "bounds = [-20.0, -30.0, 300.0,",
+        );
+        assert!(good.contains(from), "{good}");
+        std::fs::write(&path, good.replacen(from, to, 1)).unwrap();
+        let grid = Grid::open(dir.path()).unwrap();
+        for &(key, x) in &farthest_x {
+            match grid.load_cell(key) {
+                Ok(_) => assert!(x <= 300.0, "{key:?} reaches {x} m"),
+                Err(e) => assert!(
+                    x > 300.0 && e.to_string().contains("beyond the grid's bounds"),
+                    "{key:?} reaches {x} m: {e}"
+                ),
+            }
+        }
+        assert!(farthest_x.iter().any(|&(_, x)| x > 300.0));
+        assert!(farthest_x.iter().any(|&(_, x)| x <= 300.0));
     }
 
     /// The daemon sums the listed cells' lengths when it starts on a grid (`Grid::info`), and
