@@ -518,9 +518,8 @@ fn grid_cell(bytes: &[u8]) -> Outcome {
         .fold(0u64, |sum, c| sum.saturating_add(c.points));
     listed.points = listed.points.min(held);
     listed.lanes = listed.lanes.min(listed.points);
-    let [x0, y0, x1, y1] = listed.bounds;
-    let b = info.bounds;
-    listed.bounds = [x0.min(b[0]), y0.min(b[1]), x1.max(b[2]), y1.max(b[3])];
+    let corners = |b: [f64; 4]| [[b[0], b[1]], [b[2], b[3]]];
+    listed.bounds = tile::bounds(&[corners(listed.bounds), corners(info.bounds)].concat());
     let text = toml::to_string(&listed).map_err(|e| err(&e))?;
     let grid = Grid::from_manifest(Path::new("fuzz-grid"), text.as_bytes()).map_err(|e| err(&e))?;
     let mutant = Arc::new(grid.cell_from_bytes(key, bytes).map_err(|e| err(&e))?);

@@ -1023,13 +1023,7 @@ mod tests {
             .cells()
             .map(|key| {
                 let cell = grid.load_cell(key).unwrap();
-                let x = cell
-                    .pieces
-                    .points()
-                    .iter()
-                    .map(|p| p[0])
-                    .fold(f64::MIN, f64::max);
-                (key, x)
+                (key, tile::bounds(cell.pieces.points())[2])
             })
             .collect();
         let path = dir.path().join(MANIFEST);
