@@ -305,20 +305,31 @@ fn verify_signature(path: &Path, bytes: &[u8]) -> Result<[u8; 32], TileError> {
 
 /// A 32-byte key as 64 lowercase hex digits.
 pub fn key_hex(key: &[u8; 32]) -> String {
-    key.iter().map(|b| format!("{b:02x}")).collect()
+    hex(key)
 }
 
 /// A 32-byte key from 64 hex digits (surrounding whitespace ignored); `None` if it is not one.
 pub fn parse_key_hex(text: &str) -> Option<[u8; 32]> {
-    let text = text.trim();
-    if text.len() != 64 || !text.is_ascii() {
+    bytes_of_hex(text.trim())
+}
+
+/// Bytes as lowercase hex digits, two per byte.
+pub(crate) fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// `N` bytes from exactly `2 N` hex digits (no sign, no space); `None` if `text` is not that.
+pub(crate) fn bytes_of_hex<const N: usize>(text: &str) -> Option<[u8; N]> {
+    let digits = text.as_bytes();
+    if digits.len() != 2 * N {
         return None;
     }
-    let mut key = [0; 32];
-    for (k, byte) in key.iter_mut().enumerate() {
-        *byte = u8::from_str_radix(&text[2 * k..2 * k + 2], 16).ok()?;
+    let nibble = |d: u8| char::from(d).to_digit(16);
+    let mut bytes = [0; N];
+    for (byte, pair) in bytes.iter_mut().zip(digits.chunks_exact(2)) {
+        *byte = u8::try_from(nibble(pair[0])? << 4 | nibble(pair[1])?).ok()?;
     }
-    Some(key)
+    Some(bytes)
 }
 
 /// Writes the checksum of whole tile bytes into their header: for tools that edit a tile's
@@ -820,6 +831,15 @@ mod tests {
         let (_, info) = decode(p, &bytes).unwrap();
         assert_eq!(info.signer, Some(key.verifying_key().to_bytes()));
         assert_eq!(parse_key_hex(&key_hex(&info.signer.unwrap())), info.signer);
+        // Only hex digits: `u8::from_str_radix` took "+f" as 15, so a key with signs was read.
+        for text in [
+            "+f".repeat(32),
+            "0".repeat(63),
+            "g".repeat(64),
+            " 0".repeat(32),
+        ] {
+            assert_eq!(parse_key_hex(&text), None, "{text}");
+        }
         // A changed point, resealed so that only the signature can tell.
         let mut changed = bytes.clone();
         let last = changed.len() - 3;
