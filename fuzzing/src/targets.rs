@@ -200,9 +200,12 @@ impl Target {
             Target::Kitti => vec![seeds::trajectory_text(Format::Kitti)],
             Target::Tum => vec![seeds::trajectory_text(Format::Tum)],
             Target::LaneCsv => vec![seeds::lane_csv()],
-            Target::GridManifest => vec![toml::to_string(&seed_grid().0)
-                .expect("the seed manifest is written")
-                .into_bytes()],
+            Target::GridManifest => {
+                let text = toml::to_string(&seed_grid().0).expect("the seed manifest is written");
+                let key = tile::SigningKey::from_bytes(&[9; 32]);
+                let signed = grid::signature::sign(&text, &key);
+                vec![text.into_bytes(), signed.into_bytes()]
+            }
             Target::DaemonToml => vec![seeds::DAEMON_TOML.as_bytes().to_vec()],
             Target::Wire => vec![seeds::wire_stream()],
             Target::Journal => vec![seeds::wire_stream(), seeds::long_stream()],
@@ -270,6 +273,8 @@ impl Target {
                 b"bounds = [nan, inf, -inf, 1e308]\n",
                 b"projection = \"kitti\"\n",
                 b"traffic = \"left\"\n",
+                b"signer = \"",
+                b"signature = \"",
                 b"nan",
                 b"1e308",
                 b"-0",

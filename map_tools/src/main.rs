@@ -188,9 +188,16 @@ fn inspect_grid(path: &std::path::Path) -> anyhow::Result<()> {
     println!("checksums   every cell valid and as the manifest says");
     let signed: Vec<String> = signers
         .into_iter()
-        .map(|s| s.unwrap_or_else(|| "no".into()))
+        .map(|s| s.map_or_else(|| "no".into(), |key| format!("by {key}")))
         .collect();
-    println!("signed      {}", signed.join(", "));
+    let manifest = grid.signer().map_or_else(
+        || "no".into(),
+        |key| format!("by {} (signature valid)", tile::key_hex(&key)),
+    );
+    println!(
+        "signed      manifest {manifest}; cells {}",
+        signed.join(", ")
+    );
     Ok(())
 }
 

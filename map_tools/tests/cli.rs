@@ -302,6 +302,36 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
         "{}",
         stderr(&out)
     );
+    // A grid signs its manifest as well as its cells: a manifest edited to leave its last cell
+    // out is refused.
+    let grid = dir.path().join("grid");
+    let out = lanealign_map(&[
+        "compile",
+        &osm,
+        "--grid",
+        "50",
+        "--sign",
+        key.to_str().unwrap(),
+        "-o",
+        grid.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let out = lanealign_map(&["inspect", grid.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let signed = format!("signed      manifest by {public} (signature valid); cells by {public}\n");
+    assert!(text.contains(&signed), "{text}");
+    let manifest = grid.join("manifest.toml");
+    let good = std::fs::read_to_string(&manifest).unwrap();
+    let last = good.rfind("[[cells]]").unwrap();
+    assert!(good[..last].contains("[[cells]]"), "{good}");
+    std::fs::write(&manifest, &good[..last]).unwrap();
+    let out = lanealign_map(&["inspect", grid.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        stderr(&out).contains("the signature does not match the manifest"),
+        "{}",
+        stderr(&out)
+    );
 }
 
 /// The measurement, as a test: 1000 single-bit flips spread over a tile, each with its checksum

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use lanealign_core::geo::Anchor;
-use lanealign_core::grid::LoadPolicy;
+use lanealign_core::grid::{self, LoadPolicy};
 use lanealign_core::input::{read_regular_file, InputError};
 use lanealign_core::params::{CorrectorConfig, Params};
 use lanealign_core::pose::AxisConvention;
@@ -425,8 +425,9 @@ impl Config {
         })
     }
 
-    /// Refuses a tile not signed by a trusted key (when keys are configured) and a tile whose
-    /// lane geometry a source's method was not designed for.
+    /// Refuses a tile (or a grid, by its manifest's signer) not signed by a trusted key (when
+    /// keys are configured) and a tile whose lane geometry a source's method was not designed
+    /// for.
     pub fn check_tile(
         &self,
         path: &Path,
@@ -448,7 +449,8 @@ impl Config {
         })
     }
 
-    /// Refuses a tile not signed by a trusted key, when keys are configured.
+    /// Refuses a tile, or a grid's manifest, not signed by a trusted key, when keys are
+    /// configured (a grid's cells are checked as they are loaded).
     fn check_signer(&self, path: &Path, tile: &TileInfo) -> Result<(), ConfigError> {
         if !self.trusted_tile_keys.is_empty() {
             let trusted = tile.signer.is_some_and(|signer| {
@@ -461,11 +463,15 @@ impl Config {
                     Some(key) => format!("signed by {}, which is not trusted", key_hex(&key)),
                     None => "not signed".to_string(),
                 };
+                let (what, compile) = match grid::is_grid(&self.tile) {
+                    true => ("grid's manifest", "compile --grid SIZE_M --sign KEY"),
+                    false => ("tile", "compile --sign KEY"),
+                };
                 return Err(ConfigError::Value {
                     path: path.to_path_buf(),
                     key: "trusted_tile_keys".into(),
                     message: format!(
-                        "tile {} is {signed}: compile it with `lanealign-map compile --sign KEY`",
+                        "{what} {} is {signed}: compile it with `lanealign-map {compile}`",
                         self.tile.display()
                     ),
                 });

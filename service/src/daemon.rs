@@ -223,7 +223,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     let (namespace, sources) = (resolved.namespace, resolved.sources);
     if grid::is_grid(&config.tile) {
         let (lanes, info) = prepare_grid(&config, &sources)?;
-        config.check_geometry(path, &sources, &info)?;
+        config.check_tile(path, &sources, &info)?;
         return Ok(Prepared {
             path: path.to_path_buf(),
             namespace,
@@ -526,7 +526,7 @@ fn reload_grid(
 ) -> Result<std::thread::JoinHandle<()>, String> {
     let (lanes, info) = prepare_grid(config, sources).map_err(|e| error_line(&e))?;
     config
-        .check_geometry(path, sources, &info)
+        .check_tile(path, sources, &info)
         .map_err(|e| error_line(&e))?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());

@@ -181,6 +181,82 @@ fn trusted_keys_admit_only_tiles_their_holders_signed() {
     );
 }
 
+/// With trusted keys, a grid's manifest must carry a trusted signature as well as its cells:
+/// which cells make the grid is the manifest's word. Signed cells under an unsigned manifest
+/// (a grid compiled before manifests were signed, or one whose manifest was edited and its
+/// signature lines removed) are refused.
+#[test]
+fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
+    use lanealign_core::grid::{self, GridSpec};
+    use lanealign_core::tile::{key_hex, SigningKey};
+    let dir = tempfile::tempdir().unwrap();
+    let lanes: Vec<Lane> = (0..3)
+        .map(|k| {
+            Lane::new(
+                k,
+                (0..40).map(|i| [i as f64 * 3.0, k as f64 * 40.0]).collect(),
+            )
+        })
+        .collect();
+    let map = LaneMap::new(&lanes).unwrap();
+    let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+    let (builder, stranger) = (
+        SigningKey::from_bytes(&[3; 32]),
+        SigningKey::from_bytes(&[4; 32]),
+    );
+    for (name, key) in [
+        ("ours", Some(&builder)),
+        ("theirs", Some(&stranger)),
+        ("none", None),
+    ] {
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &LaneGeometry::default(),
+            cell_size_m: 50.0,
+            margin_m: 10.0,
+            sign: key,
+        };
+        grid::write(&dir.path().join(name), &map, &spec, 1).unwrap();
+    }
+    // Our cells under our manifest without its signature lines.
+    let (ours, bare) = (dir.path().join("ours"), dir.path().join("bare"));
+    std::fs::create_dir_all(bare.join("cells")).unwrap();
+    for entry in std::fs::read_dir(ours.join("cells")).unwrap() {
+        let entry = entry.unwrap();
+        std::fs::copy(entry.path(), bare.join("cells").join(entry.file_name())).unwrap();
+    }
+    let signed = std::fs::read_to_string(ours.join("manifest.toml")).unwrap();
+    let body = &signed[signed.find("format = ").unwrap()..];
+    std::fs::write(bare.join("manifest.toml"), body).unwrap();
+    let trusted = key_hex(&builder.verifying_key().to_bytes());
+    let config = dir.path().join("d.toml");
+    let with_keys = |grid: &str, keys: &str| {
+        let text = CONFIG.replace("t.tile", grid);
+        std::fs::write(&config, format!("trusted_tile_keys = [{keys}]\n{text}")).unwrap();
+        check(&config)
+    };
+    let keys = format!("\"{trusted}\"");
+    let out = with_keys("ours", &keys);
+    assert!(out.status.success(), "{}", stderr(&out));
+    for grid in ["theirs", "none", "bare"] {
+        assert!(with_keys(grid, "").status.success(), "{grid}, no keys");
+    }
+    for (grid, why) in [
+        ("theirs", "not signed by a key in trusted_tile_keys"),
+        ("none", "not signed by a key in trusted_tile_keys"),
+        (
+            "bare",
+            "manifest {bare} is not signed: compile it with `lanealign-map compile --grid",
+        ),
+    ] {
+        let out = with_keys(grid, &keys);
+        assert!(!out.status.success(), "{grid} must be refused");
+        let why = why.replace("{bare}", &bare.display().to_string());
+        assert!(stderr(&out).contains(&why), "{grid}: {}", stderr(&out));
+    }
+}
+
 /// A daemon serves 1 to 256 sources: with 3000 it had started 464 workers after 90 s, not ready
 /// and deaf to SIGTERM until it would be.
 #[test]

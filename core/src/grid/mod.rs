@@ -2,7 +2,8 @@
 //! loaded around a corrector on demand.
 //!
 //! A grid is a folder: `manifest.toml` ([`Manifest`]: plane, lane geometry, cell size, margin,
-//! bounds, and each cell's checksum) and `cells/<x>_<y>.tile`. Cell `(x, y)` owns the square
+//! bounds, and each cell's checksum; signed when the grid was compiled with a key, [`signature`])
+//! and `cells/<x>_<y>.tile`. Cell `(x, y)` owns the square
 //! `[x s, (x + 1) s) x [y s, (y + 1) s)` of the map plane (`s` the cell size, metres) and holds
 //! every lane point within `margin` of that square, as pieces of the whole map's lanes, each
 //! extended by the neighbour its segments need (a piece's last point is followed by the lane's
@@ -35,6 +36,7 @@ use crate::tile::{self, TileError, TileInfo};
 
 pub mod cells;
 pub mod loading;
+pub mod signature;
 pub mod write;
 
 pub use cells::{
@@ -223,6 +225,7 @@ pub struct Grid {
     cells: HashMap<CellKey, CellEntry>,
     existing: Arc<HashSet<CellKey>>,
     checksum: u64,
+    signer: Option<[u8; 32]>,
 }
 
 impl std::fmt::Debug for Grid {
@@ -269,7 +272,8 @@ impl Grid {
             path: path.clone(),
             message,
         };
-        let text = std::str::from_utf8(bytes).map_err(|_| bad("not UTF-8 text".into()))?;
+        let (signer, body) = signature::verify(bytes).map_err(bad)?;
+        let text = std::str::from_utf8(body).map_err(|_| bad("not UTF-8 text".into()))?;
         let manifest: Manifest = toml::from_str(text).map_err(|e| bad(e.message().to_string()))?;
         if manifest.format != MANIFEST_FORMAT {
             return Err(bad(format!(
@@ -355,6 +359,7 @@ impl Grid {
         let existing = Arc::new(cells.keys().copied().collect());
         Ok(Grid {
             checksum: xxhash_rust::xxh3::xxh3_64(bytes),
+            signer,
             dir: dir.to_path_buf(),
             plane: MapPlane::new(projection, manifest.origin_lat, manifest.origin_lon),
             geometry,
@@ -369,9 +374,15 @@ impl Grid {
         self.checksum
     }
 
+    /// The ed25519 public key whose signature the manifest carries, verified (`None`: unsigned;
+    /// each cell's own signer is checked as it is loaded).
+    pub fn signer(&self) -> Option<[u8; 32]> {
+        self.signer
+    }
+
     /// What a tile of the whole grid would say about itself (counts, bounds and total bytes
-    /// from the manifest, [`Self::checksum`] as its checksum, no signer: cells are signed one by
-    /// one).
+    /// from the manifest, [`Self::checksum`] as its checksum, the manifest's signer as its
+    /// signer).
     pub fn info(&self) -> TileInfo {
         let m = &self.manifest;
         TileInfo {
@@ -383,7 +394,7 @@ impl Grid {
             bounds: m.bounds,
             payload_len: m.cells.iter().map(|c| c.bytes).sum(),
             checksum: self.checksum,
-            signer: None,
+            signer: self.signer,
             cell: None,
         }
     }
@@ -643,6 +654,16 @@ mod tests {
     }
 
     fn grid_of(map: &LaneMap, dir: &Path, cell: f64, margin: f64) -> Grid {
+        signed_grid_of(map, dir, cell, margin, None)
+    }
+
+    fn signed_grid_of(
+        map: &LaneMap,
+        dir: &Path,
+        cell: f64,
+        margin: f64,
+        sign: Option<&tile::SigningKey>,
+    ) -> Grid {
         let plane = MapPlane::new(Projection::Tangent, 48.98, 8.39);
         let spec = GridSpec {
             plane: &plane,
@@ -650,10 +671,52 @@ mod tests {
             geometry: &LaneGeometry::default(),
             cell_size_m: cell,
             margin_m: margin,
-            sign: None,
+            sign,
         };
         write(dir, map, &spec, 2).unwrap();
         Grid::open(dir).unwrap()
+    }
+
+    /// A grid compiled with a key signs its manifest as well as its cells, and an edit of the
+    /// manifest is refused at open. Unsigned, a manifest edited to leave a cell out opened as
+    /// a grid without that cell's lanes (when the cell held too few points for the totals).
+    #[test]
+    fn a_signed_manifest_refuses_a_cell_left_out() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = tile::SigningKey::from_bytes(&[9; 32]);
+        let grid = signed_grid_of(&town(), dir.path(), 50.0, 10.0, Some(&key));
+        let signer = Some(key.verifying_key().to_bytes());
+        assert_eq!((grid.signer(), grid.info().signer), (signer, signer));
+        for cell in grid.cells() {
+            assert_eq!(grid.load_cell(cell).unwrap().signer(), signer);
+        }
+        let path = dir.path().join(MANIFEST);
+        let good = std::fs::read_to_string(&path).unwrap();
+        // The cell holding the fewest points left out: its `[[cells]]` table cut.
+        let fewest = grid
+            .manifest()
+            .cells
+            .iter()
+            .min_by_key(|c| c.points)
+            .unwrap();
+        let at = good
+            .find(&format!("checksum = \"{}\"", fewest.checksum))
+            .unwrap();
+        let start = good[..at].rfind("[[cells]]").unwrap();
+        let end = good[at..].find("[[cells]]").map_or(good.len(), |n| at + n);
+        let cut = format!("{}{}", &good[..start], &good[end..]);
+        std::fs::write(&path, &cut).unwrap();
+        let e = Grid::open(dir.path()).err().unwrap().to_string();
+        assert!(
+            e.contains("the signature does not match the manifest"),
+            "{e}"
+        );
+        // The same edit to the unsigned manifest passes every other check.
+        let (_, unsigned) = cut.split_at(cut.find("format = ").unwrap());
+        std::fs::write(&path, unsigned).unwrap();
+        let opened = Grid::open(dir.path()).unwrap();
+        assert_eq!(opened.signer(), None);
+        assert_eq!(opened.cells().count() + 1, grid.cells().count());
     }
 
     /// The map of the cells within `radius_m` of `x`; `None` when no cell is near.

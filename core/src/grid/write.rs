@@ -25,7 +25,7 @@ pub struct GridSpec<'a> {
     pub cell_size_m: f64,
     /// How far beyond its square a cell holds lane points (metres).
     pub margin_m: f64,
-    /// Sign every cell with this key.
+    /// Sign every cell, and the manifest, with this key.
     pub sign: Option<&'a SigningKey>,
 }
 
@@ -86,7 +86,8 @@ pub fn write_cells(
 }
 
 /// Writes the manifest of a map summed up by `summary` and cut into the cells `cells` (in any
-/// order) into folder `dir`, atomically, once every cell is written; returns it.
+/// order) into folder `dir`, atomically, once every cell is written (signed with `spec.sign`,
+/// [`super::signature`]); returns it.
 pub fn write_manifest(
     dir: &Path,
     spec: &GridSpec,
@@ -99,6 +100,10 @@ pub fn write_manifest(
         path: dir.join(MANIFEST),
         message: e.to_string(),
     })?;
+    let text = match spec.sign {
+        Some(key) => super::signature::sign(&text, key),
+        None => text,
+    };
     if text.len() as u64 > MAX_MANIFEST_BYTES {
         return Err(GridError::Manifest {
             path: dir.join(MANIFEST),
