@@ -2,8 +2,8 @@
 //! loaded around a corrector on demand.
 //!
 //! A grid is a folder: `manifest.toml` ([`Manifest`]: plane, lane geometry, cell size, margin,
-//! bounds, and each cell's checksum; signed when the grid was compiled with a key, [`signature`])
-//! and `cells/<x>_<y>.tile`. Cell `(x, y)` owns the square
+//! bounds, and each cell's checksum; signed when the grid was compiled with a key,
+//! [`signature`]) and `cells/<x>_<y>.tile`. Cell `(x, y)` owns the square
 //! `[x s, (x + 1) s) x [y s, (y + 1) s)` of the map plane (`s` the cell size, metres) and holds
 //! every lane point within `margin` of that square, as pieces of the whole map's lanes, each
 //! extended by the neighbour its segments need (a piece's last point is followed by the lane's
@@ -375,7 +375,7 @@ impl Grid {
     }
 
     /// The ed25519 public key whose signature the manifest carries, verified (`None`: unsigned;
-    /// each cell's own signer is checked as it is loaded).
+    /// each cell's own signature is verified as the cell is loaded).
     pub fn signer(&self) -> Option<[u8; 32]> {
         self.signer
     }
