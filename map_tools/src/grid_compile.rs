@@ -37,7 +37,7 @@ pub struct GridOptions<'a> {
     pub cell_size_m: f64,
     /// How far beyond its square a cell holds lane points (metres).
     pub margin_m: f64,
-    /// Sign every cell with this key.
+    /// Sign every cell, and the manifest, with this key.
     pub sign: Option<&'a SigningKey>,
 }
 

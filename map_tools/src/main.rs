@@ -57,7 +57,8 @@ enum Command {
         /// living_street and their links; add service to include it).
         #[arg(long)]
         classes: Option<String>,
-        /// Sign the tile with the secret key in this file (from `lanealign-map keygen`).
+        /// Sign the tile (with --grid: every cell and the manifest) with the secret key in this
+        /// file (from `lanealign-map keygen`).
         #[arg(long, value_name = "KEY_FILE")]
         sign: Option<PathBuf>,
         /// Write a grid of square cells this many metres wide into the folder OUTPUT instead of
