@@ -186,7 +186,10 @@ fn inspect_grid(path: &std::path::Path) -> anyhow::Result<()> {
         "bounds      x {:.1}..{:.1} m, y {:.1}..{:.1} m",
         m.bounds[0], m.bounds[2], m.bounds[1], m.bounds[3]
     );
-    println!("checksums   every cell valid and as the manifest says");
+    println!(
+        "checksum    {:016x} (the manifest's); every cell valid and as the manifest says",
+        grid.checksum()
+    );
     let signed: Vec<String> = signers
         .into_iter()
         .map(|s| s.map_or_else(|| "no".into(), |key| format!("by {key}")))

@@ -320,6 +320,11 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
     let text = String::from_utf8_lossy(&out.stdout).to_string();
     let signed = format!("signed      manifest by {public} (signature valid); cells by {public}\n");
     assert!(text.contains(&signed), "{text}");
+    let checksum = lanealign_core::grid::Grid::open(&grid).unwrap().checksum();
+    assert!(
+        text.contains(&format!("checksum    {checksum:016x} (the manifest's)")),
+        "{text}"
+    );
     let manifest = grid.join("manifest.toml");
     let good = std::fs::read_to_string(&manifest).unwrap();
     let last = good.rfind("[[cells]]").unwrap();

@@ -424,6 +424,12 @@ fn lock(namespace: &Namespace, state_dir: Option<&Path>) -> Result<Option<File>,
     }
 }
 
+/// The tile's (or a grid's manifest's) signer for the log: its public key, or `unsigned`.
+fn signer_of(info: &TileInfo) -> String {
+    info.signer
+        .map_or_else(|| "unsigned".into(), |key| tile::key_hex(&key))
+}
+
 /// What a source's journals are written under: its configuration and the tile.
 fn source_fingerprint(source: &ResolvedSource, tile: &TileInfo) -> u64 {
     let corrector = toml::to_string(&source.corrector).unwrap_or_default();
@@ -481,7 +487,7 @@ fn reload(
                     fingerprint: source_fingerprint(source, &info),
                 });
             }
-            tracing::info!(tile = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), "tile reloaded on SIGHUP: new sessions use it");
+            tracing::info!(tile = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), signer = %signer_of(&info), "tile reloaded on SIGHUP: new sessions use it");
             true
         }
         Err(e) => {
@@ -541,7 +547,7 @@ fn reload_grid(
             fingerprint: source_fingerprint(source, &info),
         });
     }
-    tracing::info!(grid = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), "grid reloaded on SIGHUP: new sessions use it");
+    tracing::info!(grid = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), signer = %signer_of(&info), "grid reloaded on SIGHUP: new sessions use it");
     Ok(handle)
 }
 
@@ -593,6 +599,8 @@ pub fn run(
         tile = %config.tile.display(),
         lanes = info.lanes,
         points = info.points,
+        checksum = format_args!("{:016x}", info.checksum),
+        signer = %signer_of(&info),
         namespace = %namespace,
         state_dir = %state_dir.as_ref().map_or("(no journal)".into(), |d| d.display().to_string()),
         "tile loaded"

@@ -80,8 +80,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                         "; CPU wake-up latency {us} us asked of the kernel while the daemon runs"
                     )
                 });
+            let signed = prepared.tile.signer.map_or("unsigned".into(), |key| {
+                format!("signed by {}", lanealign_core::tile::key_hex(&key))
+            });
             println!(
-                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {}){latency}",
+                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {}; {signed}){latency}",
                 path.display(),
                 prepared.sources.len(),
                 prepared.namespace,

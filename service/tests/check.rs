@@ -162,6 +162,8 @@ fn trusted_keys_admit_only_tiles_their_holders_signed() {
     };
     let out = with_keys("ours.tile", &format!("\"{trusted}\""));
     assert!(out.status.success(), "{}", stderr(&out));
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(said.contains(&format!("; signed by {trusted})")), "{said}");
     // Without trusted keys, any valid tile loads, signed or not.
     assert!(with_keys("theirs.tile", "").status.success());
     assert!(with_keys("t.tile", "").status.success());
@@ -239,6 +241,10 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
     let keys = format!("\"{trusted}\"");
     let out = with_keys("ours", &keys);
     assert!(out.status.success(), "{}", stderr(&out));
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(said.contains(&format!("; signed by {trusted})")), "{said}");
+    let said = String::from_utf8_lossy(&with_keys("none", "").stdout).to_string();
+    assert!(said.contains("; unsigned)"), "{said}");
     for grid in ["theirs", "none", "bare"] {
         assert!(with_keys(grid, "").status.success(), "{grid}, no keys");
     }
