@@ -12,6 +12,7 @@
 
 pub mod compile;
 pub mod grid_compile;
+pub mod keys;
 pub mod lane_spill;
 pub mod lanelet2;
 pub mod node_store;

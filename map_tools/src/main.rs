@@ -14,6 +14,7 @@ use lanealign_core::params::UNMARKED_OFFSET_SCALE;
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::grid_compile::{compile_grid, GridOptions, Reading};
+use lanealign_map::keys::read_secret_key;
 use lanealign_map::osm_lanes::LaneOptions;
 
 #[derive(Parser)]
@@ -89,21 +90,6 @@ enum Command {
         #[arg(long)]
         geojson: Option<PathBuf>,
     },
-}
-
-/// The signing key in a key file from `keygen` (64 hex digits).
-fn read_secret_key(path: &std::path::Path) -> anyhow::Result<tile::SigningKey> {
-    let bytes = lanealign_core::input::read_regular_file(path, 1024)?;
-    let seed = std::str::from_utf8(&bytes)
-        .ok()
-        .and_then(tile::parse_key_hex)
-        .with_context(|| {
-            format!(
-                "{}: not a key file from `lanealign-map keygen`",
-                path.display()
-            )
-        })?;
-    Ok(tile::SigningKey::from_bytes(&seed))
 }
 
 /// What each input contributed, one line per input on standard error.

@@ -174,6 +174,8 @@ def compile_map(
     unmarked_offset_scale: float = 0.5,
     grid: Optional[float] = None,
     margin: float = 50.0,
+    classes: Optional[str] = None,
+    sign: Optional[str] = None,
 ) -> dict:
     """Compile road data into a lane tile, as ``lanealign-map compile`` does.
 
@@ -183,8 +185,11 @@ def compile_map(
     ``unmarked_offset_scale``: 0.5 for the robust method, 1 for the paper's. With ``grid`` (a
     cell size in metres) ``output`` is a folder: a grid of cells holding the lanes within
     ``margin`` metres of their squares, as ``lanealign-map compile --grid`` writes (``correct``
-    takes it as ``tile``). Returns the map's ``lanes``, ``points``, ``lane_km`` and ``bytes``
-    (and ``cells`` for a grid).
+    takes it as ``tile``). ``classes``: comma-separated highway classes to derive lanes from
+    (``None``: motorway to living_street and their links). ``sign``: a secret key file from
+    ``lanealign-map keygen``; the tile (a grid's cells and manifest) is signed with it. Returns
+    the map's ``lanes``, ``points``, ``lane_km`` and ``bytes`` (and ``cells`` for a grid, and
+    ``signer``, the public key in hex, when signed).
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
@@ -198,6 +203,8 @@ def compile_map(
         unmarked_offset_scale=unmarked_offset_scale,
         grid=grid,
         margin=margin,
+        classes=classes,
+        sign=None if sign is None else str(sign),
     )
 
 

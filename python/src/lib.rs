@@ -24,6 +24,7 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Trajectory};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
+use lanealign_map::keys::read_secret_key;
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_wire::clock::{deadline_after, time_left};
 use lanealign_wire::payload::{
@@ -486,10 +487,11 @@ fn asymmetric_entry(covariance: &[[f64; 3]; 3]) -> Option<(usize, usize)> {
 }
 
 /// Compiles road data into a lane tile (or with `grid` a grid folder; PBF inputs stream), as
-/// `lanealign-map compile` does; returns what it holds.
+/// `lanealign-map compile` does, signed with the key in file `sign` when given; returns what
+/// it holds.
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE, grid=None, margin=50.0))]
+#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE, grid=None, margin=50.0, classes=None, sign=None))]
 fn compile_map<'py>(
     py: Python<'py>,
     inputs: Vec<PathBuf>,
@@ -501,6 +503,8 @@ fn compile_map<'py>(
     unmarked_offset_scale: f64,
     grid: Option<f64>,
     margin: f64,
+    classes: Option<&str>,
+    sign: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
     if inputs.is_empty() {
         return Err(PyValueError::new_err(
@@ -511,25 +515,39 @@ fn compile_map<'py>(
         .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
     lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)
         .map_err(|e| PyValueError::new_err(format!("unmarked_offset_scale: {e}")))?;
+    let classes = match classes {
+        Some(list) => RoadClasses::parse_list(list)
+            .map_err(|e| PyValueError::new_err(format!("classes: {e}")))?,
+        None => RoadClasses::DEFAULT,
+    };
     let options = CompileOptions {
         origin,
         projection: parsed("projection", projection)?,
         lanes: LaneOptions {
-            classes: RoadClasses::DEFAULT,
+            classes,
             traffic: parsed("traffic", traffic)?,
             spacing_m: spacing,
             unmarked_offset_scale,
         },
     };
-    let given: Vec<Option<&std::path::Path>> = inputs.iter().map(|p| Some(p.as_path())).collect();
+    let given: Vec<Option<&std::path::Path>> = inputs
+        .iter()
+        .map(|p| Some(p.as_path()))
+        .chain([sign.as_deref()])
+        .collect();
     lanealign_core::input::check_outputs_apart(&[Some(&output)], &given).map_err(error)?;
+    let key = sign
+        .as_deref()
+        .map(read_secret_key)
+        .transpose()
+        .map_err(error)?;
     let (lanes, points, lane_km, bytes, cells) = py
         .detach(|| -> anyhow::Result<_> {
             if let Some(cell_size_m) = grid {
                 let grid = GridOptions {
                     cell_size_m,
                     margin_m: margin,
-                    sign: None,
+                    sign: key.as_ref(),
                 };
                 let done = compile_grid(&inputs, &options, &output, &grid)?;
                 let m = &done.manifest;
@@ -543,7 +561,10 @@ fn compile_map<'py>(
                 ));
             }
             let compiled = compile(&inputs, &options)?;
-            let bytes = compiled.tile_bytes(spacing);
+            let mut bytes = compiled.tile_bytes(spacing);
+            if let Some(key) = &key {
+                tile::sign(&mut bytes, key);
+            }
             tile::write_bytes(&output, &bytes)?;
             let map = &compiled.map;
             Ok((
@@ -562,6 +583,9 @@ fn compile_map<'py>(
     d.set_item("bytes", bytes)?;
     if let Some(cells) = cells {
         d.set_item("cells", cells)?;
+    }
+    if let Some(key) = &key {
+        d.set_item("signer", tile::key_hex(&key.verifying_key().to_bytes()))?;
     }
     Ok(d)
 }

@@ -517,6 +517,42 @@ def test_compile_map_writes_the_tile_the_command_line_writes(tmp_path):
         lanealign.compile_map(tmp_path / "missing.osm", tmp_path / "x.tile")
 
 
+def test_compile_map_signs_as_the_command_line_signs(tmp_path):
+    # Signatures are deterministic (ed25519), so a signed tile and a signed grid (its cells and
+    # its manifest) from the package equal the command line's byte for byte.
+    osm = tmp_path / "road.osm"
+    nodes = "".join(f'<node id="{k}" lat="{49 + 0.001 * k}" lon="8"/>' for k in range(1, 6))
+    osm.write_text('<?xml version="1.0"?>\n<osm version="0.6">' + nodes + '<way id="9">'
+                   + "".join(f'<nd ref="{k}"/>' for k in range(1, 6))
+                   + '<tag k="highway" v="residential"/></way></osm>\n')
+    key = tmp_path / "builder.key"
+    out = subprocess.run([str(MAP_BIN), "keygen", "-o", str(key)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    public = out.stdout.strip()
+    for name, grid in (("road.tile", []), ("grid", ["--grid", "200"])):
+        cli, py = tmp_path / f"cli-{name}", tmp_path / f"py-{name}"
+        out = subprocess.run([str(MAP_BIN), "compile", str(osm), "--origin", "49,8", "--classes",
+                              "residential", "--sign", str(key), *grid, "-o", str(cli)],
+                             capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        info = lanealign.compile_map(osm, py, origin=(49.0, 8.0), classes="residential",
+                                     sign=key, grid=float(grid[1]) if grid else None)
+        assert info["signer"] == public
+        if grid:
+            files = sorted(p.relative_to(cli) for p in cli.rglob("*") if p.is_file())
+            assert len(files) == info["cells"] + 1, files
+            pairs = [(cli / f, py / f) for f in files]
+        else:
+            pairs = [(cli, py)]
+        for a, b in pairs:
+            assert a.read_bytes() == b.read_bytes(), a
+    assert "signer" not in lanealign.compile_map(osm, tmp_path / "plain.tile", origin=(49.0, 8.0))
+    with pytest.raises(ValueError, match="not a key file from `lanealign-map keygen`"):
+        lanealign.compile_map(osm, tmp_path / "x.tile", sign=osm)
+    with pytest.raises(ValueError, match="classes: "):
+        lanealign.compile_map(osm, tmp_path / "x.tile", classes="footway")
+
+
 def remove_namespace_files(namespace):
     """iceoryx2 keeps a namespace's files after its last process has left (the root folder and
     the shared-memory files, named as `Namespace::remove_files` in wire/src/service.rs removes

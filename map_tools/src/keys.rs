@@ -1,0 +1,63 @@
+//! Signing keys for tiles and grids: the secret key file `lanealign-map keygen` writes (64 hex
+//! digits, the ed25519 seed), read for `compile --sign` and the Python package's
+//! `compile_map(sign=...)`.
+
+use std::path::{Path, PathBuf};
+
+use lanealign_core::input::{read_regular_file, InputError};
+use lanealign_core::tile::{parse_key_hex, SigningKey};
+
+/// The largest key file read (bytes): a key is 64 hex digits and a newline.
+const MAX_KEY_FILE_BYTES: u64 = 1024;
+
+/// A key file that could not be read as a signing key.
+#[derive(Debug, thiserror::Error)]
+pub enum KeyError {
+    /// The file could not be read (missing, not a regular file, too long).
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// The file does not hold 64 hex digits.
+    #[error("{path}: not a key file from `lanealign-map keygen` (64 hex digits)")]
+    NotAKey {
+        /// The file.
+        path: PathBuf,
+    },
+}
+
+/// The signing key in `path`, a secret key file from `lanealign-map keygen`.
+pub fn read_secret_key(path: &Path) -> Result<SigningKey, KeyError> {
+    let bytes = read_regular_file(path, MAX_KEY_FILE_BYTES)?;
+    let seed = std::str::from_utf8(&bytes)
+        .ok()
+        .and_then(parse_key_hex)
+        .ok_or_else(|| KeyError::NotAKey {
+            path: path.to_path_buf(),
+        })?;
+    Ok(SigningKey::from_bytes(&seed))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_key_file_holds_64_hex_digits() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("builder.key");
+        std::fs::write(&path, format!("{}\n", "07".repeat(32))).unwrap();
+        let key = read_secret_key(&path).unwrap();
+        assert_eq!(key.to_bytes(), [7; 32]);
+        for text in [
+            "07".repeat(31),
+            "+7".repeat(32),
+            "x".into(),
+            "0".repeat(2000),
+        ] {
+            std::fs::write(&path, &text).unwrap();
+            let e = read_secret_key(&path).err().unwrap().to_string();
+            assert!(e.contains("builder.key"), "{text}: {e}");
+        }
+        let e = read_secret_key(&dir.path().join("missing.key")).err();
+        assert!(matches!(e, Some(KeyError::Input(_))), "{e:?}");
+    }
+}
