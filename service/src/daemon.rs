@@ -172,10 +172,12 @@ pub enum Lanes {
     },
 }
 
-/// Opens a grid and assembles, for each source, the cells around its anchor (checked against
-/// the trusted keys): what its sessions start with.
+/// Opens a grid, checks its manifest against the configuration at `path` (signer, lane
+/// geometry) before reading any cell, and assembles, for each source, the cells around its
+/// anchor (checked against the trusted keys): what its sessions start with.
 fn prepare_grid(
     config: &Config,
+    path: &Path,
     sources: &[ResolvedSource],
 ) -> Result<(Lanes, TileInfo), DaemonError> {
     let bad = |message: String| DaemonError::Grid {
@@ -183,6 +185,7 @@ fn prepare_grid(
         message,
     };
     let grid = Arc::new(Grid::open(&config.tile).map_err(|e| bad(error_line(&e)))?);
+    config.check_tile(path, sources, &grid.info())?;
     let trusted = config.trusted_keys();
     let mut starts = Vec::with_capacity(sources.len());
     for source in sources {
@@ -222,8 +225,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     }
     let (namespace, sources) = (resolved.namespace, resolved.sources);
     if grid::is_grid(&config.tile) {
-        let (lanes, info) = prepare_grid(&config, &sources)?;
-        config.check_tile(path, &sources, &info)?;
+        let (lanes, info) = prepare_grid(&config, path, &sources)?;
         return Ok(Prepared {
             path: path.to_path_buf(),
             namespace,
@@ -530,10 +532,7 @@ fn reload_grid(
     sources: &[ResolvedSource],
     workers: &[Worker],
 ) -> Result<std::thread::JoinHandle<()>, String> {
-    let (lanes, info) = prepare_grid(config, sources).map_err(|e| error_line(&e))?;
-    config
-        .check_tile(path, sources, &info)
-        .map_err(|e| error_line(&e))?;
+    let (lanes, info) = prepare_grid(config, path, sources).map_err(|e| error_line(&e))?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());
     };

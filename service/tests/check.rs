@@ -186,7 +186,8 @@ fn trusted_keys_admit_only_tiles_their_holders_signed() {
 /// With trusted keys, a grid's manifest must carry a trusted signature as well as its cells:
 /// which cells make the grid is the manifest's word. Signed cells under an unsigned manifest
 /// (a grid compiled before manifests were signed, or one whose manifest was edited and its
-/// signature lines removed) are refused.
+/// signature lines removed) are refused, and so are a stranger's cells under a manifest a
+/// trusted key signed.
 #[test]
 fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
     use lanealign_core::grid::{self, GridSpec};
@@ -221,16 +222,23 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
         };
         grid::write(&dir.path().join(name), &map, &spec, 1).unwrap();
     }
-    // Our cells under our manifest without its signature lines.
-    let (ours, bare) = (dir.path().join("ours"), dir.path().join("bare"));
-    std::fs::create_dir_all(bare.join("cells")).unwrap();
-    for entry in std::fs::read_dir(ours.join("cells")).unwrap() {
-        let entry = entry.unwrap();
-        std::fs::copy(entry.path(), bare.join("cells").join(entry.file_name())).unwrap();
-    }
-    let signed = std::fs::read_to_string(ours.join("manifest.toml")).unwrap();
-    let body = &signed[signed.find("format = ").unwrap()..];
-    std::fs::write(bare.join("manifest.toml"), body).unwrap();
+    // Our cells under our manifest without its signature lines ("bare"), and the stranger's
+    // cells under their manifest signed again by us ("mixed").
+    let copy_of = |from: &str, to: &str, sign: Option<&SigningKey>| {
+        let (from, to) = (dir.path().join(from), dir.path().join(to));
+        std::fs::create_dir_all(to.join("cells")).unwrap();
+        for entry in std::fs::read_dir(from.join("cells")).unwrap() {
+            let entry = entry.unwrap();
+            std::fs::copy(entry.path(), to.join("cells").join(entry.file_name())).unwrap();
+        }
+        let signed = std::fs::read_to_string(from.join("manifest.toml")).unwrap();
+        let body = &signed[signed.find("format = ").unwrap()..];
+        let text = sign.map_or(body.to_string(), |key| grid::signature::sign(body, key));
+        std::fs::write(to.join("manifest.toml"), text).unwrap();
+        to
+    };
+    let bare = copy_of("ours", "bare", None);
+    copy_of("theirs", "mixed", Some(&builder));
     let trusted = key_hex(&builder.verifying_key().to_bytes());
     let config = dir.path().join("d.toml");
     let with_keys = |grid: &str, keys: &str| {
@@ -245,16 +253,17 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
     assert!(said.contains(&format!("; signed by {trusted})")), "{said}");
     let said = String::from_utf8_lossy(&with_keys("none", "").stdout).to_string();
     assert!(said.contains("; unsigned)"), "{said}");
-    for grid in ["theirs", "none", "bare"] {
+    for grid in ["theirs", "none", "bare", "mixed"] {
         assert!(with_keys(grid, "").status.success(), "{grid}, no keys");
     }
     for (grid, why) in [
-        ("theirs", "not signed by a key in trusted_tile_keys"),
-        ("none", "not signed by a key in trusted_tile_keys"),
+        ("theirs", "which is not trusted"),
+        ("none", "is not signed"),
         (
             "bare",
             "manifest {bare} is not signed: compile it with `lanealign-map compile --grid",
         ),
+        ("mixed", "not signed by a key in trusted_tile_keys"),
     ] {
         let out = with_keys(grid, &keys);
         assert!(!out.status.success(), "{grid} must be refused");
