@@ -273,18 +273,18 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
         !again.status.success(),
         "an existing key is never overwritten"
     );
+    // Compiles the OSM signed (with `extra` arguments) into `output`; what inspect prints of it.
+    let signed_and_inspected = |extra: &[&str], output: &Path| {
+        let (key, output) = (key.to_str().unwrap(), output.to_str().unwrap());
+        let mut args = vec!["compile", osm.as_str(), "--sign", key, "-o", output];
+        args.extend(extra);
+        let out = lanealign_map(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let out = lanealign_map(&["inspect", output]);
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
     let tile = dir.path().join("signed.tile");
-    let out = lanealign_map(&[
-        "compile",
-        &osm,
-        "--sign",
-        key.to_str().unwrap(),
-        "-o",
-        tile.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", stderr(&out));
-    let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let text = signed_and_inspected(&[], &tile);
     assert!(
         text.contains(&format!("signed      by {public} (signature valid)")),
         "{text}"
@@ -305,19 +305,7 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
     // A grid signs its manifest as well as its cells: a manifest edited to leave its last cell
     // out is refused.
     let grid = dir.path().join("grid");
-    let out = lanealign_map(&[
-        "compile",
-        &osm,
-        "--grid",
-        "50",
-        "--sign",
-        key.to_str().unwrap(),
-        "-o",
-        grid.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", stderr(&out));
-    let out = lanealign_map(&["inspect", grid.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let text = signed_and_inspected(&["--grid", "50"], &grid);
     let signed = format!("signed      manifest by {public} (signature valid); cells by {public}\n");
     assert!(text.contains(&signed), "{text}");
     let checksum = lanealign_core::grid::Grid::open(&grid).unwrap().checksum();
