@@ -295,13 +295,12 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
     bytes[last] ^= 1;
     lanealign_core::tile::seal(&mut bytes);
     std::fs::write(&tile, bytes).unwrap();
-    let out = lanealign_map(&["inspect", tile.to_str().unwrap()]);
-    assert_eq!(out.status.code(), Some(1));
-    assert!(
-        stderr(&out).contains("signature does not match"),
-        "{}",
-        stderr(&out)
-    );
+    let inspect_refuses = |path: &Path, why: &str| {
+        let out = lanealign_map(&["inspect", path.to_str().unwrap()]);
+        assert_eq!(out.status.code(), Some(1));
+        assert!(stderr(&out).contains(why), "{}", stderr(&out));
+    };
+    inspect_refuses(&tile, "signature does not match");
     // A grid signs its manifest as well as its cells: a manifest edited to leave its last cell
     // out is refused.
     let grid = dir.path().join("grid");
@@ -318,13 +317,7 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
     let last = good.rfind("[[cells]]").unwrap();
     assert!(good[..last].contains("[[cells]]"), "{good}");
     std::fs::write(&manifest, &good[..last]).unwrap();
-    let out = lanealign_map(&["inspect", grid.to_str().unwrap()]);
-    assert_eq!(out.status.code(), Some(1));
-    assert!(
-        stderr(&out).contains("the signature does not match the manifest"),
-        "{}",
-        stderr(&out)
-    );
+    inspect_refuses(&grid, "the signature does not match the manifest");
 }
 
 /// The measurement, as a test: 1000 single-bit flips spread over a tile, each with its checksum
