@@ -1,6 +1,6 @@
 //! Signing keys for tiles and grids: the secret key file `lanealign-map keygen` writes (64 hex
-//! digits, the ed25519 seed), read for `compile --sign` and the Python package's
-//! `compile_map(sign=...)`.
+//! digits, the ed25519 seed, mode 0600), read for `compile --sign` and the Python package's
+//! `compile_map(sign=...)`, which warn when others may read it.
 
 use std::path::{Path, PathBuf};
 
@@ -36,6 +36,22 @@ pub fn read_secret_key(path: &Path) -> Result<SigningKey, KeyError> {
     Ok(SigningKey::from_bytes(&seed))
 }
 
+/// What to tell when the secret key file at `path` may be read by others than its owner (its
+/// mode allows group or world access), as ssh does of private keys: anyone who can read it can
+/// sign maps a vehicle trusts. `None` when only the owner can (or the file's mode cannot be
+/// read: [`read_secret_key`] then says why).
+pub fn exposure(path: &Path) -> Option<String> {
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(path).ok()?.permissions().mode() & 0o777;
+    (mode & 0o077 != 0).then(|| {
+        format!(
+            "{}: the secret key may be read by others (mode {mode:03o}): anyone who can read it \
+             can sign maps your vehicles trust; `chmod 600` it",
+            path.display()
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -59,5 +75,22 @@ mod tests {
         }
         let e = read_secret_key(&dir.path().join("missing.key")).err();
         assert!(matches!(e, Some(KeyError::Input(_))), "{e:?}");
+    }
+
+    #[test]
+    fn a_key_others_may_read_is_told() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("builder.key");
+        std::fs::write(&path, "07".repeat(32)).unwrap();
+        for (mode, told) in [(0o600, false), (0o400, false), (0o640, true), (0o604, true)] {
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).unwrap();
+            let said = exposure(&path);
+            assert_eq!(said.is_some(), told, "{mode:o}: {said:?}");
+            if let Some(text) = said {
+                assert!(text.contains(&format!("mode {mode:03o}")), "{text}");
+            }
+        }
+        assert_eq!(exposure(&dir.path().join("missing.key")), None);
     }
 }

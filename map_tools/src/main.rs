@@ -14,7 +14,7 @@ use lanealign_core::params::UNMARKED_OFFSET_SCALE;
 use lanealign_core::tile;
 use lanealign_map::compile::{compile, CompileOptions, InputReport};
 use lanealign_map::grid_compile::{compile_grid, GridOptions, Reading};
-use lanealign_map::keys::read_secret_key;
+use lanealign_map::keys::{self, read_secret_key};
 use lanealign_map::osm_lanes::LaneOptions;
 
 #[derive(Parser)]
@@ -218,6 +218,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 .collect();
             lanealign_core::input::check_outputs_apart(&[Some(&output)], &given)?;
             let key = sign.as_deref().map(read_secret_key).transpose()?;
+            if let Some(warning) = sign.as_deref().and_then(keys::exposure) {
+                eprintln!("warning: {warning}");
+            }
             lanealign_core::lane_map::check_spacing(spacing)
                 .map_err(|e| anyhow!("--spacing: {e}"))?;
             lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)

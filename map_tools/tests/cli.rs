@@ -283,6 +283,18 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
         let out = lanealign_map(&["inspect", output]);
         String::from_utf8_lossy(&out.stdout).to_string()
     };
+    // A key others may read signs, and is told of (keygen's is the owner's alone).
+    let exposed = dir.path().join("exposed.key");
+    std::fs::copy(&key, &exposed).unwrap();
+    std::fs::set_permissions(&exposed, std::fs::Permissions::from_mode(0o644)).unwrap();
+    let told = |key: &Path| {
+        let (key, out) = (key.to_str().unwrap(), dir.path().join("told.tile"));
+        let args = ["compile", &osm, "--sign", key, "-o", out.to_str().unwrap()];
+        let out = lanealign_map(&args);
+        assert!(out.status.success(), "{}", stderr(&out));
+        stderr(&out).contains("the secret key may be read by others (mode 644)")
+    };
+    assert!(told(&exposed) && !told(&key));
     let tile = dir.path().join("signed.tile");
     let text = signed_and_inspected(&[], &tile);
     assert!(

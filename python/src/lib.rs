@@ -24,7 +24,7 @@ use lanealign_core::tile;
 use lanealign_core::trajectory::{self, Trajectory};
 use lanealign_map::compile::{compile, CompileOptions};
 use lanealign_map::grid_compile::{compile_grid, GridOptions};
-use lanealign_map::keys::read_secret_key;
+use lanealign_map::keys::{self, read_secret_key};
 use lanealign_map::osm_lanes::LaneOptions;
 use lanealign_wire::clock::{deadline_after, time_left};
 use lanealign_wire::payload::{
@@ -541,6 +541,10 @@ fn compile_map<'py>(
         .map(read_secret_key)
         .transpose()
         .map_err(error)?;
+    if let Some(warning) = sign.as_deref().and_then(keys::exposure) {
+        let message = CString::new(warning).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        PyErr::warn(py, &py.get_type::<PyUserWarning>(), &message, 2)?;
+    }
     let (lanes, points, lane_km, bytes, cells) = py
         .detach(|| -> anyhow::Result<_> {
             if let Some(cell_size_m) = grid {

@@ -547,6 +547,13 @@ def test_compile_map_signs_as_the_command_line_signs(tmp_path):
         for a, b in pairs:
             assert a.read_bytes() == b.read_bytes(), a
     assert "signer" not in lanealign.compile_map(osm, tmp_path / "plain.tile", origin=(49.0, 8.0))
+    # A key others may read signs, with a warning; keygen's (mode 0600) gives none.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lanealign.compile_map(osm, tmp_path / "quiet.tile", sign=key)
+    key.chmod(0o644)
+    with pytest.warns(UserWarning, match=r"may be read by others \(mode 644\)"):
+        lanealign.compile_map(osm, tmp_path / "exposed.tile", sign=key)
     with pytest.raises(ValueError, match="not a key file from `lanealign-map keygen`"):
         lanealign.compile_map(osm, tmp_path / "x.tile", sign=osm)
     with pytest.raises(ValueError, match="classes: "):
