@@ -22,6 +22,12 @@ pub enum KeyError {
         /// The file.
         path: PathBuf,
     },
+    /// A public key given is neither 64 hex digits nor a file holding them.
+    #[error("{given:?}: not a public key (64 hex digits, or a file holding them such as keygen's KEY.pub)")]
+    NotAPublicKey {
+        /// What was given.
+        given: String,
+    },
 }
 
 /// The signing key in `path`, a secret key file from `lanealign-map keygen`.
@@ -34,6 +40,22 @@ pub fn read_secret_key(path: &Path) -> Result<SigningKey, KeyError> {
             path: path.to_path_buf(),
         })?;
     Ok(SigningKey::from_bytes(&seed))
+}
+
+/// A public key given as 64 hex digits, or as a file holding them (`lanealign-map keygen`'s
+/// `KEY.pub`).
+pub fn read_public_key(given: &str) -> Result<[u8; 32], KeyError> {
+    if let Some(key) = parse_key_hex(given) {
+        return Ok(key);
+    }
+    let not_a_key = || KeyError::NotAPublicKey {
+        given: given.to_string(),
+    };
+    let bytes = read_regular_file(Path::new(given), MAX_KEY_FILE_BYTES).map_err(|_| not_a_key())?;
+    std::str::from_utf8(&bytes)
+        .ok()
+        .and_then(parse_key_hex)
+        .ok_or_else(not_a_key)
 }
 
 /// What to tell when the secret key file at `path` may be read by others than its owner (its
@@ -75,6 +97,21 @@ mod tests {
         }
         let e = read_secret_key(&dir.path().join("missing.key")).err();
         assert!(matches!(e, Some(KeyError::Input(_))), "{e:?}");
+    }
+
+    #[test]
+    fn a_public_key_is_hex_digits_or_a_file_of_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let public = dir.path().join("builder.key.pub");
+        std::fs::write(&public, format!("{}\n", "0a".repeat(32))).unwrap();
+        let path = public.to_str().unwrap();
+        assert_eq!(read_public_key(&"0a".repeat(32)).unwrap(), [10; 32]);
+        assert_eq!(read_public_key(path).unwrap(), [10; 32]);
+        let missing = dir.path().join("missing.pub");
+        for given in ["0a".repeat(31), missing.to_str().unwrap().to_string()] {
+            let e = read_public_key(&given).err().unwrap().to_string();
+            assert!(e.contains("not a public key"), "{given}: {e}");
+        }
     }
 
     #[test]

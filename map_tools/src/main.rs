@@ -89,7 +89,41 @@ enum Command {
         /// Write the lane centerlines (WGS84, in driving direction) as GeoJSON.
         #[arg(long)]
         geojson: Option<PathBuf>,
+        /// Exit 1 unless the map is signed by one of these public keys (64 hex digits, or a file
+        /// holding them such as keygen's KEY.pub; repeatable): a tile, or a grid's manifest and
+        /// every cell. What a map build checks before it ships a map to trusted_tile_keys.
+        #[arg(long, value_name = "PUBLIC_KEY")]
+        trusted: Vec<String>,
     },
+}
+
+/// Refuses `signer` (of `what`) when it is not among `trusted`; any signer, or none, when no key
+/// is given.
+fn require_trusted(
+    trusted: &[[u8; 32]],
+    signer: Option<[u8; 32]>,
+    what: &std::path::Path,
+) -> anyhow::Result<()> {
+    if trusted.is_empty() || signer.is_some_and(|s| trusted.contains(&s)) {
+        return Ok(());
+    }
+    match signer {
+        Some(key) => bail!(
+            "{}: signed by {}, which is not among the --trusted keys",
+            what.display(),
+            tile::key_hex(&key)
+        ),
+        None => bail!(
+            "{}: not signed, and --trusted asks for a signature by one of its keys",
+            what.display()
+        ),
+    }
+}
+
+/// The public keys `--trusted` gives.
+fn trusted_keys(given: &[String]) -> anyhow::Result<Vec<[u8; 32]>> {
+    let keys = given.iter().map(|k| keys::read_public_key(k));
+    keys.collect::<Result<_, _>>().context("--trusted")
 }
 
 /// What each input contributed, one line per input on standard error.
@@ -139,12 +173,14 @@ fn lane_properties(id: u64, info: LaneInfo, points: usize) -> serde_json::Value 
 }
 
 /// Prints a grid's manifest and checks every cell against it.
-fn inspect_grid(path: &std::path::Path) -> anyhow::Result<()> {
+fn inspect_grid(path: &std::path::Path, trusted: &[[u8; 32]]) -> anyhow::Result<()> {
     let grid = grid::Grid::open(path)?;
+    require_trusted(trusted, grid.signer(), &path.join(grid::MANIFEST))?;
     let m = grid.manifest();
     let (mut points, mut bytes, mut signers) = (0u64, 0u64, std::collections::BTreeSet::new());
     for key in grid.cells() {
         let cell = grid.load_cell(key)?;
+        require_trusted(trusted, cell.signer(), &grid.cell_path(key))?;
         points += cell.points() as u64;
         signers.insert(cell.signer().map(|k| tile::key_hex(&k)));
     }
@@ -188,6 +224,9 @@ fn inspect_grid(path: &std::path::Path) -> anyhow::Result<()> {
         "signed      manifest {manifest}; cells {}",
         signed.join(", ")
     );
+    if !trusted.is_empty() {
+        println!("trusted     yes: the manifest and every cell signed by --trusted keys");
+    }
     Ok(())
 }
 
@@ -305,18 +344,23 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Inspect {
             tile: path,
             geojson,
+            trusted,
         } if grid::is_grid(&path) => {
             if geojson.is_some() {
                 bail!("--geojson takes a tile; inspect one cell of the grid: {}/cells/X_Y.tile is a cell, not a map", path.display());
             }
-            inspect_grid(&path)?;
+            let trusted = trusted_keys(&trusted)?;
+            inspect_grid(&path, &trusted)?;
         }
         Command::Inspect {
             tile: path,
             geojson,
+            trusted,
         } => {
             lanealign_core::input::check_outputs_apart(&[geojson.as_deref()], &[Some(&path)])?;
+            let trusted = trusted_keys(&trusted)?;
             let (map, info) = tile::load(&path)?;
+            require_trusted(&trusted, info.signer, &path)?;
             let p = info.plane;
             println!("tile        {}", path.display());
             println!(
@@ -355,6 +399,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             match info.signer {
                 Some(key) => println!("signed      by {} (signature valid)", tile::key_hex(&key)),
                 None => println!("signed      no"),
+            }
+            if !trusted.is_empty() {
+                println!("trusted     yes: signed by a --trusted key");
             }
             if let Some(out) = geojson {
                 let features = map

@@ -301,6 +301,41 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
         text.contains(&format!("signed      by {public} (signature valid)")),
         "{text}"
     );
+    // A map build's check before shipping: `--trusted` keys (hex, or keygen's KEY.pub file).
+    let pub_path = dir.path().join("builder.key.pub");
+    let unsigned = dir.path().join("unsigned.tile");
+    let out = lanealign_map(&["compile", &osm, "-o", unsigned.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let other = "0a".repeat(32);
+    for (map, key, why) in [
+        (&tile, pub_path.to_str().unwrap(), None),
+        (&tile, public.as_str(), None),
+        (
+            &tile,
+            other.as_str(),
+            Some("which is not among the --trusted keys"),
+        ),
+        (
+            &unsigned,
+            public.as_str(),
+            Some("not signed, and --trusted asks"),
+        ),
+        (&tile, "0a", Some("not a public key")),
+    ] {
+        let out = lanealign_map(&["inspect", map.to_str().unwrap(), "--trusted", key]);
+        match why {
+            None => assert!(
+                out.status.success()
+                    && String::from_utf8_lossy(&out.stdout).contains("trusted     yes"),
+                "{}",
+                stderr(&out)
+            ),
+            Some(why) => {
+                assert_eq!(out.status.code(), Some(1), "{key}");
+                assert!(stderr(&out).contains(why), "{}", stderr(&out));
+            }
+        }
+    }
     // One byte of a lane point changed and the checksum recomputed: the signature refuses it.
     let mut bytes = std::fs::read(&tile).unwrap();
     let last = bytes.len() - 2;
@@ -319,6 +354,20 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
     let text = signed_and_inspected(&["--grid", "50"], &grid);
     let signed = format!("signed      manifest by {public} (signature valid); cells by {public}\n");
     assert!(text.contains(&signed), "{text}");
+    let grid_arg = grid.to_str().unwrap();
+    let out = lanealign_map(&["inspect", grid_arg, "--trusted", &public]);
+    let said = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(
+        said.contains("trusted     yes: the manifest and every cell"),
+        "{said}"
+    );
+    let out = lanealign_map(&["inspect", grid_arg, "--trusted", &other]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        stderr(&out).contains("manifest.toml: signed by"),
+        "{}",
+        stderr(&out)
+    );
     let checksum = lanealign_core::grid::Grid::open(&grid).unwrap().checksum();
     assert!(
         text.contains(&format!("checksum    {checksum:016x} (the manifest's)")),
