@@ -30,15 +30,17 @@ pub enum KeyError {
     },
 }
 
+/// The 32-byte key a key file holds as 64 hex digits (`None`: it holds something else).
+fn key_in(path: &Path) -> Result<Option<[u8; 32]>, InputError> {
+    let bytes = read_regular_file(path, MAX_KEY_FILE_BYTES)?;
+    Ok(std::str::from_utf8(&bytes).ok().and_then(parse_key_hex))
+}
+
 /// The signing key in `path`, a secret key file from `lanealign-map keygen`.
 pub fn read_secret_key(path: &Path) -> Result<SigningKey, KeyError> {
-    let bytes = read_regular_file(path, MAX_KEY_FILE_BYTES)?;
-    let seed = std::str::from_utf8(&bytes)
-        .ok()
-        .and_then(parse_key_hex)
-        .ok_or_else(|| KeyError::NotAKey {
-            path: path.to_path_buf(),
-        })?;
+    let seed = key_in(path)?.ok_or_else(|| KeyError::NotAKey {
+        path: path.to_path_buf(),
+    })?;
     Ok(SigningKey::from_bytes(&seed))
 }
 
@@ -48,14 +50,12 @@ pub fn read_public_key(given: &str) -> Result<[u8; 32], KeyError> {
     if let Some(key) = parse_key_hex(given) {
         return Ok(key);
     }
-    let not_a_key = || KeyError::NotAPublicKey {
-        given: given.to_string(),
-    };
-    let bytes = read_regular_file(Path::new(given), MAX_KEY_FILE_BYTES).map_err(|_| not_a_key())?;
-    std::str::from_utf8(&bytes)
+    key_in(Path::new(given))
         .ok()
-        .and_then(parse_key_hex)
-        .ok_or_else(not_a_key)
+        .flatten()
+        .ok_or_else(|| KeyError::NotAPublicKey {
+            given: given.to_string(),
+        })
 }
 
 /// What to tell when the secret key file at `path` may be read by others than its owner (its

@@ -120,6 +120,14 @@ fn require_trusted(
     }
 }
 
+/// What `inspect` says of a map's signature: `by KEY (signature valid)`, or `no`.
+fn signature_state(signer: Option<[u8; 32]>) -> String {
+    signer.map_or_else(
+        || "no".into(),
+        |key| format!("by {} (signature valid)", tile::key_hex(&key)),
+    )
+}
+
 /// The public keys `--trusted` gives.
 fn trusted_keys(given: &[String]) -> anyhow::Result<Vec<[u8; 32]>> {
     let keys = given.iter().map(|k| keys::read_public_key(k));
@@ -216,12 +224,9 @@ fn inspect_grid(path: &std::path::Path, trusted: &[[u8; 32]]) -> anyhow::Result<
         .into_iter()
         .map(|s| s.map_or_else(|| "no".into(), |key| format!("by {key}")))
         .collect();
-    let manifest = grid.signer().map_or_else(
-        || "no".into(),
-        |key| format!("by {} (signature valid)", tile::key_hex(&key)),
-    );
     println!(
-        "signed      manifest {manifest}; cells {}",
+        "signed      manifest {}; cells {}",
+        signature_state(grid.signer()),
         signed.join(", ")
     );
     if !trusted.is_empty() {
@@ -396,10 +401,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 "checksum    {:016x} ok; every field and array valid",
                 info.checksum
             );
-            match info.signer {
-                Some(key) => println!("signed      by {} (signature valid)", tile::key_hex(&key)),
-                None => println!("signed      no"),
-            }
+            println!("signed      {}", signature_state(info.signer));
             if !trusted.is_empty() {
                 println!("trusted     yes: signed by a --trusted key");
             }

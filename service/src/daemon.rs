@@ -185,7 +185,8 @@ fn prepare_grid(
         message,
     };
     let grid = Arc::new(Grid::open(&config.tile).map_err(|e| bad(error_line(&e)))?);
-    config.check_tile(path, sources, &grid.info())?;
+    let info = grid.info();
+    config.check_tile(path, sources, &info)?;
     let trusted = config.trusted_keys();
     let mut starts = Vec::with_capacity(sources.len());
     for source in sources {
@@ -208,7 +209,6 @@ fn prepare_grid(
         let map = grid::assemble(&grid, &cells).map_err(|e| bad(e.to_string()))?;
         starts.push(Arc::new(map));
     }
-    let info = grid.info();
     Ok((Lanes::Grid { grid, starts }, info))
 }
 

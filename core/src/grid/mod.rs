@@ -323,7 +323,10 @@ impl Grid {
             unmarked_offset_scale: manifest.unmarked_offset_scale,
         };
         let mut cells = HashMap::with_capacity(manifest.cells.len());
+        // The lane points the listed cells hold (a `u128`: 300,000 cells of up to 2^64 points).
+        let mut held: u128 = 0;
         for entry in &manifest.cells {
+            held += u128::from(entry.points);
             if u64::from_str_radix(&entry.checksum, 16).is_err() || entry.checksum.len() != 16 {
                 return Err(bad(format!(
                     "cell {} {}: checksum {:?} is not 16 hex digits",
@@ -348,7 +351,6 @@ impl Grid {
         }
         // What `inspect` and the daemon report of the whole map: every lane has a point, and
         // every point lies in the square (margin included) of the cell that owns it.
-        let held: u128 = manifest.cells.iter().map(|c| u128::from(c.points)).sum();
         if !(1..=manifest.points).contains(&manifest.lanes) || u128::from(manifest.points) > held {
             return Err(bad(format!(
                 "lanes = {} and points = {}, its cells hold {held} points: a map of at least one \
