@@ -327,7 +327,7 @@ impl Grid {
         let mut held: u128 = 0;
         for entry in &manifest.cells {
             held += u128::from(entry.points);
-            if u64::from_str_radix(&entry.checksum, 16).is_err() || entry.checksum.len() != 16 {
+            if tile::bytes_of_hex::<8>(&entry.checksum).is_none() {
                 return Err(bad(format!(
                     "cell {} {}: checksum {:?} is not 16 hex digits",
                     entry.x, entry.y, entry.checksum
@@ -1026,6 +1026,13 @@ mod tests {
             let e = Grid::open(dir.path()).err().unwrap().to_string();
             assert!(e.contains(what), "{what}: {e}");
         }
+        // A checksum of 16 characters that are not all hex digits: `u64::from_str_radix` took a
+        // leading '+', and such a manifest opened (its cell then failed to load).
+        let at = good.find("checksum = \"").unwrap() + "checksum = \"".len();
+        let signed_digit = format!("{}+{}", &good[..at], &good[at + 1..]);
+        std::fs::write(&path, signed_digit).unwrap();
+        let e = Grid::open(dir.path()).err().unwrap().to_string();
+        assert!(e.contains("is not 16 hex digits"), "{e}");
     }
 
     /// A manifest's counts are what `inspect` and the daemon report of the map: a total its
