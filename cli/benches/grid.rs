@@ -95,6 +95,7 @@ fn write_city(args: &Args, folder: &std::path::Path) -> anyhow::Result<()> {
             cell_size_m: args.cell,
             margin_m: args.margin,
             sign: None,
+            map_version: 0,
         };
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         let manifest = grid::write(folder, &map, &spec, threads)?;

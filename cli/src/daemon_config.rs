@@ -58,6 +58,7 @@ pub fn config(
         max_sessions: 16,
         log_format: LogFormat::Text,
         trusted_tile_keys: Vec::new(),
+        min_map_version: 0,
         cpu_dma_latency_us: None,
         sources: sources
             .iter()

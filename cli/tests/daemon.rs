@@ -1771,6 +1771,80 @@ fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
     assert!(daemon.stop().unwrap());
 }
 
+/// Always runs: SIGHUP never goes back to an older map. A tile, then a grid, of an older map
+/// version put in the configured place (a rollback: a signature would not tell, it names the
+/// builder) is refused naming both versions, and new sessions correct on the map served; a
+/// newer one is loaded, and from then on the version it replaced is the older one.
+#[test]
+fn an_older_map_on_sighup_is_refused() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let (_, odometry) = synthetic::drive(1, 42);
+    let town = lanealign_core::lane_map::LaneMap::new(&synthetic::town_lanes()).unwrap();
+    let versioned = |map: &lanealign_core::lane_map::LaneMap, version: u64| {
+        let mut bytes = lanealign_core::tile::encode(
+            map,
+            &synthetic::town_plane(),
+            3.0,
+            &synthetic::town_geometry(),
+        );
+        lanealign_core::tile::set_map_version(&mut bytes, version).unwrap();
+        bytes
+    };
+    let name = unique("rollback");
+    let setup = town_setup(&[&name]);
+    std::fs::write(&setup.tile, versioned(&town, 5)).unwrap();
+    let daemon = start(&setup);
+    assert!(daemon.log().contains("map_version=5"), "{}", daemon.log());
+    let on_town = offline(&setup, &name, &odometry);
+    let refusal = "the tile was not reloaded";
+    std::fs::write(&setup.tile, versioned(&town_moved_north(), 4)).unwrap();
+    let older = "map version 4 is older than the served map's 5";
+    assert_reload_refused(&daemon, 0, refusal, "version 4", older);
+    assert!(
+        run_replay(&setup, &name, &odometry, Rate::Max(32)) == on_town,
+        "a new session corrects on the tile served"
+    );
+    std::fs::write(&setup.tile, versioned(&town_moved_north(), 6)).unwrap();
+    let on_moved = offline(&setup, &name, &odometry);
+    assert!(on_moved != on_town, "the moved map changes corrections");
+    hang_up(&daemon);
+    let until = Instant::now() + Duration::from_secs(5);
+    while !daemon.log().contains("tile reloaded") && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(daemon.log().contains("map_version=6"), "{}", daemon.log());
+    std::fs::write(&setup.tile, versioned(&town, 5)).unwrap();
+    let older = "map version 5 is older than the served map's 6";
+    assert_reload_refused(&daemon, 1, refusal, "version 5 after 6", older);
+    assert!(
+        run_replay(&setup, &name, &odometry, Rate::Max(32)) == on_moved,
+        "a new session corrects on the tile served, version 6"
+    );
+    assert!(daemon.stop().unwrap());
+
+    let name = unique("regridback");
+    let setup = town_grid_setup(&[&name]);
+    let dir = setup.dir.path();
+    let switch_to = |folder: &str| {
+        std::os::unix::fs::symlink(folder, dir.join("town-grid.new")).unwrap();
+        std::fs::rename(dir.join("town-grid.new"), dir.join("town-grid")).unwrap();
+    };
+    write_town_grid(&town, &dir.join("v5"), 5);
+    switch_to("v5");
+    let daemon = start(&setup);
+    let on_town = offline(&setup, &name, &odometry);
+    write_town_grid(&town_moved_north(), &dir.join("v4"), 4);
+    switch_to("v4");
+    let older = "map version 4 is older than the served map's 5";
+    assert_reload_refused(&daemon, 0, "the grid was not reloaded", "grid 4", older);
+    assert!(
+        run_replay(&setup, &name, &odometry, Rate::Max(32)) == on_town,
+        "a new session corrects on the grid served"
+    );
+    assert!(!daemon.log().contains("grid reloaded"), "{}", daemon.log());
+    assert!(daemon.stop().unwrap());
+}
+
 /// Sends SIGHUP to `daemon`: load the map again.
 fn hang_up(daemon: &DaemonProcess) {
     signal(daemon.id(), Signal::HUP);

@@ -5,7 +5,7 @@
 //! with checked arithmetic, and builds the KD-tree itself from the validated points: no byte
 //! sequence can make it read out of bounds, and a file changed after loading changes nothing.
 //!
-//! Layout (all little-endian, format version 2):
+//! Layout (all little-endian, format version 3):
 //!
 //! | bytes | field |
 //! |---|---|
@@ -25,11 +25,14 @@
 //! | 120..152 | signer's ed25519 public key (zero unless signed) |
 //! | 152..216 | ed25519 signature (zero unless signed) |
 //! | 216..248 | a grid cell's own square: min x, min y, max x, max y (`f64`, metres); zero unless a cell |
-//! | 248..256 | XXH3-64 of bytes 0..248 and of the payload |
-//! | 256.. | payload |
+//! | 248..256 | map version (`u64`, at most [`MAX_MAP_VERSION`]; 0 unless the builder gave one) |
+//! | 256..264 | XXH3-64 of bytes 0..256 and of the payload |
+//! | 264.. | payload |
 //!
 //! A signed tile (flag bit 1, [`sign`]) carries the signer's public key and an ed25519 signature
-//! of every byte but the signature itself and the checksum; loading verifies it.
+//! of every byte but the signature itself and the checksum; loading verifies it. The map version
+//! is the builder's number for the build ([`set_map_version`]): a daemon can refuse a map older
+//! than it should serve (a signature names who built a map, the version which build it is).
 //!
 //! Payload: lane offsets (`u32` x lanes + 1), lane ids (`u64` x lanes), lane info (class `u8`,
 //! flags `u8`, per lane), points (`f64` x, y per point), and in a grid cell the pieces (per lane:
@@ -52,10 +55,10 @@ use crate::lane_map::{LaneMap, LaneMapError, MAX_POINTS};
 /// The tile magic.
 pub const MAGIC: [u8; 8] = *b"LANETILE";
 /// The format version this build reads and writes.
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 const ENDIAN_MARK: u32 = 0x0102_0304;
 /// Header length in bytes.
-pub const HEADER_LEN: usize = 256;
+pub const HEADER_LEN: usize = 264;
 /// Largest tile this build loads (bytes): far above any real map (a 1 M point tile is 17 MB),
 /// small enough that a bogus size is refused before anything is allocated.
 pub const MAX_TILE_BYTES: u64 = 1 << 32;
@@ -68,7 +71,11 @@ const SIGNER_AT: usize = 120;
 const SIGNATURE_AT: usize = 152;
 const SIGNATURE_END: usize = 216;
 const CELL_SQUARE_AT: usize = 216;
-const CHECKSUM_AT: usize = 248;
+const MAP_VERSION_AT: usize = 248;
+const CHECKSUM_AT: usize = 256;
+/// The largest map version a tile or grid may carry: the largest integer a TOML file (a grid's
+/// manifest, the daemon's configuration) holds.
+pub const MAX_MAP_VERSION: u64 = i64::MAX as u64;
 
 /// What a tile says about itself.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -91,6 +98,8 @@ pub struct TileInfo {
     pub checksum: u64,
     /// The ed25519 public key whose signature the tile carries, verified (`None`: unsigned).
     pub signer: Option<[u8; 32]>,
+    /// The builder's number for this build of the map ([`set_map_version`]; 0: none given).
+    pub map_version: u64,
     /// For one cell of a tile grid, the cell's own square `[min x, min y, max x, max y]`
     /// (metres, map plane); its lanes reach beyond it by the grid's margin. `None`: a whole map.
     pub cell: Option<[f64; 4]>,
@@ -131,6 +140,14 @@ pub enum TileError {
     RoadData {
         /// The file.
         path: PathBuf,
+    },
+    /// A map version no tile or grid may carry.
+    #[error(
+        "map version {map_version}: at most {MAX_MAP_VERSION} (the largest integer TOML holds)"
+    )]
+    MapVersion {
+        /// The version asked for.
+        map_version: u64,
     },
     /// A tile of another format version.
     #[error("{path}: tile format version {found}, this build reads version {VERSION}; compile it again with this build's lanealign-map")]
@@ -282,6 +299,26 @@ pub fn sign(bytes: &mut [u8], key: &SigningKey) {
     let signature = key.sign(&signed_message(bytes));
     put(bytes, SIGNATURE_AT, &signature.to_bytes());
     seal(bytes);
+}
+
+/// Records the builder's number for this build of the map in encoded tile bytes (from
+/// [`encode`]) and updates the checksum. Before [`sign`]: the signature covers it. Versions above
+/// [`MAX_MAP_VERSION`] are refused.
+pub fn set_map_version(bytes: &mut [u8], map_version: u64) -> Result<(), TileError> {
+    check_map_version(map_version)?;
+    if bytes.len() >= HEADER_LEN {
+        put(bytes, MAP_VERSION_AT, &map_version.to_le_bytes());
+        seal(bytes);
+    }
+    Ok(())
+}
+
+/// Refuses a map version above [`MAX_MAP_VERSION`].
+pub fn check_map_version(map_version: u64) -> Result<(), TileError> {
+    if map_version > MAX_MAP_VERSION {
+        return Err(TileError::MapVersion { map_version });
+    }
+    Ok(())
 }
 
 /// Verifies a signed tile's signature; the signer's public key when it holds.
@@ -609,11 +646,21 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
             return Err(bad("cell square", format!("{square:?}")));
         }
         Some(square)
-    } else if bytes[CELL_SQUARE_AT..CHECKSUM_AT].iter().any(|&b| b != 0) {
+    } else if bytes[CELL_SQUARE_AT..MAP_VERSION_AT]
+        .iter()
+        .any(|&b| b != 0)
+    {
         return Err(bad("reserved bytes 216..248", "not zero".into()));
     } else {
         None
     };
+    let map_version = u64_at(bytes, MAP_VERSION_AT);
+    if map_version > MAX_MAP_VERSION {
+        return Err(bad(
+            "map version",
+            format!("{map_version}, above {MAX_MAP_VERSION}"),
+        ));
+    }
     let scale = f64_at(bytes, 64);
     let unmarked_offset_scale = if flags & FLAG_OSM_LANES != 0 {
         if crate::lane_geometry::check_unmarked_offset_scale(scale).is_err() {
@@ -651,6 +698,7 @@ pub fn read_info(path: &Path, bytes: &[u8]) -> Result<TileInfo, TileError> {
         payload_len,
         checksum: stored,
         signer,
+        map_version,
         cell,
     })
 }
@@ -857,6 +905,36 @@ mod tests {
         seal(&mut swapped);
         assert!(matches!(
             decode(p, &swapped),
+            Err(TileError::BadSignature { .. })
+        ));
+    }
+
+    #[test]
+    fn the_map_version_is_carried_signed_and_bounded() {
+        let p = Path::new("v.tile");
+        let mut bytes = sample_bytes();
+        assert_eq!(decode(p, &bytes).unwrap().1.map_version, 0);
+        set_map_version(&mut bytes, 20_261_207).unwrap();
+        assert_eq!(decode(p, &bytes).unwrap().1.map_version, 20_261_207);
+        set_map_version(&mut bytes, MAX_MAP_VERSION).unwrap();
+        assert_eq!(decode(p, &bytes).unwrap().1.map_version, MAX_MAP_VERSION);
+        let e = set_map_version(&mut bytes, MAX_MAP_VERSION + 1).unwrap_err();
+        assert!(e.to_string().contains("at most 9223372036854775807"), "{e}");
+        // A version no builder could have written, resealed: refused by the reader too.
+        let mut beyond = bytes.clone();
+        put(&mut beyond, MAP_VERSION_AT, &u64::MAX.to_le_bytes());
+        seal(&mut beyond);
+        let e = decode(p, &beyond).unwrap_err().to_string();
+        assert!(e.contains("map version"), "{e}");
+        // The signature covers the version: an older number put in a signed tile is refused.
+        set_map_version(&mut bytes, 7).unwrap();
+        sign(&mut bytes, &SigningKey::from_bytes(&[7; 32]));
+        assert_eq!(decode(p, &bytes).unwrap().1.map_version, 7);
+        let mut rolled_back = bytes.clone();
+        put(&mut rolled_back, MAP_VERSION_AT, &6u64.to_le_bytes());
+        seal(&mut rolled_back);
+        assert!(matches!(
+            decode(p, &rolled_back),
             Err(TileError::BadSignature { .. })
         ));
     }

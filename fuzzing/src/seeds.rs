@@ -112,11 +112,12 @@ pub fn tile_plane_and_geometry() -> (MapPlane, LaneGeometry) {
     (plane, geometry)
 }
 
-/// Tile bytes: unsigned and signed.
+/// Tile bytes: unsigned, and signed with a map version.
 pub fn tiles() -> Vec<Vec<u8>> {
     let (plane, geometry) = tile_plane_and_geometry();
     let unsigned = tile::encode(&lane_map(), &plane, 3.0, &geometry);
     let mut signed = unsigned.clone();
+    tile::set_map_version(&mut signed, 20_261_207).expect("a version TOML holds");
     tile::sign(&mut signed, &tile::SigningKey::from_bytes(&[9; 32]));
     vec![unsigned, signed]
 }

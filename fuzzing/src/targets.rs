@@ -331,12 +331,20 @@ fn pbf_grid(bytes: &[u8]) -> Outcome {
         cell_size_m,
         margin_m,
         sign: None,
+        map_version: 3,
     };
     let (streamed, in_memory) = (dir.path().join("streamed"), dir.path().join("in_memory"));
     let by_stream = compile_grid(&inputs, &options, &streamed, &grid);
     let by_memory = compile(&inputs, &options).and_then(|c| {
-        c.write_grid(&in_memory, 3.0, cell_size_m, margin_m, None)
-            .map_err(CompileError::from)
+        c.write_grid(
+            &in_memory,
+            3.0,
+            cell_size_m,
+            margin_m,
+            None,
+            grid.map_version,
+        )
+        .map_err(CompileError::from)
     });
     match (by_stream, by_memory) {
         (Ok(_), Ok(_)) => {
@@ -487,6 +495,7 @@ fn seed_grid() -> &'static EncodedGrid {
             cell_size_m: 20.0,
             margin_m: 4.0,
             sign: None,
+            map_version: 0,
         };
         grid::encode(&seeds::lane_map(), &spec).expect("the seed lanes make a grid")
     })

@@ -257,7 +257,7 @@ fn main() -> anyhow::Result<()> {
             let options = CompileOptions::default();
             let compiled = compile(std::slice::from_ref(&pbf), &options)?;
             let reference = dir.path().join("reference");
-            compiled.write_grid(&reference, 3.0, cell, 50.0, None)?;
+            compiled.write_grid(&reference, 3.0, cell, 50.0, None, 0)?;
             let same = same_files(&grid, &reference)?;
             println!("| {k} | | | | streamed grid equal to the in-memory grid, byte for byte | | | {same} |");
             anyhow::ensure!(same, "the streamed grid differs from the in-memory grid");

@@ -10,7 +10,7 @@ use lanealign_core::geo::{check_lat_lon, GeoError, MapPlane, Projection};
 use lanealign_core::grid::{self, GridError, GridSpec, Manifest};
 use lanealign_core::lane_geometry::{LaneGeometry, RoadClasses};
 use lanealign_core::lane_map::{Lane, LaneMap, LaneMapError};
-use lanealign_core::tile::SigningKey;
+use lanealign_core::tile::{SigningKey, TileError};
 
 use crate::lane_spill::SpillError;
 use crate::lanelet2::{derive_lanelet_lanes, is_lanelet2, LaneletReport};
@@ -252,9 +252,25 @@ impl Compiled {
         lanealign_core::tile::encode(&self.map, &self.plane, spacing_m, &self.geometry)
     }
 
+    /// The tile bytes of this map as a build ships them: points resampled at `spacing_m`,
+    /// carrying the builder's `map_version` (0: none), signed with `sign` when given.
+    pub fn shipped_tile_bytes(
+        &self,
+        spacing_m: f64,
+        map_version: u64,
+        sign: Option<&SigningKey>,
+    ) -> Result<Vec<u8>, TileError> {
+        let mut bytes = self.tile_bytes(spacing_m);
+        lanealign_core::tile::set_map_version(&mut bytes, map_version)?;
+        if let Some(key) = sign {
+            lanealign_core::tile::sign(&mut bytes, key);
+        }
+        Ok(bytes)
+    }
+
     /// Writes this map as a grid into folder `output` (cells of `cell_size_m` holding the lanes
-    /// within `margin_m` of their squares, each signed with `sign` when given), encoding cells
-    /// on every core; returns its manifest.
+    /// within `margin_m` of their squares; the manifest and each cell carrying `map_version` and
+    /// signed with `sign` when given), encoding cells on every core; returns its manifest.
     pub fn write_grid(
         &self,
         output: &Path,
@@ -262,6 +278,7 @@ impl Compiled {
         cell_size_m: f64,
         margin_m: f64,
         sign: Option<&SigningKey>,
+        map_version: u64,
     ) -> Result<Manifest, GridError> {
         let spec = GridSpec {
             plane: &self.plane,
@@ -270,6 +287,7 @@ impl Compiled {
             cell_size_m,
             margin_m,
             sign,
+            map_version,
         };
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         grid::write(output, &self.map, &spec, threads)

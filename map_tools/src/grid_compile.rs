@@ -39,6 +39,8 @@ pub struct GridOptions<'a> {
     pub margin_m: f64,
     /// Sign every cell, and the manifest, with this key.
     pub sign: Option<&'a SigningKey>,
+    /// The builder's number for this build of the map, in the manifest and every cell (0: none).
+    pub map_version: u64,
 }
 
 /// A compiled grid and what went into it.
@@ -93,6 +95,7 @@ pub fn compile_grid(
         grid.cell_size_m,
         grid.margin_m,
         grid.sign,
+        grid.map_version,
     )?;
     Ok(GridCompiled {
         manifest,
@@ -176,6 +179,7 @@ fn stream(
         cell_size_m: grid.cell_size_m,
         margin_m: grid.margin_m,
         sign: grid.sign,
+        map_version: grid.map_version,
     };
     let entries = cut_blocks(&mut spilled, &cells_dir, &spec, output)?;
     let manifest = grid::write_manifest(output, &spec, &spilled.summary, entries)?;

@@ -62,6 +62,12 @@ enum Command {
         /// file (from `lanealign-map keygen`).
         #[arg(long, value_name = "KEY_FILE")]
         sign: Option<PathBuf>,
+        /// The build's number for this map (0 to 2^63 - 1; the tile, or the grid's manifest and
+        /// every cell, carry it, under the signature): a daemon with `min_map_version` refuses
+        /// older maps, and SIGHUP never replaces a map with an older one. Give each map build a
+        /// larger number than the last (a build counter, or a date such as 20261207).
+        #[arg(long, value_name = "N", default_value_t = 0)]
+        map_version: u64,
         /// Write a grid of square cells this many metres wide into the folder OUTPUT instead of
         /// one tile (`manifest.toml` and `cells/X_Y.tile`).
         #[arg(long, value_name = "SIZE_M")]
@@ -117,6 +123,14 @@ fn require_trusted(
             "{}: not signed, and --trusted asks for a signature by one of its keys",
             what.display()
         ),
+    }
+}
+
+/// What `inspect` says of a map's version: the number, or that the build gave none.
+fn map_version_text(map_version: u64) -> String {
+    match map_version {
+        0 => "0 (none given: compile --map-version N)".into(),
+        n => n.to_string(),
     }
 }
 
@@ -208,6 +222,7 @@ fn inspect_grid(path: &std::path::Path, trusted: &[[u8; 32]]) -> anyhow::Result<
         "origin      {:.9}, {:.9} ({} projection)",
         m.origin_lat, m.origin_lon, m.projection
     );
+    println!("map version {}", map_version_text(m.map_version));
     println!("spacing     {} m", m.spacing_m);
     println!("geometry    {}", grid.geometry());
     println!("lanes       {}", m.lanes);
@@ -251,10 +266,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             unmarked_offset_scale,
             classes,
             sign,
+            map_version,
             grid,
             margin,
             output,
         } => {
+            tile::check_map_version(map_version).map_err(|e| anyhow!("--map-version: {e}"))?;
             let given: Vec<Option<&std::path::Path>> = inputs
                 .iter()
                 .map(|p| Some(p.as_path()))
@@ -290,6 +307,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                         cell_size_m,
                         margin_m: margin,
                         sign: key.as_ref(),
+                        map_version,
                     };
                     let done = compile_grid(&inputs, &options, &output, &grid)?;
                     print_reports(&inputs, &done.reports);
@@ -309,10 +327,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 }
                 None => {
                     let compiled = compile(&inputs, &options)?;
-                    let mut bytes = compiled.tile_bytes(spacing);
-                    if let Some(key) = &key {
-                        tile::sign(&mut bytes, key);
-                    }
+                    let bytes = compiled.shipped_tile_bytes(spacing, map_version, key.as_ref())?;
                     tile::write_bytes(&output, &bytes)?;
                     print_reports(&inputs, &compiled.reports);
                     let (map, plane) = (&compiled.map, &compiled.plane);
@@ -379,6 +394,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 p.origin_lon,
                 p.projection.name()
             );
+            println!("map version {}", map_version_text(info.map_version));
             println!("spacing     {} m", info.spacing_m);
             println!("geometry    {}", info.geometry);
             println!("lanes       {}", info.lanes);

@@ -193,6 +193,65 @@ fn compile_refuses_an_unmarked_offset_scale_off_the_road() {
     }
 }
 
+/// `--map-version N` goes into the tile (and into a grid's manifest and every cell), and
+/// `inspect` prints it; a version TOML cannot hold, or not a number, is refused before anything
+/// is written.
+#[test]
+fn compile_records_the_map_version_inspect_prints() {
+    let dir = tempfile::tempdir().unwrap();
+    let inspected = |path: &Path| {
+        let out = lanealign_map(&["inspect", path.to_str().unwrap()]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    let tile = dir.path().join("small.tile");
+    let out = compile_small(dir.path(), &[]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = inspected(&tile);
+    assert!(
+        text.contains("map version 0 (none given: compile --map-version N)\n"),
+        "{text}"
+    );
+    let out = compile_small(dir.path(), &["--map-version", "20261207"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(inspected(&tile).contains("map version 20261207\n"));
+    let grid = dir.path().join("grid");
+    let osm = dir.path().join("small.osm");
+    let args = [
+        "compile",
+        osm.to_str().unwrap(),
+        "--grid",
+        "100",
+        "--map-version",
+        "31",
+        "-o",
+        grid.to_str().unwrap(),
+    ];
+    let out = lanealign_map(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(inspected(&grid).contains("map version 31\n"));
+    let opened = lanealign_core::grid::Grid::open(&grid).unwrap();
+    for key in opened.cells() {
+        let bytes = std::fs::read(opened.cell_path(key)).unwrap();
+        let info = lanealign_core::tile::read_info(Path::new("cell"), &bytes).unwrap();
+        assert_eq!(info.map_version, 31);
+    }
+    std::fs::remove_file(&tile).unwrap();
+    assert_compile_refuses(
+        dir.path(),
+        "--map-version",
+        &["9223372036854775808"],
+        &["error: --map-version: map version 9223372036854775808: at most 9223372036854775807"],
+    );
+    for value in ["-1", "v2"] {
+        let out = compile_small(dir.path(), &[&format!("--map-version={value}")]);
+        assert_eq!(out.status.code(), Some(2), "{value}: a usage error");
+        let said = format!("invalid value '{value}' for '--map-version <N>'");
+        assert!(stderr(&out).contains(&said), "{}", stderr(&out));
+        assert!(!tile.exists());
+    }
+}
+
 /// An output that names an input (itself, or through a link) is refused before anything is
 /// read, and the input is left as it was: the output replaces its file whole.
 #[test]

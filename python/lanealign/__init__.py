@@ -176,6 +176,7 @@ def compile_map(
     margin: float = 50.0,
     classes: Optional[str] = None,
     sign: Optional[str] = None,
+    map_version: int = 0,
 ) -> dict:
     """Compile road data into a lane tile, as ``lanealign-map compile`` does.
 
@@ -187,9 +188,11 @@ def compile_map(
     ``margin`` metres of their squares, as ``lanealign-map compile --grid`` writes (``correct``
     takes it as ``tile``). ``classes``: comma-separated highway classes to derive lanes from
     (``None``: motorway to living_street and their links). ``sign``: a secret key file from
-    ``lanealign-map keygen``; the tile (a grid's cells and manifest) is signed with it. Returns
-    the map's ``lanes``, ``points``, ``lane_km`` and ``bytes`` (and ``cells`` for a grid, and
-    ``signer``, the public key in hex, when signed).
+    ``lanealign-map keygen``; the tile (a grid's cells and manifest) is signed with it.
+    ``map_version``: the build's number for this map (0 to 2**63 - 1, as ``--map-version``); a
+    daemon with ``min_map_version`` refuses older maps. Returns the map's ``lanes``, ``points``,
+    ``lane_km``, ``bytes`` and ``map_version`` (and ``cells`` for a grid, and ``signer``, the
+    public key in hex, when signed).
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
@@ -205,6 +208,7 @@ def compile_map(
         margin=margin,
         classes=classes,
         sign=None if sign is None else str(sign),
+        map_version=map_version,
     )
 
 

@@ -491,7 +491,7 @@ fn asymmetric_entry(covariance: &[[f64; 3]; 3]) -> Option<(usize, usize)> {
 /// it holds.
 #[allow(clippy::too_many_arguments)]
 #[pyfunction]
-#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE, grid=None, margin=50.0, classes=None, sign=None))]
+#[pyo3(signature = (inputs, output, *, origin=None, projection="tangent", spacing=3.0, traffic="right", unmarked_offset_scale=UNMARKED_OFFSET_SCALE, grid=None, margin=50.0, classes=None, sign=None, map_version=0))]
 fn compile_map<'py>(
     py: Python<'py>,
     inputs: Vec<PathBuf>,
@@ -505,6 +505,7 @@ fn compile_map<'py>(
     margin: f64,
     classes: Option<&str>,
     sign: Option<PathBuf>,
+    map_version: u64,
 ) -> PyResult<Bound<'py, PyDict>> {
     if inputs.is_empty() {
         return Err(PyValueError::new_err(
@@ -515,6 +516,8 @@ fn compile_map<'py>(
         .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
     lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)
         .map_err(|e| PyValueError::new_err(format!("unmarked_offset_scale: {e}")))?;
+    tile::check_map_version(map_version)
+        .map_err(|e| PyValueError::new_err(format!("map_version: {e}")))?;
     let classes = match classes {
         Some(list) => RoadClasses::parse_list(list)
             .map_err(|e| PyValueError::new_err(format!("classes: {e}")))?,
@@ -552,6 +555,7 @@ fn compile_map<'py>(
                     cell_size_m,
                     margin_m: margin,
                     sign: key.as_ref(),
+                    map_version,
                 };
                 let done = compile_grid(&inputs, &options, &output, &grid)?;
                 let m = &done.manifest;
@@ -565,10 +569,7 @@ fn compile_map<'py>(
                 ));
             }
             let compiled = compile(&inputs, &options)?;
-            let mut bytes = compiled.tile_bytes(spacing);
-            if let Some(key) = &key {
-                tile::sign(&mut bytes, key);
-            }
+            let bytes = compiled.shipped_tile_bytes(spacing, map_version, key.as_ref())?;
             tile::write_bytes(&output, &bytes)?;
             let map = &compiled.map;
             Ok((
@@ -591,6 +592,7 @@ fn compile_map<'py>(
     if let Some(key) = &key {
         d.set_item("signer", tile::key_hex(&key.verifying_key().to_bytes()))?;
     }
+    d.set_item("map_version", map_version)?;
     Ok(d)
 }
 

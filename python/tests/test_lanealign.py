@@ -532,12 +532,14 @@ def test_compile_map_signs_as_the_command_line_signs(tmp_path):
     for name, grid in (("road.tile", []), ("grid", ["--grid", "200"])):
         cli, py = tmp_path / f"cli-{name}", tmp_path / f"py-{name}"
         out = subprocess.run([str(MAP_BIN), "compile", str(osm), "--origin", "49,8", "--classes",
-                              "residential", "--sign", str(key), *grid, "-o", str(cli)],
+                              "residential", "--sign", str(key), "--map-version", "20261207",
+                              *grid, "-o", str(cli)],
                              capture_output=True, text=True)
         assert out.returncode == 0, out.stderr
         info = lanealign.compile_map(osm, py, origin=(49.0, 8.0), classes="residential",
-                                     sign=key, grid=float(grid[1]) if grid else None)
-        assert info["signer"] == public
+                                     sign=key, grid=float(grid[1]) if grid else None,
+                                     map_version=20261207)
+        assert info["signer"] == public and info["map_version"] == 20261207
         if grid:
             files = sorted(p.relative_to(cli) for p in cli.rglob("*") if p.is_file())
             assert len(files) == info["cells"] + 1, files
@@ -558,6 +560,11 @@ def test_compile_map_signs_as_the_command_line_signs(tmp_path):
         lanealign.compile_map(osm, tmp_path / "x.tile", sign=osm)
     with pytest.raises(ValueError, match="classes: "):
         lanealign.compile_map(osm, tmp_path / "x.tile", classes="footway")
+    with pytest.raises(ValueError, match="map_version: map version 9223372036854775808: at most"):
+        lanealign.compile_map(osm, tmp_path / "x.tile", map_version=2**63)
+    with pytest.raises(OverflowError):
+        lanealign.compile_map(osm, tmp_path / "x.tile", map_version=-1)
+    assert not (tmp_path / "x.tile").exists()
 
 
 def remove_namespace_files(namespace):

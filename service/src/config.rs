@@ -57,6 +57,12 @@ pub struct Config {
     /// Not empty: the tile must carry a valid signature by one of them.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub trusted_tile_keys: Vec<String>,
+    /// The oldest map this daemon serves: a tile, or a grid's manifest, whose map version
+    /// (`lanealign-map compile --map-version N`) is below it is refused at the start, by
+    /// `check` and on SIGHUP. Default 0: any. (SIGHUP also never goes back to a map older than
+    /// the one served.)
+    #[serde(default)]
+    pub min_map_version: u64,
     /// Keep every CPU able to run within this many microseconds while the daemon runs (0 to
     /// 1000000; 0: idle CPUs poll instead of halting), through the kernel's
     /// `/dev/cpu_dma_latency` ([`crate::cpu_latency`]). Absent (the default): no request.
@@ -435,7 +441,36 @@ impl Config {
         tile: &TileInfo,
     ) -> Result<(), ConfigError> {
         self.check_signer(path, tile)?;
+        self.check_map_version(path, tile)?;
         self.check_geometry(path, sources, tile)
+    }
+
+    /// What the map is called in the messages: a tile, or a grid's manifest.
+    fn map_kind(&self) -> (&'static str, &'static str) {
+        match grid::is_grid(&self.tile) {
+            true => ("grid's manifest", "compile --grid SIZE_M"),
+            false => ("tile", "compile"),
+        }
+    }
+
+    /// Refuses a map older than [`Config::min_map_version`].
+    fn check_map_version(&self, path: &Path, tile: &TileInfo) -> Result<(), ConfigError> {
+        if tile.map_version < self.min_map_version {
+            let (what, compile) = self.map_kind();
+            return Err(ConfigError::Value {
+                path: path.to_path_buf(),
+                key: "min_map_version".into(),
+                message: format!(
+                    "{what} {} is map version {}, older than the oldest this daemon serves ({}): \
+                     an older map put in its place? Build the current one with `lanealign-map \
+                     {compile} --map-version N`",
+                    self.tile.display(),
+                    tile.map_version,
+                    self.min_map_version
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// The trusted signers' public keys, when the configuration names any (`None`: any valid
@@ -463,15 +498,12 @@ impl Config {
                     Some(key) => format!("signed by {}, which is not trusted", key_hex(&key)),
                     None => "not signed".to_string(),
                 };
-                let (what, compile) = match grid::is_grid(&self.tile) {
-                    true => ("grid's manifest", "compile --grid SIZE_M --sign KEY"),
-                    false => ("tile", "compile --sign KEY"),
-                };
+                let (what, compile) = self.map_kind();
                 return Err(ConfigError::Value {
                     path: path.to_path_buf(),
                     key: "trusted_tile_keys".into(),
                     message: format!(
-                        "{what} {} is {signed}: compile it with `lanealign-map {compile}`",
+                        "{what} {} is {signed}: compile it with `lanealign-map {compile} --sign KEY`",
                         self.tile.display()
                     ),
                 });

@@ -179,6 +179,7 @@ fn prepare_grid(
     config: &Config,
     path: &Path,
     sources: &[ResolvedSource],
+    served: Option<u64>,
 ) -> Result<(Lanes, TileInfo), DaemonError> {
     let bad = |message: String| DaemonError::Grid {
         path: config.tile.clone(),
@@ -187,6 +188,9 @@ fn prepare_grid(
     let grid = Arc::new(Grid::open(&config.tile).map_err(|e| bad(error_line(&e)))?);
     let info = grid.info();
     config.check_tile(path, sources, &info)?;
+    if let Some(served) = served {
+        not_older(&info, served).map_err(&bad)?;
+    }
     let trusted = config.trusted_keys();
     let mut starts = Vec::with_capacity(sources.len());
     for source in sources {
@@ -225,7 +229,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
     }
     let (namespace, sources) = (resolved.namespace, resolved.sources);
     if grid::is_grid(&config.tile) {
-        let (lanes, info) = prepare_grid(&config, path, &sources)?;
+        let (lanes, info) = prepare_grid(&config, path, &sources, None)?;
         return Ok(Prepared {
             path: path.to_path_buf(),
             namespace,
@@ -426,6 +430,19 @@ fn lock(namespace: &Namespace, state_dir: Option<&Path>) -> Result<Option<File>,
     }
 }
 
+/// Refuses, on SIGHUP, a map older than the one served (`served`, its map version): an older
+/// map put in the configured place, signed or not, is a rollback, not a reload.
+fn not_older(info: &TileInfo, served: u64) -> Result<(), String> {
+    if info.map_version < served {
+        return Err(format!(
+            "map version {} is older than the served map's {served}: SIGHUP never goes back to an \
+             older map (build the one wanted with a larger --map-version, or restart the daemon)",
+            info.map_version
+        ));
+    }
+    Ok(())
+}
+
 /// The tile's (or a grid's manifest's) signer for the log: its public key, or `unsigned`.
 fn signer_of(info: &TileInfo) -> String {
     info.signer
@@ -451,20 +468,23 @@ fn notify(states: &[sd_notify::NotifyState<'_>]) {
     }
 }
 
-/// Loads the configured tile again, checks it against every source, and hands it to the
-/// workers for their new sessions. True when it did.
+/// Loads the configured tile again, checks it against every source and against the map
+/// version served (`served`, updated), and hands it to the workers for their new sessions.
+/// True when it did.
 fn reload(
     config: &Config,
     path: &Path,
     sources: &[ResolvedSource],
     workers: &[Worker],
     loader_threads: &mut Vec<std::thread::JoinHandle<()>>,
+    served: &mut u64,
 ) -> bool {
     tell_config_changes(config, path);
     if grid::is_grid(&config.tile) {
-        return match reload_grid(config, path, sources, workers) {
-            Ok(handle) => {
+        return match reload_grid(config, path, sources, workers, *served) {
+            Ok((handle, map_version)) => {
                 loader_threads.push(handle);
+                *served = map_version;
                 true
             }
             Err(e) => {
@@ -477,8 +497,9 @@ fn reload(
     let checked = loaded.and_then(|(map, info)| {
         config
             .check_tile(path, sources, &info)
-            .map_err(|e| error_line(&e))
-            .map(|()| (Arc::new(map), info))
+            .map_err(|e| error_line(&e))?;
+        not_older(&info, *served)?;
+        Ok((Arc::new(map), info))
     });
     match checked {
         Ok((map, info)) => {
@@ -489,7 +510,8 @@ fn reload(
                     fingerprint: source_fingerprint(source, &info),
                 });
             }
-            tracing::info!(tile = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), signer = %signer_of(&info), "tile reloaded on SIGHUP: new sessions use it");
+            tracing::info!(tile = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), signer = %signer_of(&info), map_version = info.map_version, "tile reloaded on SIGHUP: new sessions use it");
+            *served = info.map_version;
             true
         }
         Err(e) => {
@@ -525,14 +547,18 @@ type Worker = (
 
 /// Opens the configured grid again (its manifest and the cells around each source's anchor,
 /// checked as at start), starts a loader for it and hands both to the workers for their new
-/// sessions; running sessions keep the grid and loader they have. The new loader's thread.
+/// sessions; running sessions keep the grid and loader they have. A grid older than the map
+/// version served (`served`) is refused before any cell is read. The new loader's thread and
+/// the new grid's map version.
 fn reload_grid(
     config: &Config,
     path: &Path,
     sources: &[ResolvedSource],
     workers: &[Worker],
-) -> Result<std::thread::JoinHandle<()>, String> {
-    let (lanes, info) = prepare_grid(config, path, sources).map_err(|e| error_line(&e))?;
+    served: u64,
+) -> Result<(std::thread::JoinHandle<()>, u64), String> {
+    let (lanes, info) =
+        prepare_grid(config, path, sources, Some(served)).map_err(|e| error_line(&e))?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());
     };
@@ -546,8 +572,8 @@ fn reload_grid(
             fingerprint: source_fingerprint(source, &info),
         });
     }
-    tracing::info!(grid = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), signer = %signer_of(&info), "grid reloaded on SIGHUP: new sessions use it");
-    Ok(handle)
+    tracing::info!(grid = %config.tile.display(), lanes = info.lanes, checksum = format_args!("{:016x}", info.checksum), signer = %signer_of(&info), map_version = info.map_version, "grid reloaded on SIGHUP: new sessions use it");
+    Ok((handle, info.map_version))
 }
 
 /// Runs until SIGINT or SIGTERM: returns each source's summary. Fails, stopping every worker,
@@ -600,6 +626,7 @@ pub fn run(
         points = info.points,
         checksum = format_args!("{:016x}", info.checksum),
         signer = %signer_of(&info),
+        map_version = info.map_version,
         namespace = %namespace,
         state_dir = %state_dir.as_ref().map_or("(no journal)".into(), |d| d.display().to_string()),
         "tile loaded"
@@ -736,6 +763,7 @@ pub fn run(
             sd_notify::NotifyState::Status(&format!("serving {} sources", workers.len())),
         ]);
         let mut refused = BTreeSet::new();
+        let mut served = info.map_version;
         loop {
             // A signal handled by this thread ends the sleep early (SIGINT or SIGTERM: a request
             // to stop; SIGHUP: to reload); one handled by another thread is seen when it ends. An
@@ -746,7 +774,14 @@ pub fn run(
                 break;
             }
             if hangup.swap(false, Ordering::Relaxed)
-                && reload(&config, &path, &sources, &workers, &mut loader_threads)
+                && reload(
+                    &config,
+                    &path,
+                    &sources,
+                    &workers,
+                    &mut loader_threads,
+                    &mut served,
+                )
             {
                 tile_watch = TileWatch::new(&watched);
             }

@@ -360,6 +360,7 @@ mod tests {
             cell_size_m: 100.0,
             margin_m: 50.0,
             sign: None,
+            map_version: 0,
         };
         grid::write(dir, &map, &spec, 1).unwrap();
         let grid = Arc::new(Grid::open(dir).unwrap());

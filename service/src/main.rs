@@ -83,8 +83,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let signed = prepared.tile.signer.map_or("unsigned".into(), |key| {
                 format!("signed by {}", lanealign_core::tile::key_hex(&key))
             });
+            let version = prepared.tile.map_version;
             println!(
-                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {}; {signed}){latency}",
+                "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {}; {signed}; map version {version}){latency}",
                 path.display(),
                 prepared.sources.len(),
                 prepared.namespace,

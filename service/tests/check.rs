@@ -163,7 +163,10 @@ fn trusted_keys_admit_only_tiles_their_holders_signed() {
     let out = with_keys("ours.tile", &format!("\"{trusted}\""));
     assert!(out.status.success(), "{}", stderr(&out));
     let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(said.contains(&format!("; signed by {trusted})")), "{said}");
+    assert!(
+        said.contains(&format!("; signed by {trusted}; map version 0)")),
+        "{said}"
+    );
     // Without trusted keys, any valid tile loads, signed or not.
     assert!(with_keys("theirs.tile", "").status.success());
     assert!(with_keys("t.tile", "").status.success());
@@ -219,6 +222,7 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
             cell_size_m: 50.0,
             margin_m: 10.0,
             sign: key,
+            map_version: 0,
         };
         grid::write(&dir.path().join(name), &map, &spec, 1).unwrap();
     }
@@ -250,9 +254,12 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
     let out = with_keys("ours", &keys);
     assert!(out.status.success(), "{}", stderr(&out));
     let said = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(said.contains(&format!("; signed by {trusted})")), "{said}");
+    assert!(
+        said.contains(&format!("; signed by {trusted}; map version 0)")),
+        "{said}"
+    );
     let said = String::from_utf8_lossy(&with_keys("none", "").stdout).to_string();
-    assert!(said.contains("; unsigned)"), "{said}");
+    assert!(said.contains("; unsigned; map version 0)"), "{said}");
     for grid in ["theirs", "none", "bare", "mixed"] {
         assert!(with_keys(grid, "").status.success(), "{grid}, no keys");
     }
@@ -269,6 +276,70 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
         assert!(!out.status.success(), "{grid} must be refused");
         let why = why.replace("{bare}", &bare.display().to_string());
         assert!(stderr(&out).contains(&why), "{grid}: {}", stderr(&out));
+    }
+}
+
+/// `min_map_version` refuses a tile or a grid older than it (an older map put in the
+/// configured place: a signature says who built a map, the version which build), and `check`
+/// says which version it found.
+#[test]
+fn min_map_version_refuses_older_maps() {
+    use lanealign_core::grid::{self, GridSpec};
+    use lanealign_core::tile;
+    let dir = tempfile::tempdir().unwrap();
+    let lanes = vec![Lane::new(
+        1,
+        (0..10).map(|i| [i as f64 * 3.0, 0.0]).collect(),
+    )];
+    let map = LaneMap::new(&lanes).unwrap();
+    let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
+    for version in [4, 5, 6] {
+        let mut bytes = tile::encode(&map, &plane, 3.0, &LaneGeometry::default());
+        tile::set_map_version(&mut bytes, version).unwrap();
+        tile::write_bytes(&dir.path().join(format!("v{version}.tile")), &bytes).unwrap();
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &LaneGeometry::default(),
+            cell_size_m: 50.0,
+            margin_m: 10.0,
+            sign: None,
+            map_version: version,
+        };
+        grid::write(&dir.path().join(format!("g{version}")), &map, &spec, 1).unwrap();
+    }
+    let config = dir.path().join("d.toml");
+    let with_floor = |map: &str, floor: &str| {
+        let text = CONFIG.replace("t.tile", map);
+        std::fs::write(&config, format!("{floor}\n{text}")).unwrap();
+        check(&config)
+    };
+    for map in ["v4.tile", "g4"] {
+        let out = with_floor(map, "");
+        assert!(out.status.success(), "{map}: no floor: {}", stderr(&out));
+        let said = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(said.contains("; unsigned; map version 4)"), "{said}");
+    }
+    for (map, what) in [("v4.tile", "tile"), ("g4", "grid's manifest")] {
+        let out = with_floor(map, "min_map_version = 5");
+        assert!(!out.status.success(), "{map} must be refused");
+        let why = format!(
+            "min_map_version: {what} {} is map version 4, older than the oldest this daemon serves (5)",
+            dir.path().join(map).display()
+        );
+        assert!(stderr(&out).contains(&why), "{map}: {}", stderr(&out));
+    }
+    for map in ["v5.tile", "v6.tile", "g5", "g6"] {
+        let out = with_floor(map, "min_map_version = 5");
+        assert!(out.status.success(), "{map}: {}", stderr(&out));
+    }
+    for (floor, why) in [
+        ("min_map_version = -1", "min_map_version"),
+        ("min_map_version = \"5\"", "min_map_version"),
+    ] {
+        let out = with_floor("v6.tile", floor);
+        assert!(!out.status.success(), "{floor} must be refused");
+        assert!(stderr(&out).contains(why), "{floor}: {}", stderr(&out));
     }
 }
 

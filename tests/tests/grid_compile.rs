@@ -55,13 +55,14 @@ fn both_grids(inputs: &[PathBuf], cell_size_m: f64, out: &Path) -> (Reading, Pat
         cell_size_m,
         margin_m: 50.0,
         sign: None,
+        map_version: 20_261_207,
     };
     let streamed = out.join("streamed");
     let done = compile_grid(inputs, &options, &streamed, &grid).unwrap();
     let in_memory = out.join("in_memory");
     let compiled = compile(inputs, &options).unwrap();
     compiled
-        .write_grid(&in_memory, 3.0, cell_size_m, 50.0, None)
+        .write_grid(&in_memory, 3.0, cell_size_m, 50.0, None, grid.map_version)
         .unwrap();
     (done.reading, streamed, in_memory)
 }
@@ -90,6 +91,13 @@ fn a_streamed_pbf_grid_equals_the_grid_of_the_map_in_memory() {
         let out = dir.path().join(format!("case{k}"));
         let (reading, streamed, in_memory) = both_grids(inputs, *cell, &out);
         assert_eq!(reading, Reading::Streamed, "case {k}");
+        let grid = lanealign_core::grid::Grid::open(&streamed).unwrap();
+        let first = grid.cells().next().unwrap();
+        assert_eq!(grid.info().map_version, 20_261_207, "case {k}");
+        assert!(
+            grid.load_cell(first).is_ok(),
+            "case {k}: a cell of the version"
+        );
         let (a, b) = (files(&streamed), files(&in_memory));
         assert!(a.len() > 10, "case {k}: {} files", a.len());
         assert_eq!(
@@ -170,6 +178,7 @@ fn a_way_or_a_node_twice_in_one_input_is_refused() {
         cell_size_m: 100.0,
         margin_m: 50.0,
         sign: None,
+        map_version: 0,
     };
     let out = dir.path().join("grid");
     let err = compile_grid(&[pbf], &CompileOptions::default(), &out, &grid)

@@ -43,6 +43,7 @@ fn every_shared_run_on_a_grid_equals_the_whole_map_bit_for_bit() {
                 cell_size_m: 200.0,
                 margin_m: 50.0,
                 sign: None,
+                map_version: 0,
             };
             grid::write(&folder, &compiled.map, &spec, 2).unwrap();
             let grid = Arc::new(Grid::open(&folder).unwrap());

@@ -164,6 +164,7 @@ pub fn kitti_setup_on(data: &Path, sources: &[(&str, &str)], cell_size_m: Option
                 cell_size_m,
                 margin_m: 50.0,
                 sign: None,
+                map_version: 0,
             };
             grid::write(&folder, &compiled.map, &spec, 2).unwrap();
             folder
@@ -193,6 +194,12 @@ pub fn write_town_tile(map: &LaneMap, tile: &Path) {
 /// of 100 m cells.
 pub fn write_town_maps(map: &LaneMap, tile: &Path, grid: &Path) {
     write_town_tile(map, tile);
+    write_town_grid(map, grid, 0);
+}
+
+/// Writes `map` (in the town's plane, with its lane geometry) as the grid `grid` of 100 m
+/// cells, built as map version `map_version`.
+pub fn write_town_grid(map: &LaneMap, grid: &Path, map_version: u64) {
     let (plane, geometry) = (synthetic::town_plane(), synthetic::town_geometry());
     let spec = GridSpec {
         plane: &plane,
@@ -201,6 +208,7 @@ pub fn write_town_maps(map: &LaneMap, tile: &Path, grid: &Path) {
         cell_size_m: 100.0,
         margin_m: 50.0,
         sign: None,
+        map_version,
     };
     grid::write(grid, map, &spec, 2).unwrap();
 }

@@ -53,7 +53,7 @@ pub use write::{
 /// The manifest's file name in a grid folder.
 pub const MANIFEST: &str = "manifest.toml";
 /// The format version of the manifest this build reads and writes.
-pub const MANIFEST_FORMAT: u32 = 2;
+pub const MANIFEST_FORMAT: u32 = 3;
 /// The largest manifest this build reads (bytes): about 300,000 cells.
 pub const MAX_MANIFEST_BYTES: u64 = 32 << 20;
 
@@ -121,6 +121,9 @@ pub struct CellEntry {
 pub struct Manifest {
     /// Manifest format version ([`MANIFEST_FORMAT`]).
     pub format: u32,
+    /// The builder's number for this build of the map (0: none given); every cell carries the
+    /// same ([`tile::set_map_version`]).
+    pub map_version: u64,
     /// Side of a cell's square (metres).
     pub cell_size_m: f64,
     /// How far beyond its square a cell holds lane points (metres).
@@ -283,6 +286,7 @@ impl Grid {
             )));
         }
         check_spec(manifest.cell_size_m, manifest.margin_m).map_err(|e| bad(e.to_string()))?;
+        tile::check_map_version(manifest.map_version).map_err(|e| bad(e.to_string()))?;
         // What every cell's header must also hold (`tile::read_info`), named here rather than
         // as every cell refused for not being the grid's.
         if !tile::is_recorded_spacing(manifest.spacing_m) {
@@ -397,6 +401,7 @@ impl Grid {
             payload_len: m.cells.iter().map(|c| c.bytes).sum(),
             checksum: self.checksum,
             signer: self.signer,
+            map_version: m.map_version,
             cell: None,
         }
     }
@@ -504,6 +509,12 @@ impl Grid {
             || info.geometry != self.geometry
         {
             return Err("its plane, spacing or lane geometry is not the grid's".into());
+        }
+        if info.map_version != self.manifest.map_version {
+            return Err(format!(
+                "map version {}, the manifest's is {}: the cell is another build's",
+                info.map_version, self.manifest.map_version
+            ));
         }
         if info.cell != Some(square) {
             return Err(format!(
@@ -674,9 +685,74 @@ mod tests {
             cell_size_m: cell,
             margin_m: margin,
             sign,
+            map_version: 0,
         };
         write(dir, map, &spec, 2).unwrap();
         Grid::open(dir).unwrap()
+    }
+
+    /// The manifest and every cell carry the build's map version; a manifest edited to claim
+    /// another build is refused at open when signed, and at its first cell when not.
+    #[test]
+    fn a_manifest_claiming_another_build_is_refused() {
+        let plane = MapPlane::new(Projection::Tangent, 48.98, 8.39);
+        let key = tile::SigningKey::from_bytes(&[9; 32]);
+        for sign in [None, Some(&key)] {
+            let dir = tempfile::tempdir().unwrap();
+            let spec = GridSpec {
+                plane: &plane,
+                spacing_m: 3.0,
+                geometry: &LaneGeometry::default(),
+                cell_size_m: 50.0,
+                margin_m: 10.0,
+                sign,
+                map_version: 5,
+            };
+            write(dir.path(), &town(), &spec, 2).unwrap();
+            let grid = Grid::open(dir.path()).unwrap();
+            assert_eq!(grid.info().map_version, 5);
+            let first = grid.cells().next().unwrap();
+            assert!(grid.load_cell(first).is_ok());
+            let cell = std::fs::read(grid.cell_path(first)).unwrap();
+            assert_eq!(
+                tile::read_info(Path::new("c"), &cell).unwrap().map_version,
+                5
+            );
+            let path = dir.path().join(MANIFEST);
+            let text = std::fs::read_to_string(&path).unwrap();
+            assert!(text.contains("\nmap_version = 5\n"), "{text}");
+            std::fs::write(&path, text.replace("map_version = 5", "map_version = 6")).unwrap();
+            match sign {
+                Some(_) => {
+                    let e = Grid::open(dir.path()).unwrap_err().to_string();
+                    assert!(e.contains("signature"), "{e}");
+                }
+                None => {
+                    let grid = Grid::open(dir.path()).unwrap();
+                    assert_eq!(grid.info().map_version, 6);
+                    let Err(e) = grid.load_cell(first) else {
+                        panic!("a cell of version 5 under a manifest of version 6 was loaded");
+                    };
+                    let e = e.to_string();
+                    assert!(e.contains("map version 5, the manifest's is 6"), "{e}");
+                }
+            }
+        }
+        let spec = GridSpec {
+            plane: &plane,
+            spacing_m: 3.0,
+            geometry: &LaneGeometry::default(),
+            cell_size_m: 50.0,
+            margin_m: 10.0,
+            sign: None,
+            map_version: tile::MAX_MAP_VERSION + 1,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let e = write(dir.path(), &town(), &spec, 2)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("map version"), "{e}");
+        assert!(!dir.path().join("cells").exists(), "refused before writing");
     }
 
     /// A grid compiled with a key signs its manifest as well as its cells, and an edit of the
@@ -955,6 +1031,7 @@ mod tests {
             cell_size_m: 100.0,
             margin_m: 10.0,
             sign: None,
+            map_version: 0,
         };
         let cells = |n: i32| -> Vec<CellEntry> {
             (0..n)
@@ -991,7 +1068,10 @@ mod tests {
         let good = std::fs::read_to_string(&path).unwrap();
         for (from, to, what) in [
             ("cell_size_m = 50.0", "cell_size_m = 0.0", "cell size"),
-            ("format = 2", "format = 7", "format 7"),
+            ("format = 3", "format = 7", "format 7"),
+            ("map_version = 0", "map_version = -1", "integer `-1`, expected u64"),
+            ("map_version = 0", "map_version = 1.5", "expected u64"),
+            ("map_version = 0\n", "", "missing field `map_version`"),
             ("traffic = \"right\"", "traffic = \"up\"", "traffic"),
             (
                 "margin_m = 10.0",

@@ -27,6 +27,9 @@ pub struct GridSpec<'a> {
     pub margin_m: f64,
     /// Sign every cell, and the manifest, with this key.
     pub sign: Option<&'a SigningKey>,
+    /// The builder's number for this build of the map, recorded in the manifest and every cell
+    /// (0: none given; at most [`tile::MAX_MAP_VERSION`]).
+    pub map_version: u64,
 }
 
 /// Writes `map` as a grid into folder `dir`: every cell, then the manifest (each atomically;
@@ -38,6 +41,7 @@ pub fn write(
     spec: &GridSpec,
     encode_threads: usize,
 ) -> Result<Manifest, GridError> {
+    tile::check_map_version(spec.map_version)?;
     let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
     let cells_dir = create_cells_dir(dir)?;
     let chunk = cells.len().div_ceil(encode_threads.max(1)).max(1);
@@ -208,6 +212,7 @@ impl MapSummary {
 fn manifest_of(summary: &MapSummary, spec: &GridSpec, cells: Vec<CellEntry>) -> Manifest {
     Manifest {
         format: MANIFEST_FORMAT,
+        map_version: spec.map_version,
         cell_size_m: spec.cell_size_m,
         margin_m: spec.margin_m,
         projection: spec.plane.projection.name().into(),
@@ -233,6 +238,7 @@ pub type EncodedGrid = (Manifest, Vec<(CellKey, Vec<u8>)>);
 /// A grid of `map` in memory, on the caller's thread: its manifest and each cell's tile bytes
 /// (what [`write`](fn@write) writes, for tools and tests that do not need files).
 pub fn encode(map: &LaneMap, spec: &GridSpec) -> Result<EncodedGrid, GridError> {
+    tile::check_map_version(spec.map_version)?;
     let cells = partition(map, spec.cell_size_m, spec.margin_m)?;
     let mut entries = Vec::with_capacity(cells.len());
     let mut bytes = Vec::with_capacity(cells.len());
@@ -256,6 +262,7 @@ fn encode_one(cell: &CellContent, spec: &GridSpec) -> Result<(CellEntry, Vec<u8>
         spec.spacing_m,
         spec.geometry,
     );
+    tile::set_map_version(&mut bytes, spec.map_version)?;
     if let Some(key) = spec.sign {
         tile::sign(&mut bytes, key);
     }
