@@ -33,6 +33,26 @@ fn write_tile(path: &Path, scale: f64) {
     lanealign_core::tile::write(path, &map, &plane, 3.0, &geometry).unwrap();
 }
 
+/// `map` (in the plane of [`write_tile`]'s tile) as a grid of 50 m cells in folder `dir`,
+/// signed with `sign`, built as `map_version`.
+fn write_grid(
+    dir: &Path,
+    map: &LaneMap,
+    sign: Option<&lanealign_core::tile::SigningKey>,
+    map_version: u64,
+) {
+    let spec = lanealign_core::grid::GridSpec {
+        plane: &MapPlane::new(Projection::Tangent, 49.0, 8.4),
+        spacing_m: 3.0,
+        geometry: &LaneGeometry::default(),
+        cell_size_m: 50.0,
+        margin_m: 10.0,
+        sign,
+        map_version,
+    };
+    lanealign_core::grid::write(dir, map, &spec, 1).unwrap();
+}
+
 const CONFIG: &str = r#"
 tile = "t.tile"
 [[source]]
@@ -193,7 +213,7 @@ fn trusted_keys_admit_only_tiles_their_holders_signed() {
 /// trusted key signed.
 #[test]
 fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
-    use lanealign_core::grid::{self, GridSpec};
+    use lanealign_core::grid;
     use lanealign_core::tile::{key_hex, SigningKey};
     let dir = tempfile::tempdir().unwrap();
     let lanes: Vec<Lane> = (0..3)
@@ -205,7 +225,6 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
         })
         .collect();
     let map = LaneMap::new(&lanes).unwrap();
-    let plane = MapPlane::new(Projection::Tangent, 49.0, 8.4);
     let (builder, stranger) = (
         SigningKey::from_bytes(&[3; 32]),
         SigningKey::from_bytes(&[4; 32]),
@@ -215,16 +234,7 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
         ("theirs", Some(&stranger)),
         ("none", None),
     ] {
-        let spec = GridSpec {
-            plane: &plane,
-            spacing_m: 3.0,
-            geometry: &LaneGeometry::default(),
-            cell_size_m: 50.0,
-            margin_m: 10.0,
-            sign: key,
-            map_version: 0,
-        };
-        grid::write(&dir.path().join(name), &map, &spec, 1).unwrap();
+        write_grid(&dir.path().join(name), &map, key, 0);
     }
     // Our cells under our manifest without its signature lines ("bare"), and the stranger's
     // cells under their manifest signed again by us ("mixed").
@@ -284,7 +294,6 @@ fn trusted_keys_admit_only_grids_whose_manifest_their_holders_signed() {
 /// says which version it found.
 #[test]
 fn min_map_version_refuses_older_maps() {
-    use lanealign_core::grid::{self, GridSpec};
     use lanealign_core::tile;
     let dir = tempfile::tempdir().unwrap();
     let lanes = vec![Lane::new(
@@ -297,16 +306,7 @@ fn min_map_version_refuses_older_maps() {
         let mut bytes = tile::encode(&map, &plane, 3.0, &LaneGeometry::default());
         tile::set_map_version(&mut bytes, version).unwrap();
         tile::write_bytes(&dir.path().join(format!("v{version}.tile")), &bytes).unwrap();
-        let spec = GridSpec {
-            plane: &plane,
-            spacing_m: 3.0,
-            geometry: &LaneGeometry::default(),
-            cell_size_m: 50.0,
-            margin_m: 10.0,
-            sign: None,
-            map_version: version,
-        };
-        grid::write(&dir.path().join(format!("g{version}")), &map, &spec, 1).unwrap();
+        write_grid(&dir.path().join(format!("g{version}")), &map, None, version);
     }
     let config = dir.path().join("d.toml");
     let with_floor = |map: &str, floor: &str| {

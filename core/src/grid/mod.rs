@@ -677,6 +677,19 @@ mod tests {
         margin: f64,
         sign: Option<&tile::SigningKey>,
     ) -> Grid {
+        write_versioned(map, dir, [cell, margin], sign, 0).unwrap();
+        Grid::open(dir).unwrap()
+    }
+
+    /// Writes `map` as a grid of `[cell size, margin]` (metres) in the tests' plane, signed with
+    /// `sign`, as build `map_version`.
+    fn write_versioned(
+        map: &LaneMap,
+        dir: &Path,
+        [cell, margin]: [f64; 2],
+        sign: Option<&tile::SigningKey>,
+        map_version: u64,
+    ) -> Result<Manifest, GridError> {
         let plane = MapPlane::new(Projection::Tangent, 48.98, 8.39);
         let spec = GridSpec {
             plane: &plane,
@@ -685,30 +698,19 @@ mod tests {
             cell_size_m: cell,
             margin_m: margin,
             sign,
-            map_version: 0,
+            map_version,
         };
-        write(dir, map, &spec, 2).unwrap();
-        Grid::open(dir).unwrap()
+        write(dir, map, &spec, 2)
     }
 
     /// The manifest and every cell carry the build's map version; a manifest edited to claim
     /// another build is refused at open when signed, and at its first cell when not.
     #[test]
     fn a_manifest_claiming_another_build_is_refused() {
-        let plane = MapPlane::new(Projection::Tangent, 48.98, 8.39);
         let key = tile::SigningKey::from_bytes(&[9; 32]);
         for sign in [None, Some(&key)] {
             let dir = tempfile::tempdir().unwrap();
-            let spec = GridSpec {
-                plane: &plane,
-                spacing_m: 3.0,
-                geometry: &LaneGeometry::default(),
-                cell_size_m: 50.0,
-                margin_m: 10.0,
-                sign,
-                map_version: 5,
-            };
-            write(dir.path(), &town(), &spec, 2).unwrap();
+            write_versioned(&town(), dir.path(), [50.0, 10.0], sign, 5).unwrap();
             let grid = Grid::open(dir.path()).unwrap();
             assert_eq!(grid.info().map_version, 5);
             let first = grid.cells().next().unwrap();
@@ -738,17 +740,9 @@ mod tests {
                 }
             }
         }
-        let spec = GridSpec {
-            plane: &plane,
-            spacing_m: 3.0,
-            geometry: &LaneGeometry::default(),
-            cell_size_m: 50.0,
-            margin_m: 10.0,
-            sign: None,
-            map_version: tile::MAX_MAP_VERSION + 1,
-        };
         let dir = tempfile::tempdir().unwrap();
-        let e = write(dir.path(), &town(), &spec, 2)
+        let beyond = tile::MAX_MAP_VERSION + 1;
+        let e = write_versioned(&town(), dir.path(), [50.0, 10.0], None, beyond)
             .unwrap_err()
             .to_string();
         assert!(e.contains("map version"), "{e}");
@@ -1069,7 +1063,11 @@ mod tests {
         for (from, to, what) in [
             ("cell_size_m = 50.0", "cell_size_m = 0.0", "cell size"),
             ("format = 3", "format = 7", "format 7"),
-            ("map_version = 0", "map_version = -1", "integer `-1`, expected u64"),
+            (
+                "map_version = 0",
+                "map_version = -1",
+                "integer `-1`, expected u64",
+            ),
             ("map_version = 0", "map_version = 1.5", "expected u64"),
             ("map_version = 0\n", "", "missing field `map_version`"),
             ("traffic = \"right\"", "traffic = \"up\"", "traffic"),
