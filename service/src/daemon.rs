@@ -270,7 +270,15 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
 /// that exists must be one this process may write in (not a file, not on a read-only file
 /// system).
 fn check_state_dir(dir: &Path) -> Result<(), DaemonError> {
-    let existing = dir.ancestors().find(|p| p.exists()).unwrap_or(dir);
+    // A relative path's last ancestor is "", the working folder, which `exists` calls absent.
+    let existing = dir
+        .ancestors()
+        .map(|p| match p.as_os_str().is_empty() {
+            true => Path::new("."),
+            false => p,
+        })
+        .find(|p| p.exists())
+        .unwrap_or(dir);
     let error = |source: std::io::Error| DaemonError::State {
         path: existing.to_path_buf(),
         source,

@@ -86,6 +86,31 @@ fn a_good_config_and_tile_pass() {
     assert!(out.status.success(), "{}", stderr(&out));
 }
 
+/// A configuration named by its bare file name (`--config d.toml`, run in its folder) whose
+/// relative `state_dir` does not exist yet passes, as it does named `./d.toml` or by its whole
+/// path: until 2026-12-07 the state folder's nearest existing ancestor was looked for up to
+/// `""`, which does not exist as a path, and `check` and the start refused with `st/default: not
+/// a directory`.
+#[test]
+fn a_relative_state_dir_beside_a_bare_config_name_passes() {
+    let dir = tempfile::tempdir().unwrap();
+    write_tile(&dir.path().join("t.tile"), 0.5);
+    std::fs::write(
+        dir.path().join("d.toml"),
+        format!("state_dir = \"state\"\n{CONFIG}"),
+    )
+    .unwrap();
+    for name in ["d.toml", "./d.toml"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_lanealignd"))
+            .args(["check", "--config", name])
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{name}: {}", stderr(&out));
+    }
+    assert!(!dir.path().join("state").exists(), "check makes nothing");
+}
+
 #[test]
 fn bad_configs_and_tiles_fail_naming_the_problem() {
     let dir = tempfile::tempdir().unwrap();
