@@ -201,7 +201,10 @@ pub struct ResolvedSource {
 /// A configuration that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    /// The file could not be read.
+    /// The file could not be read, is not a regular file, or is longer than 1 MiB.
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// The file is not UTF-8 text.
     #[error("{path}: {source}")]
     Io {
         /// The file.
@@ -235,14 +238,7 @@ const MAX_CONFIG_BYTES: u64 = 1 << 20;
 impl Config {
     /// Reads a configuration file (at most 1 MiB, regular files only); makes `tile` absolute.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let bytes = read_regular_file(path, MAX_CONFIG_BYTES).map_err(|e| match e {
-            InputError::Io { path, source } => ConfigError::Io { path, source },
-            _ => ConfigError::Value {
-                path: path.to_path_buf(),
-                key: "(file)".into(),
-                message: format!("not a regular file of at most {MAX_CONFIG_BYTES} bytes"),
-            },
-        })?;
+        let bytes = read_regular_file(path, MAX_CONFIG_BYTES)?;
         let text = String::from_utf8(bytes).map_err(|e| ConfigError::Io {
             path: path.to_path_buf(),
             source: std::io::Error::new(std::io::ErrorKind::InvalidData, e),

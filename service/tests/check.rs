@@ -177,6 +177,22 @@ fn bad_configs_and_tiles_fail_naming_the_problem() {
     std::fs::write(&tile, bytes).unwrap();
     let err = stderr(&check(&config));
     assert!(err.contains("checksum mismatch"), "{err}");
+    // The configuration file itself: a folder, too long, not text, absent. Until 2026-12-07 the
+    // first two said `(file): not a regular file of at most 1048576 bytes` alike.
+    let long = dir.path().join("long.toml");
+    std::fs::write(&long, " ".repeat(1 << 21)).unwrap();
+    let binary = dir.path().join("binary.toml");
+    std::fs::write(&binary, b"\xff\xfe").unwrap();
+    for (path, what) in [
+        (dir.path().to_path_buf(), "not a regular file (a folder"),
+        (long, "2097152 bytes, more than the 1048576 bytes"),
+        (binary, "invalid utf-8"),
+        (dir.path().join("absent.toml"), "No such file"),
+    ] {
+        let err = stderr(&check(&path));
+        let said = format!("error: {}: {what}", path.display());
+        assert!(err.contains(&said), "{said}: {err}");
+    }
 }
 
 #[test]
