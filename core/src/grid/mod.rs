@@ -240,6 +240,35 @@ impl std::fmt::Debug for Grid {
     }
 }
 
+/// The TOML reader's complaint about `text` on one line (a manifest's error goes into one log
+/// line): the line it points at, quoted, and what is wrong (its own report spans several
+/// lines). A complaint about the whole document (a missing field, which the reader places as an
+/// empty span at its start) or about several lines names no line.
+fn toml_complaint(text: &str, e: &toml::de::Error) -> String {
+    let on_one_line = |span: &std::ops::Range<usize>| {
+        *span != (0..0)
+            && text
+                .get(span.clone())
+                .is_some_and(|part| !part.contains('\n'))
+    };
+    let at = e
+        .span()
+        .filter(on_one_line)
+        .and_then(|span| text.get(..span.start));
+    match at {
+        Some(before) => {
+            let number = before.matches('\n').count() + 1;
+            let line = text.lines().nth(number - 1).unwrap_or_default();
+            format!(
+                "line {number} ({}): {}",
+                crate::input::quote(line.trim()),
+                e.message()
+            )
+        }
+        None => e.message().to_string(),
+    }
+}
+
 /// Whether `path` is a grid folder (a folder holding a manifest) rather than a tile file.
 pub fn is_grid(path: &Path) -> bool {
     path.is_dir()
@@ -277,7 +306,7 @@ impl Grid {
         };
         let (signer, body) = signature::verify(bytes).map_err(bad)?;
         let text = std::str::from_utf8(body).map_err(|_| bad("not UTF-8 text".into()))?;
-        let manifest: Manifest = toml::from_str(text).map_err(|e| bad(e.message().to_string()))?;
+        let manifest: Manifest = toml::from_str(text).map_err(|e| bad(toml_complaint(text, &e)))?;
         if manifest.format != MANIFEST_FORMAT {
             return Err(bad(format!(
                 "manifest format {}, this build reads {MANIFEST_FORMAT}: compile the grid again \
@@ -1066,10 +1095,14 @@ mod tests {
             (
                 "map_version = 0",
                 "map_version = -1",
-                "integer `-1`, expected u64",
+                "line 2 (map_version = -1): invalid value: integer `-1`, expected u64",
             ),
             ("map_version = 0", "map_version = 1.5", "expected u64"),
-            ("map_version = 0\n", "", "missing field `map_version`"),
+            (
+                "map_version = 0\n",
+                "",
+                "manifest.toml: missing field `map_version`",
+            ),
             ("traffic = \"right\"", "traffic = \"up\"", "traffic"),
             (
                 "margin_m = 10.0",
