@@ -100,6 +100,10 @@ enum Command {
         /// every cell. What a map build checks before it ships a map to trusted_tile_keys.
         #[arg(long, value_name = "PUBLIC_KEY")]
         trusted: Vec<String>,
+        /// Print what was checked as one JSON object (for a map build's scripts: `map_version`,
+        /// `checksum`, `signer`, a grid's `cell_signers`, ...) instead of text.
+        #[arg(long, conflicts_with = "geojson")]
+        json: bool,
     },
 }
 
@@ -194,8 +198,36 @@ fn lane_properties(id: u64, info: LaneInfo, points: usize) -> serde_json::Value 
     p
 }
 
+/// What `inspect --json` prints of any map: where it lies, how it was built, and by whom.
+fn map_json(
+    kind: &str,
+    path: &std::path::Path,
+    info: &tile::TileInfo,
+    trusted: &[[u8; 32]],
+) -> serde_json::Value {
+    let g = &info.geometry;
+    serde_json::json!({
+        "kind": kind,
+        "path": path.display().to_string(),
+        "map_version": info.map_version,
+        "checksum": format!("{:016x}", info.checksum),
+        "signer": info.signer.map(|k| tile::key_hex(&k)),
+        "trusted": (!trusted.is_empty()).then_some(true),
+        "projection": info.plane.projection.name(),
+        "origin_lat": info.plane.origin_lat,
+        "origin_lon": info.plane.origin_lon,
+        "spacing_m": info.spacing_m,
+        "traffic": g.traffic.name(),
+        "road_classes": g.classes.iter().map(|c| c.name()).collect::<Vec<_>>(),
+        "unmarked_offset_scale": g.unmarked_offset_scale,
+        "lanes": info.lanes,
+        "points": info.points,
+        "bounds_m": info.bounds,
+    })
+}
+
 /// Prints a grid's manifest and checks every cell against it.
-fn inspect_grid(path: &std::path::Path, trusted: &[[u8; 32]]) -> anyhow::Result<()> {
+fn inspect_grid(path: &std::path::Path, trusted: &[[u8; 32]], json: bool) -> anyhow::Result<()> {
     let grid = grid::Grid::open(path)?;
     require_trusted(trusted, grid.signer(), &path.join(grid::MANIFEST))?;
     let m = grid.manifest();
@@ -208,6 +240,18 @@ fn inspect_grid(path: &std::path::Path, trusted: &[[u8; 32]]) -> anyhow::Result<
     }
     for c in &m.cells {
         bytes += c.bytes;
+    }
+    if json {
+        let mut doc = map_json("grid", path, &grid.info(), trusted);
+        doc["format_version"] = serde_json::json!(m.format);
+        doc["bytes"] = serde_json::json!(bytes);
+        doc["cells"] = serde_json::json!(m.cells.len());
+        doc["cell_size_m"] = serde_json::json!(m.cell_size_m);
+        doc["margin_m"] = serde_json::json!(m.margin_m);
+        doc["points_in_cells"] = serde_json::json!(points);
+        doc["cell_signers"] = serde_json::json!(signers);
+        println!("{doc}");
+        return Ok(());
     }
     println!("grid        {}", path.display());
     println!(
@@ -365,22 +409,32 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             tile: path,
             geojson,
             trusted,
+            json,
         } if grid::is_grid(&path) => {
             if geojson.is_some() {
                 bail!("--geojson takes a tile; inspect one cell of the grid: {}/cells/X_Y.tile is a cell, not a map", path.display());
             }
             let trusted = trusted_keys(&trusted)?;
-            inspect_grid(&path, &trusted)?;
+            inspect_grid(&path, &trusted, json)?;
         }
         Command::Inspect {
             tile: path,
             geojson,
             trusted,
+            json,
         } => {
             lanealign_core::input::check_outputs_apart(&[geojson.as_deref()], &[Some(&path)])?;
             let trusted = trusted_keys(&trusted)?;
             let (map, info) = tile::load(&path)?;
             require_trusted(&trusted, info.signer, &path)?;
+            if json {
+                let mut doc = map_json("tile", &path, &info, &trusted);
+                doc["format_version"] = serde_json::json!(tile::VERSION);
+                doc["bytes"] = serde_json::json!(tile::HEADER_LEN as u64 + info.payload_len);
+                doc["lane_km"] = serde_json::json!(map.lane_length_m() / 1000.0);
+                println!("{doc}");
+                return Ok(());
+            }
             let p = info.plane;
             println!("tile        {}", path.display());
             println!(

@@ -236,6 +236,32 @@ fn compile_records_the_map_version_inspect_prints() {
         let info = lanealign_core::tile::read_info(Path::new("cell"), &bytes).unwrap();
         assert_eq!(info.map_version, 31);
     }
+    // The same as JSON, for a map build's scripts.
+    let json_of = |path: &Path| {
+        let out = lanealign_map(&["inspect", path.to_str().unwrap(), "--json"]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let doc = json_of(&grid);
+    let manifest = opened.info();
+    assert_eq!(doc["kind"], "grid");
+    assert_eq!(doc["map_version"], 31);
+    assert_eq!(doc["checksum"], format!("{:016x}", manifest.checksum));
+    assert_eq!(doc["signer"], serde_json::Value::Null);
+    assert_eq!(doc["cells"], opened.cells().count());
+    assert_eq!(doc["cell_signers"], serde_json::json!([null]));
+    assert_eq!(
+        (doc["lanes"].clone(), doc["points"].clone()),
+        (manifest.lanes.into(), manifest.points.into())
+    );
+    let doc = json_of(&tile);
+    let info = lanealign_core::tile::read_info(&tile, &std::fs::read(&tile).unwrap()).unwrap();
+    assert_eq!(doc["kind"], "tile");
+    assert_eq!(doc["format_version"], lanealign_core::tile::VERSION);
+    assert_eq!(doc["map_version"], 20261207);
+    assert_eq!(doc["checksum"], format!("{:016x}", info.checksum));
+    assert_eq!(doc["road_classes"][0], "motorway");
+    assert!(doc["lane_km"].as_f64().is_some_and(|km| km > 0.0), "{doc}");
     std::fs::remove_file(&tile).unwrap();
     assert_compile_refuses(
         dir.path(),
@@ -420,6 +446,18 @@ fn keygen_and_compile_sign_make_a_tile_inspect_verifies() {
         said.contains("trusted     yes: the manifest and every cell"),
         "{said}"
     );
+    let out = lanealign_map(&["inspect", grid_arg, "--trusted", &public, "--json"]);
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (&doc["signer"], &doc["cell_signers"], &doc["trusted"]),
+        (
+            &serde_json::json!(public),
+            &serde_json::json!([public]),
+            &serde_json::json!(true)
+        )
+    );
+    let out = lanealign_map(&["inspect", grid_arg, "--trusted", &other, "--json"]);
+    assert!(out.stdout.is_empty(), "nothing printed of a map refused");
     let out = lanealign_map(&["inspect", grid_arg, "--trusted", &other]);
     assert_eq!(out.status.code(), Some(1));
     assert!(
