@@ -505,7 +505,7 @@ fn compile_map<'py>(
     margin: f64,
     classes: Option<&str>,
     sign: Option<PathBuf>,
-    map_version: u64,
+    map_version: i128,
 ) -> PyResult<Bound<'py, PyDict>> {
     if inputs.is_empty() {
         return Err(PyValueError::new_err(
@@ -516,6 +516,11 @@ fn compile_map<'py>(
         .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
     lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)
         .map_err(|e| PyValueError::new_err(format!("unmarked_offset_scale: {e}")))?;
+    let map_version = u64::try_from(map_version).map_err(|_| {
+        PyValueError::new_err(format!(
+            "map_version: {map_version}: a map version counts builds, 0 or more"
+        ))
+    })?;
     tile::check_map_version(map_version)
         .map_err(|e| PyValueError::new_err(format!("map_version: {e}")))?;
     let classes = match classes {
