@@ -146,8 +146,9 @@ pub enum TileError {
         "map version {map_version}: at most {MAX_MAP_VERSION} (the largest integer TOML holds)"
     )]
     MapVersion {
-        /// The version asked for.
-        map_version: u64,
+        /// The version asked for (wider than a version may be, so that an interface taking
+        /// larger integers, Python's, names the one it was given).
+        map_version: u128,
     },
     /// A tile of another format version.
     #[error("{path}: tile format version {found}, this build reads version {VERSION}; compile it again with this build's lanealign-map")]
@@ -316,7 +317,9 @@ pub fn set_map_version(bytes: &mut [u8], map_version: u64) -> Result<(), TileErr
 /// Refuses a map version above [`MAX_MAP_VERSION`].
 pub fn check_map_version(map_version: u64) -> Result<(), TileError> {
     if map_version > MAX_MAP_VERSION {
-        return Err(TileError::MapVersion { map_version });
+        return Err(TileError::MapVersion {
+            map_version: map_version.into(),
+        });
     }
     Ok(())
 }

@@ -516,12 +516,16 @@ fn compile_map<'py>(
         .map_err(|e| PyValueError::new_err(format!("spacing: {e}")))?;
     lanealign_core::lane_geometry::check_unmarked_offset_scale(unmarked_offset_scale)
         .map_err(|e| PyValueError::new_err(format!("unmarked_offset_scale: {e}")))?;
-    let map_version = u64::try_from(map_version).map_err(|_| {
-        PyValueError::new_err(format!(
+    if map_version < 0 {
+        return Err(PyValueError::new_err(format!(
             "map_version: {map_version}: a map version counts builds, 0 or more"
-        ))
-    })?;
-    tile::check_map_version(map_version)
+        )));
+    }
+    let map_version = u64::try_from(map_version)
+        .map_err(|_| tile::TileError::MapVersion {
+            map_version: map_version.unsigned_abs(),
+        })
+        .and_then(|v| tile::check_map_version(v).map(|()| v))
         .map_err(|e| PyValueError::new_err(format!("map_version: {e}")))?;
     let classes = match classes {
         Some(list) => RoadClasses::parse_list(list)

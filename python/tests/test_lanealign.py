@@ -562,6 +562,8 @@ def test_compile_map_signs_as_the_command_line_signs(tmp_path):
         lanealign.compile_map(osm, tmp_path / "x.tile", classes="footway")
     with pytest.raises(ValueError, match="map_version: map version 9223372036854775808: at most"):
         lanealign.compile_map(osm, tmp_path / "x.tile", map_version=2**63)
+    with pytest.raises(ValueError, match="map_version: map version 18446744073709551616: at most"):
+        lanealign.compile_map(osm, tmp_path / "x.tile", map_version=2**64)
     with pytest.raises(ValueError, match="map_version: -1: a map version counts builds, 0 or more"):
         lanealign.compile_map(osm, tmp_path / "x.tile", map_version=-1)
     assert not (tmp_path / "x.tile").exists()
