@@ -18,7 +18,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use common::*;
-use lanealign_cli::daemon_process::{daemon_binary, DaemonProcess};
+use lanealign_cli::daemon_process::{daemon_binary, DaemonProcess, DaemonProcessError};
 use lanealign_cli::replay::{replay, waited_for_place_warning, Rate};
 use lanealign_cli::synthetic;
 use lanealign_client::connection::new_session_id;
@@ -1771,12 +1771,13 @@ fn a_bad_grid_on_sighup_keeps_the_one_the_daemon_has() {
     assert!(daemon.stop().unwrap());
 }
 
-/// Always runs: SIGHUP never goes back to an older map. A tile, then a grid, of an older map
-/// version put in the configured place (a rollback: a signature would not tell, it names the
-/// builder) is refused naming both versions, and new sessions correct on the map served; a
-/// newer one is loaded, and from then on the version it replaced is the older one.
+/// Always runs: neither SIGHUP nor a restart goes back to an older map. A tile, then a grid, of
+/// an older map version put in the configured place (a rollback: a signature would not tell, it
+/// names the builder) is refused naming both versions, and new sessions correct on the map
+/// served; a newer one is loaded, and from then on the version it replaced is the older one,
+/// also for `check` and a daemon started after a kill -9, until the record is removed.
 #[test]
-fn an_older_map_on_sighup_is_refused() {
+fn an_older_map_is_refused_on_sighup_and_on_restart() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (_, odometry) = synthetic::drive(1, 42);
     let town = lanealign_core::lane_map::LaneMap::new(&synthetic::town_lanes()).unwrap();
@@ -1820,7 +1821,36 @@ fn an_older_map_on_sighup_is_refused() {
         run_replay(&setup, &name, &odometry, Rate::Max(32)) == on_moved,
         "a new session corrects on the tile served, version 6"
     );
+    // Killed, the daemon cannot be made to go back by a restart either: version 6 was recorded
+    // before it was served.
+    daemon.kill().unwrap();
+    let older = "map version 5 is older than 6, the newest this namespace's daemon has served";
+    let checked = Command::new(daemon_binary().unwrap())
+        .args(["check", "--config"])
+        .arg(&setup.config)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&checked.stderr);
+    assert!(!checked.status.success() && said.contains(older), "{said}");
+    let log = setup.dir.path().join("restart.log");
+    let restarted = DaemonProcess::start_ready(&setup.config, &log, Duration::from_secs(20));
+    let Err(DaemonProcessError::NotReady { log, .. }) = restarted else {
+        panic!("a restart on version 5 after 6 must be refused");
+    };
+    assert!(log.contains(older), "{log}");
+    let record = setup
+        .state
+        .join(&setup.namespace)
+        .join("served_map_version");
+    assert_eq!(std::fs::read_to_string(&record).unwrap(), "6\n");
+    std::fs::remove_file(&record).unwrap();
+    let daemon = start(&setup);
+    assert!(
+        run_replay(&setup, &name, &odometry, Rate::Max(32)) == on_town,
+        "the record removed, a restart goes back to version 5 deliberately"
+    );
     assert!(daemon.stop().unwrap());
+    assert_eq!(std::fs::read_to_string(&record).unwrap(), "5\n");
 
     let name = unique("regridback");
     let setup = town_grid_setup(&[&name]);

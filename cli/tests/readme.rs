@@ -120,6 +120,10 @@ fn every_readme_command_runs_as_written() {
             .current_dir(&checkout)
             .env("PATH", &path)
             .env_remove("LANEALIGN_DATA")
+            // The daemon's state (journals, lock, the newest map version served) in the
+            // scratch folder: the user's own would both receive this run's and refuse it a map
+            // older than one a daemon of theirs served.
+            .env("LANEALIGN_STATE_DIR", scratch.path().join("state"))
             .output()
             .expect("run bash");
         assert!(

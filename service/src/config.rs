@@ -32,8 +32,9 @@ pub struct Config {
     /// Seconds between two metrics reports per source (0.1 to 3600).
     #[serde(default = "default_metrics_interval")]
     pub metrics_interval_s: f64,
-    /// Where sessions are journaled (a folder per namespace below it); relative to the config
-    /// file. Default: see [`default_state_dir`].
+    /// Where sessions are journaled, the instance lock is held and the newest map version
+    /// served is recorded (a folder per namespace below it); relative to the config file.
+    /// Default: see [`default_state_dir`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub state_dir: Option<PathBuf>,
     /// Journal every session, so that a restarted daemon continues each exactly where it was.
@@ -59,8 +60,8 @@ pub struct Config {
     pub trusted_tile_keys: Vec<String>,
     /// The oldest map this daemon serves: a tile, or a grid's manifest, whose map version
     /// (`lanealign-map compile --map-version N`) is below it is refused at the start, by
-    /// `check` and on SIGHUP. Default 0: any. (SIGHUP also never goes back to a map older than
-    /// the one served.)
+    /// `check` and on SIGHUP. Default 0: any. (Neither SIGHUP nor a restart goes back to a map
+    /// older than the newest served: [`crate::served_map`].)
     #[serde(default)]
     pub min_map_version: u64,
     /// Keep every CPU able to run within this many microseconds while the daemon runs (0 to

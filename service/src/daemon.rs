@@ -32,6 +32,7 @@ use crate::config::{Config, ConfigError, ResolvedSource};
 use crate::cpu_latency::{self, CpuLatencyError, CpuLatencyRequest};
 use crate::grid_loader::{load_trusted, GridLoader};
 use crate::journal::fingerprint;
+use crate::served_map::{ServedMap, ServedMapError};
 use crate::session::SessionSetup;
 use crate::worker::{self, Reload, WorkerError, WorkerSetup, WorkerSummary};
 
@@ -105,6 +106,10 @@ pub enum DaemonError {
     /// The CPU wake-up latency the configuration asks for cannot be requested.
     #[error(transparent)]
     CpuLatency(#[from] CpuLatencyError),
+    /// The map is older than the newest this namespace's daemon has served, or that record
+    /// cannot be read or written.
+    #[error(transparent)]
+    ServedMap(#[from] ServedMapError),
 }
 
 /// A configuration that passed every check, with its tile loaded.
@@ -123,6 +128,9 @@ pub struct Prepared {
     pub lanes: Lanes,
     /// What the tile says about itself (for a grid, see [`Grid::info`]).
     pub tile: TileInfo,
+    /// The newest map version this namespace's daemon has served ([`ServedMap`]): `None` when
+    /// nothing is recorded, or sessions are not journaled (no state folder).
+    pub served_map_version: Option<u64>,
 }
 
 impl Prepared {
@@ -228,8 +236,14 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
         cpu_latency::check(Path::new(cpu_latency::DEVICE))?;
     }
     let (namespace, sources) = (resolved.namespace, resolved.sources);
+    // Read, never written here: `check` changes nothing.
+    let served_before = |info: &TileInfo| match &resolved.state_dir {
+        Some(dir) => ServedMap::in_dir(dir).check(info.map_version),
+        None => Ok(None),
+    };
     if grid::is_grid(&config.tile) {
         let (lanes, info) = prepare_grid(&config, path, &sources, None)?;
+        let served_map_version = served_before(&info)?;
         return Ok(Prepared {
             path: path.to_path_buf(),
             namespace,
@@ -237,6 +251,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
             sources,
             lanes,
             tile: info,
+            served_map_version,
             config,
         });
     }
@@ -255,6 +270,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
         DaemonError::Tile { source, hint }
     })?;
     config.check_tile(path, &sources, &info)?;
+    let served_map_version = served_before(&info)?;
     Ok(Prepared {
         path: path.to_path_buf(),
         namespace,
@@ -262,6 +278,7 @@ pub fn prepare(path: &Path) -> Result<Prepared, DaemonError> {
         sources,
         lanes: Lanes::Tile(Arc::new(map)),
         tile: info,
+        served_map_version,
         config,
     })
 }
@@ -451,6 +468,15 @@ fn not_older(info: &TileInfo, served: u64) -> Result<(), String> {
     Ok(())
 }
 
+/// Records, on SIGHUP, that the map `info` describes is served, before it is: a map that
+/// cannot be recorded is not served (a restart could otherwise go back behind it).
+fn record_served(record: Option<&ServedMap>, info: &TileInfo) -> Result<(), String> {
+    match record {
+        Some(record) => record.record(info.map_version).map_err(|e| error_line(&e)),
+        None => Ok(()),
+    }
+}
+
 /// The tile's (or a grid's manifest's) signer for the log: its public key, or `unsigned`.
 fn signer_of(info: &TileInfo) -> String {
     info.signer
@@ -477,8 +503,8 @@ fn notify(states: &[sd_notify::NotifyState<'_>]) {
 }
 
 /// Loads the configured tile again, checks it against every source and against the map
-/// version served (`served`, updated), and hands it to the workers for their new sessions.
-/// True when it did.
+/// version served (`served`, updated), records that version (`record`, when sessions are
+/// journaled), and hands it to the workers for their new sessions. True when it did.
 fn reload(
     config: &Config,
     path: &Path,
@@ -486,10 +512,11 @@ fn reload(
     workers: &[Worker],
     loader_threads: &mut Vec<std::thread::JoinHandle<()>>,
     served: &mut u64,
+    record: Option<&ServedMap>,
 ) -> bool {
     tell_config_changes(config, path);
     if grid::is_grid(&config.tile) {
-        return match reload_grid(config, path, sources, workers, *served) {
+        return match reload_grid(config, path, sources, workers, *served, record) {
             Ok((handle, map_version)) => {
                 loader_threads.push(handle);
                 *served = map_version;
@@ -507,6 +534,7 @@ fn reload(
             .check_tile(path, sources, &info)
             .map_err(|e| error_line(&e))?;
         not_older(&info, *served)?;
+        record_served(record, &info)?;
         Ok((Arc::new(map), info))
     });
     match checked {
@@ -556,17 +584,19 @@ type Worker = (
 /// Opens the configured grid again (its manifest and the cells around each source's anchor,
 /// checked as at start), starts a loader for it and hands both to the workers for their new
 /// sessions; running sessions keep the grid and loader they have. A grid older than the map
-/// version served (`served`) is refused before any cell is read. The new loader's thread and
-/// the new grid's map version.
+/// version served (`served`) is refused before any cell is read, and its version is recorded
+/// (`record`) before it is served. The new loader's thread and the new grid's map version.
 fn reload_grid(
     config: &Config,
     path: &Path,
     sources: &[ResolvedSource],
     workers: &[Worker],
     served: u64,
+    record: Option<&ServedMap>,
 ) -> Result<(std::thread::JoinHandle<()>, u64), String> {
     let (lanes, info) =
         prepare_grid(config, path, sources, Some(served)).map_err(|e| error_line(&e))?;
+    record_served(record, &info)?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());
     };
@@ -600,6 +630,7 @@ pub fn run(
         sources,
         lanes,
         tile: info,
+        served_map_version: _,
     } = prepared;
     // Signals first: from the `tile loaded` record on, a request to stop is a flag the daemon
     // acts on (before it, the default action ends the process, which has started nothing).
@@ -616,6 +647,11 @@ pub fn run(
         }
     }
     let _lock = lock(&namespace, state_dir.as_deref())?;
+    // Under the lock, before any source serves: the record never falls behind the map served.
+    let served_record = state_dir.as_deref().map(ServedMap::in_dir);
+    if let Some(record) = &served_record {
+        record.record(info.map_version)?;
+    }
     // Held for the daemon's life: dropping it (or the process ending) ends the request.
     let _cpu_latency = match config.cpu_dma_latency_us {
         Some(us) => {
@@ -789,6 +825,7 @@ pub fn run(
                     &workers,
                     &mut loader_threads,
                     &mut served,
+                    served_record.as_ref(),
                 )
             {
                 tile_watch = TileWatch::new(&watched);

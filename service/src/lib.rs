@@ -12,6 +12,7 @@ pub mod journal;
 pub mod metrics;
 pub mod persistence;
 pub mod repeat_log;
+pub mod served_map;
 pub mod session;
 pub mod session_watch;
 pub mod tile_watch;

@@ -83,7 +83,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let signed = prepared.tile.signer.map_or("unsigned".into(), |key| {
                 format!("signed by {}", lanealign_core::tile::key_hex(&key))
             });
-            let version = prepared.tile.map_version;
+            let version = match prepared.served_map_version {
+                Some(served) => {
+                    format!("{}, newest served here {served}", prepared.tile.map_version)
+                }
+                None => prepared.tile.map_version.to_string(),
+            };
             println!(
                 "{}: ok: {} sources, namespace {}, {} {} ({} lanes, {} points; {}; {signed}; map version {version}){latency}",
                 path.display(),

@@ -9,8 +9,11 @@ use lanealign_core::geo::{MapPlane, Projection};
 use lanealign_core::lane_geometry::LaneGeometry;
 use lanealign_core::lane_map::{Lane, LaneMap};
 
+/// `lanealignd check --config CONFIG`, with the state folder (read, never written, by `check`)
+/// beside the configuration unless it names one: never the user's own.
 fn check(config: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_lanealignd"))
+        .env("LANEALIGN_STATE_DIR", config.parent().unwrap())
         .arg("check")
         .arg("--config")
         .arg(config)
@@ -374,6 +377,37 @@ fn min_map_version_refuses_older_maps() {
         let out = with_floor(map, "min_map_version = 5");
         assert!(out.status.success(), "{map}: {}", stderr(&out));
     }
+    // The newest version a daemon of the namespace served (recorded in its state folder) is a
+    // floor too, whatever the configuration's.
+    let record = dir.path().join("default").join("served_map_version");
+    std::fs::create_dir_all(record.parent().unwrap()).unwrap();
+    std::fs::write(&record, "5\n").unwrap();
+    for map in ["v4.tile", "g4"] {
+        let out = with_floor(map, "");
+        let why = format!(
+            "map version 4 is older than 5, the newest this namespace's daemon has served (recorded in {})",
+            record.display()
+        );
+        assert!(stderr(&out).contains(&why), "{map}: {}", stderr(&out));
+        assert!(!out.status.success(), "{map} must be refused");
+    }
+    for map in ["v6.tile", "g6"] {
+        let out = with_floor(map, "");
+        let said = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            said.contains("map version 6, newest served here 5)"),
+            "{said}"
+        );
+    }
+    assert_eq!(
+        std::fs::read_to_string(&record).unwrap(),
+        "5\n",
+        "check writes nothing"
+    );
+    std::fs::write(&record, "five\n").unwrap();
+    let out = with_floor("v6.tile", "");
+    assert!(!out.status.success(), "a damaged record is refused");
+    assert!(stderr(&out).contains("is damaged"), "{}", stderr(&out));
     for (floor, why) in [
         ("min_map_version = -1", "min_map_version"),
         ("min_map_version = \"5\"", "min_map_version"),
