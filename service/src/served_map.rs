@@ -116,6 +116,34 @@ impl ServedMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 2000, rng_seed: proptest::test_runner::RngSeed::Fixed(7), ..ProptestConfig::default() })]
+        /// Any bytes in the record's place: a version only when they are one written as the
+        /// daemon writes it (or without its newline), a refusal otherwise, never a panic.
+        #[test]
+        fn any_record_is_read_or_refused(bytes in prop_oneof![
+            proptest::collection::vec(any::<u8>(), 0..40),
+            "[0-9]{0,22}\n?".prop_map(String::into_bytes),
+        ]) {
+            let dir = tempfile::tempdir().unwrap();
+            let record = ServedMap::in_dir(dir.path());
+            std::fs::write(record.path(), &bytes).unwrap();
+            let digits = bytes.strip_suffix(b"\n").unwrap_or(&bytes);
+            let canonical = std::str::from_utf8(digits)
+                .ok()
+                .filter(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+                .and_then(|d| d.parse::<u64>().ok());
+            match record.newest() {
+                Ok(version) => prop_assert_eq!(version, canonical),
+                Err(e) => {
+                    prop_assert!(canonical.is_none(), "{:?} refused: {}", bytes, e);
+                    prop_assert!(matches!(e, ServedMapError::Damaged { .. }), "{}", e);
+                }
+            }
+        }
+    }
 
     #[test]
     fn the_record_only_rises_and_refuses_older_maps() {
