@@ -833,7 +833,8 @@ fn a_lost_journal_ends_crash_recovery_not_the_session() {
 /// their copies; the replay's journal needs about ten times that). The journal ends where the disk does, with an
 /// error in the log, and never the daemon (its segments' space is allocated when they are made,
 /// so no copy into a mapped page can meet a full disk). Killed after that and restarted on the
-/// still-full disk, the daemon starts, and the replay gets every pose answered: as offline up to
+/// still-full disk (without the record of the map version served, which it cannot write and
+/// says so), the daemon starts, and the replay gets every pose answered: as offline up to
 /// the pose where the session, its journal behind what the client received, starts afresh (at
 /// most once), and from there as an offline run that starts at that pose. Needs root (to mount the small
 /// file system): visibly skipped otherwise.
@@ -871,12 +872,27 @@ fn a_full_state_disk_ends_the_journal_not_the_daemon() {
         "logged once, and the daemon serves on: {full}"
     );
     daemon.kill().unwrap();
+    // The record of the map version served gone too, and the disk filled to the last byte: the
+    // daemon cannot record the version it starts on, says so, and serves.
+    let namespace_state = t.setup.state.join(&t.setup.namespace);
+    std::fs::remove_file(namespace_state.join("served_map_version")).unwrap();
+    let mut filler = std::fs::File::create(namespace_state.join("filler")).unwrap();
+    while std::io::Write::write_all(&mut filler, &[0u8; 512]).is_ok() {}
     daemon = DaemonProcess::start_ready(
         &t.setup.config,
         &daemon_log(&t.setup),
         Duration::from_secs(20),
     )
     .unwrap_or_else(|e| panic!("the daemon did not start on a full disk: {e}\n{full}"));
+    let unrecorded = "the map version served could not be recorded";
+    assert!(
+        daemon
+            .log()
+            .lines()
+            .any(|l| l.contains(unrecorded) && l.contains("No space left on device")),
+        "{}",
+        daemon.log()
+    );
     let (summary, log, got) = all_answered(&t, daemon, client, &output);
     let fresh_starts = fresh_starts(&summary);
     let k = afresh_at(&t, &got, &offline(&t.setup, &t.name, &t.poses), &summary);

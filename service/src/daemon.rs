@@ -468,12 +468,20 @@ fn not_older(info: &TileInfo, served: u64) -> Result<(), String> {
     Ok(())
 }
 
-/// Records, on SIGHUP, that the map `info` describes is served, before it is: a map that
-/// cannot be recorded is not served (a restart could otherwise go back behind it).
-fn record_served(record: Option<&ServedMap>, info: &TileInfo) -> Result<(), String> {
-    match record {
-        Some(record) => record.record(info.map_version).map_err(|e| error_line(&e)),
-        None => Ok(()),
+/// Records that the map `info` describes is served ([`ServedMap::record`]), before it is: a map
+/// older than the record is refused. A record that cannot be written (a full disk) is logged as
+/// an error and the map served anyway, as a journal that cannot be written ends the journal,
+/// not the daemon: the map passed every check, and only a later restart's floor is lower.
+fn record_served(record: Option<&ServedMap>, info: &TileInfo) -> Result<(), ServedMapError> {
+    let Some(record) = record else {
+        return Ok(());
+    };
+    match record.record(info.map_version) {
+        Err(ServedMapError::Write(e)) => {
+            tracing::error!(record = %record.path().display(), map_version = info.map_version, error = %error_line(&e), "the map version served could not be recorded: the map is served, but a restart could go back to an older one");
+            Ok(())
+        }
+        recorded => recorded,
     }
 }
 
@@ -504,7 +512,7 @@ fn notify(states: &[sd_notify::NotifyState<'_>]) {
 
 /// Loads the configured tile again, checks it against every source and against the map
 /// version served (`served`, updated), records that version (`record`, when sessions are
-/// journaled), and hands it to the workers for their new sessions. True when it did.
+/// journaled; [`record_served`]), and hands it to the workers for their new sessions. True when it did.
 fn reload(
     config: &Config,
     path: &Path,
@@ -534,7 +542,7 @@ fn reload(
             .check_tile(path, sources, &info)
             .map_err(|e| error_line(&e))?;
         not_older(&info, *served)?;
-        record_served(record, &info)?;
+        record_served(record, &info).map_err(|e| error_line(&e))?;
         Ok((Arc::new(map), info))
     });
     match checked {
@@ -585,7 +593,7 @@ type Worker = (
 /// checked as at start), starts a loader for it and hands both to the workers for their new
 /// sessions; running sessions keep the grid and loader they have. A grid older than the map
 /// version served (`served`) is refused before any cell is read, and its version is recorded
-/// (`record`) before it is served. The new loader's thread and the new grid's map version.
+/// (`record`, [`record_served`]) before it is served. The new loader's thread and the new grid's map version.
 fn reload_grid(
     config: &Config,
     path: &Path,
@@ -596,7 +604,7 @@ fn reload_grid(
 ) -> Result<(std::thread::JoinHandle<()>, u64), String> {
     let (lanes, info) =
         prepare_grid(config, path, sources, Some(served)).map_err(|e| error_line(&e))?;
-    record_served(record, &info)?;
+    record_served(record, &info).map_err(|e| error_line(&e))?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());
     };
@@ -649,9 +657,7 @@ pub fn run(
     let _lock = lock(&namespace, state_dir.as_deref())?;
     // Under the lock, before any source serves: the record never falls behind the map served.
     let served_record = state_dir.as_deref().map(ServedMap::in_dir);
-    if let Some(record) = &served_record {
-        record.record(info.map_version)?;
-    }
+    record_served(served_record.as_ref(), &info)?;
     // Held for the daemon's life: dropping it (or the process ending) ends the request.
     let _cpu_latency = match config.cpu_dma_latency_us {
         Some(us) => {
