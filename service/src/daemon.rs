@@ -512,7 +512,8 @@ fn notify(states: &[sd_notify::NotifyState<'_>]) {
 
 /// Loads the configured tile again, checks it against every source and against the map
 /// version served (`served`, updated), records that version (`record`, when sessions are
-/// journaled; [`record_served`]), and hands it to the workers for their new sessions. True when it did.
+/// journaled; [`record_served`]), and hands it to the workers for their new sessions. True
+/// when it did.
 fn reload(
     config: &Config,
     path: &Path,
@@ -593,7 +594,8 @@ type Worker = (
 /// checked as at start), starts a loader for it and hands both to the workers for their new
 /// sessions; running sessions keep the grid and loader they have. A grid older than the map
 /// version served (`served`) is refused before any cell is read, and its version is recorded
-/// (`record`, [`record_served`]) before it is served. The new loader's thread and the new grid's map version.
+/// (`record`, [`record_served`]) before it is served. The new loader's thread and the new
+/// grid's map version.
 fn reload_grid(
     config: &Config,
     path: &Path,
