@@ -103,7 +103,7 @@ impl ServedMap {
     }
 
     /// Records, durably, that a map of `map_version` is served, refusing one older than the
-    /// newest served. A version at or below the record's leaves the record as it is.
+    /// newest served. The record's own version leaves it as it is.
     pub fn record(&self, map_version: u64) -> Result<(), ServedMapError> {
         if self.check(map_version)? < Some(map_version) {
             write_durably(&self.path, format!("{map_version}\n").as_bytes())?;
