@@ -1872,6 +1872,18 @@ fn an_older_map_is_refused_on_sighup_and_on_restart() {
         "a new session corrects on the grid served"
     );
     assert!(!daemon.log().contains("grid reloaded"), "{}", daemon.log());
+    let record = setup
+        .state
+        .join(&setup.namespace)
+        .join("served_map_version");
+    let recorded = || std::fs::read_to_string(&record).unwrap();
+    assert_eq!(recorded(), "5\n", "the grid started on is recorded");
+    write_town_grid(&town_moved_north(), &dir.join("v6"), 6);
+    switch_to("v6");
+    hang_up(&daemon);
+    let log = log_once_it_says(&daemon, "grid reloaded");
+    assert!(log.contains("grid reloaded"), "{log}");
+    assert_eq!(recorded(), "6\n", "a grid loaded on SIGHUP is recorded");
     assert!(daemon.stop().unwrap());
 }
 
