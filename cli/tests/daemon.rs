@@ -1838,10 +1838,7 @@ fn an_older_map_is_refused_on_sighup_and_on_restart() {
         panic!("a restart on version 5 after 6 must be refused");
     };
     assert!(log.contains(older), "{log}");
-    let record = setup
-        .state
-        .join(&setup.namespace)
-        .join("served_map_version");
+    let record = served_map_record(&setup);
     assert_eq!(std::fs::read_to_string(&record).unwrap(), "6\n");
     std::fs::remove_file(&record).unwrap();
     let daemon = start(&setup);
@@ -1872,10 +1869,7 @@ fn an_older_map_is_refused_on_sighup_and_on_restart() {
         "a new session corrects on the grid served"
     );
     assert!(!daemon.log().contains("grid reloaded"), "{}", daemon.log());
-    let record = setup
-        .state
-        .join(&setup.namespace)
-        .join("served_map_version");
+    let record = served_map_record(&setup);
     let recorded = || std::fs::read_to_string(&record).unwrap();
     assert_eq!(recorded(), "5\n", "the grid started on is recorded");
     write_town_grid(&town_moved_north(), &dir.join("v6"), 6);

@@ -874,9 +874,8 @@ fn a_full_state_disk_ends_the_journal_not_the_daemon() {
     daemon.kill().unwrap();
     // The record of the map version served gone too, and the disk filled to the last byte: the
     // daemon cannot record the version it starts on, says so, and serves.
-    let namespace_state = t.setup.state.join(&t.setup.namespace);
-    std::fs::remove_file(namespace_state.join("served_map_version")).unwrap();
-    let mut filler = std::fs::File::create(namespace_state.join("filler")).unwrap();
+    std::fs::remove_file(served_map_record(&t.setup)).unwrap();
+    let mut filler = std::fs::File::create(namespace_state(&t.setup).join("filler")).unwrap();
     while std::io::Write::write_all(&mut filler, &[0u8; 512]).is_ok() {}
     daemon = DaemonProcess::start_ready(
         &t.setup.config,

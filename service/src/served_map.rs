@@ -105,7 +105,7 @@ impl ServedMap {
     /// Records, durably, that a map of `map_version` is served, refusing one older than the
     /// newest served. The record's own version leaves it as it is.
     pub fn record(&self, map_version: u64) -> Result<(), ServedMapError> {
-        if self.check(map_version)? < Some(map_version) {
+        if self.check(map_version)? != Some(map_version) {
             write_durably(&self.path, format!("{map_version}\n").as_bytes())?;
         }
         Ok(())

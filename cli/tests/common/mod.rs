@@ -387,9 +387,20 @@ pub fn the_line_saying<'a>(log: &'a str, what: &str) -> &'a str {
     lines[0]
 }
 
+/// The state folder of the daemon of `setup`'s namespace.
+pub fn namespace_state(setup: &Setup) -> PathBuf {
+    setup.state.join(&setup.namespace)
+}
+
+/// Where the daemon of `setup` records the newest map version it has served (the place
+/// docs/operations.md names).
+pub fn served_map_record(setup: &Setup) -> PathBuf {
+    namespace_state(setup).join("served_map_version")
+}
+
 /// How many session journals the daemon of `setup` holds for `source`.
 pub fn journal_count(setup: &Setup, source: &str) -> usize {
-    std::fs::read_dir(setup.state.join(&setup.namespace).join(source))
+    std::fs::read_dir(namespace_state(setup).join(source))
         .map(|d| d.count())
         .unwrap_or(0)
 }
