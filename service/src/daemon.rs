@@ -606,13 +606,16 @@ fn reload_grid(
 ) -> Result<(std::thread::JoinHandle<()>, u64), String> {
     let (lanes, info) =
         prepare_grid(config, path, sources, Some(served)).map_err(|e| error_line(&e))?;
-    record_served(record, &info).map_err(|e| error_line(&e))?;
     let Lanes::Grid { grid, starts } = lanes else {
         return Err("not a grid".into());
     };
     let interval = Duration::from_secs_f64(config.metrics_interval_s);
     let (loader, handle) = GridLoader::spawn(grid, config.grid, config.trusted_keys(), interval)
         .map_err(|e| error_line(&e))?;
+    // Recorded once nothing but the hand-over is left: a loader that cannot start leaves the
+    // record naming the grid still served. On a refusal the loader's only handle is dropped, and
+    // its thread ends.
+    record_served(record, &info).map_err(|e| error_line(&e))?;
     for (((_, _, tx), source), map) in workers.iter().zip(sources).zip(starts) {
         let _ = tx.send(Reload {
             map,
