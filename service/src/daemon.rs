@@ -461,7 +461,9 @@ fn not_older(info: &TileInfo, served: u64) -> Result<(), String> {
     if info.map_version < served {
         return Err(format!(
             "map version {} is older than the served map's {served}: SIGHUP never goes back to an \
-             older map (build the one wanted with a larger --map-version, or restart the daemon)",
+             older map (build the one wanted with a larger --map-version; to go back \
+             deliberately, remove the record of the newest map served, if sessions are journaled, \
+             and restart: docs/operations.md)",
             info.map_version
         ));
     }
