@@ -11,6 +11,7 @@
 //! that changes with every step while the scale estimate is not 1.
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use crate::confidence::{widened_by, Covariance};
 use crate::continuity::{Continued, Continuity};
@@ -233,7 +234,20 @@ impl SourceCorrector {
     /// there. Where the source watches stalls ([`Params::watch_stalls`]), an odometry whose speed
     /// falls faster than a car brakes widens the covariance by the road it may have missed and
     /// the turns it may have made there, and the window restarts ([`crate::stall`]).
+    ///
+    /// The timing's `total` is the whole of this call: besides the corrector's step, the
+    /// conversion from and to the source's convention, the continuity and stall watches, the
+    /// scale and the smoothing (on a cloud machine's cold caches some 10 us of a daemon's step,
+    /// docs/performance.md, "The source corrector's share").
     pub fn correct_at(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
+        let start = Instant::now();
+        let (record, mut timing) = self.correct_untimed(pose, stamp_s);
+        timing.total = start.elapsed();
+        (record, timing)
+    }
+
+    /// [`SourceCorrector::correct_at`], the timing's `total` the corrector's step alone.
+    fn correct_untimed(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         if pose.problem().is_some() {
             self.took_poses_missing = false;
             let record = CorrectedPose {

@@ -54,13 +54,15 @@ pub struct SourceMetrics {
     end_to_end: Histogram<u64>,
     /// Daemon receive to daemon publish (nanoseconds).
     in_daemon: Histogram<u64>,
-    /// Time in lane matching, in ICP, and in the rest of the corrector step (nanoseconds).
+    /// Time in lane matching, in ICP, in the confidence, and in the rest of the source
+    /// corrector's call (nanoseconds; bookkeeping: the frame conversions, the continuity and
+    /// stall watches, the scale, smoothing and the window's upkeep).
     matching: Histogram<u64>,
     icp: Histogram<u64>,
     confidence: Histogram<u64>,
     bookkeeping: Histogram<u64>,
-    /// In the daemon around the corrector step (nanoseconds): the session's checks, the pose's
-    /// conversions, smoothing, the answer and its journal record.
+    /// In the daemon around the source corrector's call (nanoseconds): the sample's copy, the
+    /// session's lookup and checks, the answer and its journal record.
     handling: Histogram<u64>,
 }
 
