@@ -237,8 +237,8 @@ impl SourceCorrector {
     ///
     /// The timing's `total` is the whole of this call: besides the corrector's step, the
     /// conversion from and to the source's convention, the continuity and stall watches, the
-    /// scale and the smoothing (on a cloud machine's cold caches some 10 us of a daemon's step,
-    /// docs/performance.md, "The source corrector's share").
+    /// scale and the smoothing (docs/performance.md, "The source corrector's share", measures
+    /// their share).
     pub fn correct_at(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         let start = Instant::now();
         let (record, mut timing) = self.correct_untimed(pose, stamp_s);
@@ -246,7 +246,8 @@ impl SourceCorrector {
         (record, timing)
     }
 
-    /// [`SourceCorrector::correct_at`], the timing's `total` the corrector's step alone.
+    /// [`SourceCorrector::correct_at`], the timing's `total` the corrector's step alone (zero
+    /// where none ran: an invalid pose, a jump).
     fn correct_untimed(&mut self, pose: &Pose3, stamp_s: f64) -> (CorrectedPose, StepTiming) {
         if pose.problem().is_some() {
             self.took_poses_missing = false;
