@@ -71,18 +71,66 @@ struct CandidateSet {
 /// With `n` normal to the direction `d`, the normal shot's `t` is `((x - a) . d) / ((b - a) . d)`,
 /// so both tests are signs of dot products: a change of `d` by `e` moves `u . d` by at most
 /// `|u| e`, a move of `x` by `m` moves `(x - a) . d` by at most `m`.
+///
+/// Every step checks the proof of almost every window pose, and after an idle pause each proof
+/// it reads is a trip to memory: so a proof fills one cache line and no more, points are
+/// [`NO_POINT`] where there is none, and a pose without a proof has [`Proof::NONE`].
 #[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
 struct Proof {
     anchor: [f64; 2],
     direction: [f64; 2],
+    /// Above [`MIN_MARGIN`] in every proof; 0 in [`Proof::NONE`], which no direction is within.
     direction_margin: f64,
-    answer: Option<u32>,
-    /// Candidates too close to a test's boundary to be ruled out, tested with the answer on
-    /// every check (see [`prove`]); the first `None` ends the list.
-    partners: [Option<u32>; MAX_PARTNERS],
     /// The proof rests on every lane point within this distance of `anchor` (metres).
     rests_on_m: f64,
+    /// The answer's lane point, or [`NO_POINT`]: no match.
+    answer: u32,
+    /// Candidates too close to a test's boundary to be ruled out, tested with the answer on
+    /// every check (see [`prove`]); the first [`NO_POINT`] ends the list.
+    partners: [u32; MAX_PARTNERS],
 }
+
+const _: () = assert!(
+    std::mem::size_of::<Proof>() == 64,
+    "a proof fills one cache line"
+);
+
+impl Proof {
+    /// No proof: it holds nowhere.
+    const NONE: Proof = Proof {
+        anchor: [0.0; 2],
+        direction: [0.0; 2],
+        direction_margin: 0.0,
+        rests_on_m: 0.0,
+        answer: NO_POINT,
+        partners: [NO_POINT; MAX_PARTNERS],
+    };
+
+    /// Whether this is a proof (not [`Proof::NONE`]).
+    fn exists(&self) -> bool {
+        self.direction_margin > 0.0
+    }
+
+    /// The answer's lane point, if any.
+    fn answer(&self) -> Option<u32> {
+        (self.answer != NO_POINT).then_some(self.answer)
+    }
+
+    /// The partners' lane points.
+    fn partners(&self) -> impl Iterator<Item = u32> + '_ {
+        self.partners.iter().copied().take_while(|&p| p != NO_POINT)
+    }
+}
+
+impl Default for Proof {
+    fn default() -> Self {
+        Proof::NONE
+    }
+}
+
+/// No lane point: above [`crate::lane_map::MAX_POINTS`], so no map has a point by that index.
+const NO_POINT: u32 = u32::MAX;
 
 /// The most candidates a proof tests exactly besides its answer.
 const MAX_PARTNERS: usize = 3;
@@ -129,7 +177,6 @@ const FAR_RADIUS: f64 = 4.0 * FIRST_RADIUS;
 #[derive(Clone, Debug, Default)]
 struct PoseCache {
     wide: CandidateSet,
-    proof: Option<Proof>,
     clearance: Option<Clearance>,
 }
 
@@ -166,6 +213,8 @@ pub struct MatchCache {
     /// inside the whole caches, they were about 60 % of matching's cache misses after an idle
     /// core (docs/performance.md, "Between poses").
     lasts: VecDeque<LastMatch>,
+    /// Beside `poses` too, each pose's proof, one cache line each (see [`Proof`]).
+    proofs: VecDeque<Proof>,
     spare: Vec<PoseCache>,
     keys: Vec<Key>,
     tree_scratch: TreeScratch,
@@ -220,24 +269,27 @@ impl MatchCache {
             c.wide.points.clear();
             c.wide.radius = f64::NEG_INFINITY;
             c.clearance = None;
-            c.proof = c.proof.and_then(|p| {
-                if !covered(p.anchor, p.rests_on_m) {
+        }
+        for proof in &mut self.proofs {
+            let kept = || {
+                if !proof.exists() || !covered(proof.anchor, proof.rests_on_m) {
                     return None;
                 }
-                let renumber = |j: Option<u32>| match j {
-                    None => Some(None),
-                    Some(j) => crate::grid::renumber(old, new, j).map(Some),
+                let renumber = |j: u32| match j {
+                    NO_POINT => Some(NO_POINT),
+                    j => crate::grid::renumber(old, new, j),
                 };
-                let mut partners = [None; MAX_PARTNERS];
-                for (to, &from) in partners.iter_mut().zip(&p.partners) {
+                let mut partners = [NO_POINT; MAX_PARTNERS];
+                for (to, &from) in partners.iter_mut().zip(&proof.partners) {
                     *to = renumber(from)?;
                 }
                 Some(Proof {
-                    answer: renumber(p.answer)?,
+                    answer: renumber(proof.answer)?,
                     partners,
-                    ..p
+                    ..*proof
                 })
-            });
+            };
+            *proof = kept().unwrap_or(Proof::NONE);
         }
     }
 
@@ -247,6 +299,7 @@ impl MatchCache {
     pub fn make_room(&mut self, poses: usize) {
         crate::headroom::make_room_in_deque(&mut self.poses, poses);
         crate::headroom::make_room_in_deque(&mut self.lasts, poses);
+        crate::headroom::make_room_in_deque(&mut self.proofs, poses);
         if self.spare.is_empty() {
             let mut c = PoseCache::default();
             crate::headroom::make_room(&mut c.wide.points, RESERVED_POINTS);
@@ -258,6 +311,7 @@ impl MatchCache {
     #[cfg(test)]
     pub(crate) fn len(&self) -> usize {
         assert_eq!(self.poses.len(), self.lasts.len(), "a last match per pose");
+        assert_eq!(self.poses.len(), self.proofs.len(), "a proof per pose");
         self.poses.len()
     }
 
@@ -268,10 +322,10 @@ impl MatchCache {
         c.wide.points.shrink_to(RESERVED_POINTS);
         c.wide.points.reserve(RESERVED_POINTS);
         c.wide.radius = f64::NEG_INFINITY;
-        c.proof = None;
         c.clearance = None;
         self.poses.push_back(c);
         self.lasts.push_back(LastMatch::NEVER);
+        self.proofs.push_back(Proof::NONE);
     }
 
     /// The `count` oldest window poses were dropped.
@@ -282,6 +336,7 @@ impl MatchCache {
                 self.spare.push(c);
             }
             self.lasts.pop_front();
+            self.proofs.pop_front();
         }
     }
 
@@ -295,21 +350,19 @@ impl MatchCache {
     ) {
         debug_assert_eq!(window.len(), self.poses.len());
         debug_assert_eq!(window.len(), self.lasts.len());
+        debug_assert_eq!(window.len(), self.proofs.len());
         out.clear();
         let from = self.reuse_settled(window, params.max_distance_m, out);
         for (i, &x) in window.iter().enumerate().skip(from) {
             let dir = trajectory_direction(window, i);
-            let cache = &mut self.poses[i];
+            let proof = &mut self.proofs[i];
             let target = if dir == [0.0, 0.0] {
                 None
             } else {
-                match cache
-                    .proof
-                    .as_ref()
-                    .and_then(|p| proven(map, p, x, dir, params))
-                {
+                match proven(map, proof, x, dir, params) {
                     Some(answer) => answer,
                     None => {
+                        let cache = (&mut self.poses[i], proof);
                         let scratch = (&mut self.keys, &mut self.tree_scratch);
                         match match_anew(map, cache, scratch, x, dir, params) {
                             Anew::Answer(answer) => answer,
@@ -379,7 +432,8 @@ impl MatchCache {
 }
 
 /// The answer `proof` gives at `x` moving along `dir`, when it still holds there and decides:
-/// most poses on most steps (the rest are decided anew by [`match_anew`]).
+/// most poses on most steps (the rest are decided anew by [`match_anew`]). [`Proof::NONE`]
+/// holds nowhere.
 #[inline]
 fn proven(
     map: &LaneMap,
@@ -390,15 +444,15 @@ fn proven(
 ) -> Option<Option<([f64; 2], u32)>> {
     let (dx, dy) = (x[0] - proof.anchor[0], x[1] - proof.anchor[1]);
     let (ex, ey) = (dir[0] - proof.direction[0], dir[1] - proof.direction[1]);
-    if (dx * dx + dy * dy).sqrt() >= PROOF_MOVE
-        || (ex * ex + ey * ey).sqrt() >= proof.direction_margin
-    {
+    let holds = (dx * dx + dy * dy).sqrt() < PROOF_MOVE
+        && (ex * ex + ey * ey).sqrt() < proof.direction_margin;
+    if !holds {
         return None;
     }
-    if proof.partners[0].is_none() {
+    if proof.partners[0] == NO_POINT {
         // The answer alone (most proofs): it passes, or the pose is decided anew. The general
         // case below gives the same, at 1 % more of the whole process's instructions.
-        return match proof.answer {
+        return match proof.answer() {
             None => Some(None),
             Some(j) => {
                 try_candidate(map, j, x, dir, params.min_direction_cos).map(|q| Some((q, j)))
@@ -407,13 +461,13 @@ fn proven(
     }
     // Of the answer and its partners, the first in the reference order that passes.
     let mut first = None;
-    if let Some(j) = proof.answer {
+    if let Some(j) = proof.answer() {
         test_candidate(map, j, x, dir, params, &mut first);
     }
-    for &p in proof.partners.iter().map_while(Option::as_ref) {
+    for p in proof.partners() {
         test_candidate(map, p, x, dir, params, &mut first);
     }
-    match (proof.answer, first) {
+    match (proof.answer(), first) {
         (Some(_), Some((k, q))) => Some(Some((q, k))),
         (None, None) => Some(None),
         // No answer but a partner passes, or an answer and none passes: decide anew.
@@ -427,7 +481,7 @@ fn proven(
 #[inline(never)]
 fn match_anew(
     map: &LaneMap,
-    cache: &mut PoseCache,
+    (cache, proof): (&mut PoseCache, &mut Proof),
     (keys, tree_scratch): (&mut Vec<Key>, &mut TreeScratch),
     x: [f64; 2],
     dir: [f64; 2],
@@ -465,12 +519,13 @@ fn match_anew(
                 };
                 map.note_query(x, needed);
             }
-            cache.proof = None;
+            *proof = Proof::NONE;
             if wanted <= reliable_radius(map, &cache.wide, x) {
                 let w2 = wanted * wanted;
                 keys.retain(|k| k.0 < w2);
                 let best = answer.map(|a| a.0);
-                cache.proof = prove(map, keys, x, dir, params, best, reach, wanted + PROOF_MOVE);
+                *proof = prove(map, keys, x, dir, params, best, reach, wanted + PROOF_MOVE)
+                    .unwrap_or(Proof::NONE);
             }
             return Anew::Answer(answer.map(|(key, q)| (q, key.1)));
         }
@@ -659,9 +714,9 @@ fn prove(
         anchor: x,
         direction: dir,
         direction_margin: margin * (1.0 - 1e-6),
-        answer: best.map(|k| k.1),
-        partners: partners.map(|p| p.map(|k| k.1)),
         rests_on_m,
+        answer: best.map_or(NO_POINT, |k| k.1),
+        partners: partners.map(|p| p.map_or(NO_POINT, |k| k.1)),
     })
 }
 
