@@ -129,8 +129,9 @@ impl Default for Proof {
     }
 }
 
-/// No lane point: above [`crate::lane_map::MAX_POINTS`], so no map has a point by that index.
-const NO_POINT: u32 = u32::MAX;
+/// No lane point: the one index a lane map reserves ([`crate::lane_map::NO_SEGMENT`], above
+/// [`crate::lane_map::MAX_POINTS`]), so no map has a point by it.
+const NO_POINT: u32 = crate::lane_map::NO_SEGMENT;
 
 /// The most candidates a proof tests exactly besides its answer.
 const MAX_PARTNERS: usize = 3;
