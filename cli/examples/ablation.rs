@@ -10,7 +10,9 @@
 //! (or the paper's, when NAME starts with `paper`); `+smooth` in the list turns smoothing on.
 //! `--pairs RUN:PRESET,...` replaces the (run, preset) pairs; the run `gt` feeds the ground truth
 //! itself as odometry, which shows the error the map alone induces (a perfect corrector leaves
-//! it untouched).
+//! it untouched); the run `drift-DEG` is odometry made from the ground truth whose heading drifts
+//! as a seeded random walk of DEG degrees per square root of 100 m driven (`drift-0.2` drifts as
+//! the kiss-icp preset assumes): odometry of any accuracy, to see where correcting stops paying.
 //!
 //! `--jitter N` also corrects N copies of every run whose translations are moved by a seeded
 //! uniform amount of at most [`JITTER_M`] (1 micrometre, far below any odometry's precision), and
@@ -39,7 +41,7 @@ use lanealign_core::metrics::{
     ape_2d, calibration, output_jumps, scaled_steps, Calibration, CHI2_2DOF_95,
 };
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
-use lanealign_core::pose::{AxisConvention, Pose3};
+use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::smoothing::Smoothing;
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
@@ -73,6 +75,33 @@ fn jittered(odom: &[Pose3], seed: u64) -> Vec<Pose3> {
         }
     }
     poses
+}
+
+/// The prefix of a `--pairs` run made from the ground truth with a drifting heading.
+const DRIFT_RUN: &str = "drift-";
+
+/// Odometry made from `truth` (KITTI camera axes): the truth's planar steps, with the heading
+/// turned by a normal amount of standard deviation `deg_per_sqrt_100m` degrees times the square
+/// root of the step's length over 100 m after each step; height, roll and pitch are the truth's.
+/// The same on every machine for one `seed`.
+fn drifted(truth: &[Pose3], deg_per_sqrt_100m: f64, seed: u64) -> Vec<Pose3> {
+    let camera = AxisConvention::KittiCamera;
+    let planar: Vec<Pose3> = truth.iter().map(|p| camera.to_planar(p)).collect();
+    let mut rng = Lcg(seed);
+    let Some(first) = planar.first() else {
+        return Vec::new();
+    };
+    let mut odom_pose = first.to_se2();
+    let mut out = vec![truth[0]];
+    for w in planar.windows(2) {
+        let step = w[0].to_se2().inverse() * w[1].to_se2();
+        let [dx, dy] = step.translation();
+        let turn = deg_per_sqrt_100m.to_radians() * (dx.hypot(dy) / 100.0).sqrt() * rng.normal();
+        odom_pose = (odom_pose * step * Se2::new(turn, 0.0, 0.0)).normalized();
+        let odom_from_truth = odom_pose * w[1].to_se2().inverse();
+        out.push(camera.from_planar(&apply_planar_correction(&odom_from_truth, &w[1])));
+    }
+    out
 }
 
 #[derive(Clone)]
@@ -227,28 +256,40 @@ fn load(
     jitter: u64,
 ) -> anyhow::Result<Sequence> {
     let gt = read(&data.join(format!("kitti/poses/{seq}.txt")), Format::Kitti)?;
-    let odom = match odometry {
-        "gt" => gt.clone(),
-        run => read(
-            &data.join(format!("odometry/{run}/{seq}.txt")),
-            Format::Kitti,
-        )?,
-    };
     // One seed per copy, run and sequence, so that no two runs are moved alike.
     let name = odometry
         .bytes()
         .fold(0u64, |h, b| h.wrapping_mul(31).wrapping_add(u64::from(b)));
+    let seq_number = seq.parse::<u64>().unwrap_or(0);
+    let odom_poses = match odometry {
+        "gt" => gt.poses.clone(),
+        run => match run.strip_prefix(DRIFT_RUN) {
+            Some(level) => {
+                let level: f64 = level
+                    .parse()
+                    .with_context(|| format!("{run}: not {DRIFT_RUN}DEGREES"))?;
+                drifted(&gt.poses, level, name.wrapping_add(seq_number))
+            }
+            None => {
+                read(
+                    &data.join(format!("odometry/{run}/{seq}.txt")),
+                    Format::Kitti,
+                )?
+                .poses
+            }
+        },
+    };
     let seed = |copy: u64| {
         copy.wrapping_mul(1_000_003)
             .wrapping_add(name.wrapping_mul(101))
-            .wrapping_add(seq.parse::<u64>().unwrap_or(0))
+            .wrapping_add(seq_number)
     };
     let copies: Vec<Vec<Pose3>> = (1..=jitter)
-        .map(|copy| jittered(&odom.poses, seed(copy)))
+        .map(|copy| jittered(&odom_poses, seed(copy)))
         .collect();
     Ok(Sequence {
         gt: gt.poses,
-        odom: std::iter::once(odom.poses).chain(copies).collect(),
+        odom: std::iter::once(odom_poses).chain(copies).collect(),
     })
 }
 
