@@ -32,7 +32,7 @@ use anyhow::Context;
 use lanealign_cli::kitti::{anchors, data_dir_from_args, SEQUENCES};
 use lanealign_cli::maps::MapSource;
 use lanealign_cli::report::{self, Table};
-use lanealign_cli::synthetic::Lcg;
+use lanealign_cli::synthetic::{heading_drifted, Lcg};
 use lanealign_cli::{plots, results, status_file};
 use lanealign_core::corrector::MatchMode;
 use lanealign_core::geo::Projection;
@@ -41,7 +41,7 @@ use lanealign_core::metrics::{
     ape_2d, calibration, output_jumps, scaled_steps, Calibration, CHI2_2DOF_95,
 };
 use lanealign_core::params::{CorrectorConfig, Method, Overrides, Preset};
-use lanealign_core::pose::{apply_planar_correction, AxisConvention, Pose3};
+use lanealign_core::pose::{AxisConvention, Pose3};
 use lanealign_core::se2::Se2;
 use lanealign_core::smoothing::Smoothing;
 use lanealign_core::source_corrector::{correct_trajectory, Placement};
@@ -79,30 +79,6 @@ fn jittered(odom: &[Pose3], seed: u64) -> Vec<Pose3> {
 
 /// The prefix of a `--pairs` run made from the ground truth with a drifting heading.
 const DRIFT_RUN: &str = "drift-";
-
-/// Odometry made from `truth` (KITTI camera axes): the truth's planar steps, with the heading
-/// turned by a normal amount of standard deviation `deg_per_sqrt_100m` degrees times the square
-/// root of the step's length over 100 m after each step; height, roll and pitch are the truth's.
-/// The same on every machine for one `seed`.
-fn drifted(truth: &[Pose3], deg_per_sqrt_100m: f64, seed: u64) -> Vec<Pose3> {
-    let camera = AxisConvention::KittiCamera;
-    let planar: Vec<Pose3> = truth.iter().map(|p| camera.to_planar(p)).collect();
-    let mut rng = Lcg(seed);
-    let Some(first) = planar.first() else {
-        return Vec::new();
-    };
-    let mut odom_pose = first.to_se2();
-    let mut out = vec![truth[0]];
-    for w in planar.windows(2) {
-        let step = w[0].to_se2().inverse() * w[1].to_se2();
-        let [dx, dy] = step.translation();
-        let turn = deg_per_sqrt_100m.to_radians() * (dx.hypot(dy) / 100.0).sqrt() * rng.normal();
-        odom_pose = (odom_pose * step * Se2::new(turn, 0.0, 0.0)).normalized();
-        let odom_from_truth = odom_pose * w[1].to_se2().inverse();
-        out.push(camera.from_planar(&apply_planar_correction(&odom_from_truth, &w[1])));
-    }
-    out
-}
 
 #[derive(Clone)]
 struct Variant {
@@ -268,7 +244,12 @@ fn load(
                 let level: f64 = level
                     .parse()
                     .with_context(|| format!("{run}: not {DRIFT_RUN}DEGREES"))?;
-                drifted(&gt.poses, level, name.wrapping_add(seq_number))
+                heading_drifted(
+                    &gt.poses,
+                    AxisConvention::KittiCamera,
+                    level,
+                    name.wrapping_add(seq_number),
+                )
             }
             None => {
                 read(
