@@ -219,15 +219,18 @@ pub fn heading_drifted(
         return Vec::new();
     };
     let mut rng = Lcg(seed);
-    let mut odom = first.to_se2();
+    let mut truth_before = first.to_se2();
+    let mut odom = truth_before;
     let mut out = vec![truth[0]];
-    for w in planar.windows(2) {
-        let step = w[0].to_se2().inverse() * w[1].to_se2();
+    for pose in &planar[1..] {
+        let truth_now = pose.to_se2();
+        let step = truth_before.inverse() * truth_now;
         let [dx, dy] = step.translation();
         let turn = deg_per_sqrt_100m.to_radians() * (dx.hypot(dy) / 100.0).sqrt() * rng.normal();
         odom = (odom * step * Se2::new(turn, 0.0, 0.0)).normalized();
-        let odom_from_truth = odom * w[1].to_se2().inverse();
-        out.push(convention.from_planar(&apply_planar_correction(&odom_from_truth, &w[1])));
+        let odom_from_truth = odom * truth_now.inverse();
+        out.push(convention.from_planar(&apply_planar_correction(&odom_from_truth, pose)));
+        truth_before = truth_now;
     }
     out
 }
